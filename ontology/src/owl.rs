@@ -1,0 +1,135 @@
+//! RDF ⇄ OWL exchange syntaxes through horned-owl.
+//!
+//! The knowledge service keeps its model as RDF; other agents often want OWL/XML or the OWL
+//! functional syntax (seed Ch. 4.4: semantic interoperability). horned-owl reads the RDF mapping
+//! of OWL 2 (<https://www.w3.org/TR/owl2-mapping-to-rdf/>) and writes both syntaxes.
+
+use std::collections::HashSet;
+use std::io::BufReader;
+
+use horned_owl::curie::PrefixMapping;
+use horned_owl::io::{ParserConfiguration, RDFParserConfiguration};
+use horned_owl::model::{AnnotatedComponent, ArcAnnotatedComponent, ArcStr, Build};
+use horned_owl::ontology::component_mapped::ArcComponentMappedOntology;
+use horned_owl::ontology::set::SetOntology;
+use oxrdfio::RdfFormat;
+
+use crate::error::OwlConversionError;
+use crate::vocab::PREFIXES;
+
+/// An OWL 2 exchange syntax horned-owl writes and reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum OwlSyntax {
+    /// OWL/XML (<https://www.w3.org/TR/owl2-xml-serialization/>), `application/owl+xml`.
+    OwlXml,
+    /// The functional-style syntax (<https://www.w3.org/TR/owl2-syntax/>), `text/owl-functional`.
+    Functional,
+}
+
+impl OwlSyntax {
+    /// The media type of the syntax.
+    pub const fn media_type(self) -> &'static str {
+        match self {
+            Self::OwlXml => "application/owl+xml",
+            Self::Functional => "text/owl-functional",
+        }
+    }
+}
+
+/// The result of [`rdf_to_owl`]: the OWL document and how many RDF triples had no OWL reading.
+#[derive(Debug, Clone)]
+pub struct OwlDocument {
+    /// The document in the requested syntax.
+    pub text: String,
+    /// Triples of the input that horned-owl could not map to an OWL axiom (e.g. a property used
+    /// without a declaration). They are not in `text`.
+    pub unparsed_triples: usize,
+}
+
+fn prefix_mapping() -> PrefixMapping {
+    let mut mapping = PrefixMapping::default();
+    for (prefix, namespace) in PREFIXES {
+        // The prefixes are constants known to be valid.
+        let _ = mapping.add_prefix(prefix, namespace);
+    }
+    mapping
+}
+
+fn parse_rdf(
+    rdf: &[u8],
+    format: RdfFormat,
+) -> Result<(ArcComponentMappedOntology, usize), OwlConversionError> {
+    let build: Build<ArcStr> = Build::new_arc();
+    let mut config: RDFParserConfiguration<ArcStr, Build<ArcStr>> =
+        ParserConfiguration::new(build).into();
+    config.common.local_only = true;
+    config.format = Some(format);
+    let mut reader = BufReader::new(rdf);
+    let (ontology, incomplete) = horned_owl::io::rdf::reader::read::<
+        ArcStr,
+        ArcAnnotatedComponent,
+        _,
+        _,
+    >(&mut reader, config)
+    .map_err(OwlConversionError::parse)?;
+    let unparsed = incomplete.simple.len() + incomplete.bnode.len() + incomplete.bnode_seq.len();
+    Ok((ontology.into(), unparsed))
+}
+
+/// Converts an RDF document (the RDF mapping of OWL 2) into an OWL exchange syntax.
+pub fn rdf_to_owl(
+    rdf: &[u8],
+    format: RdfFormat,
+    syntax: OwlSyntax,
+) -> Result<OwlDocument, OwlConversionError> {
+    let (ontology, unparsed_triples) = parse_rdf(rdf, format)?;
+    let mapping = prefix_mapping();
+    let out = match syntax {
+        OwlSyntax::OwlXml => {
+            horned_owl::io::owx::writer::write(Vec::new(), &ontology, Some(&mapping))
+        }
+        OwlSyntax::Functional => {
+            horned_owl::io::ofn::writer::write(Vec::new(), &ontology, Some(&mapping))
+        }
+    }
+    .map_err(OwlConversionError::write)?;
+    let text = String::from_utf8(out).map_err(OwlConversionError::write)?;
+    Ok(OwlDocument {
+        text,
+        unparsed_triples,
+    })
+}
+
+/// The OWL components (axioms, declarations, ontology annotations) of an RDF document.
+pub fn rdf_owl_components(
+    rdf: &[u8],
+    format: RdfFormat,
+) -> Result<HashSet<AnnotatedComponent<ArcStr>>, OwlConversionError> {
+    let (ontology, _) = parse_rdf(rdf, format)?;
+    let set: SetOntology<ArcStr> = ontology.into();
+    Ok(set.into_iter().collect())
+}
+
+/// Reads an OWL document in `syntax` back into its components.
+pub fn read_owl(
+    text: &str,
+    syntax: OwlSyntax,
+) -> Result<HashSet<AnnotatedComponent<ArcStr>>, OwlConversionError> {
+    let build: Build<ArcStr> = Build::new_arc();
+    let config = ParserConfiguration::new(build);
+    let mut reader = BufReader::new(text.as_bytes());
+    let set: SetOntology<ArcStr> = match syntax {
+        OwlSyntax::OwlXml => horned_owl::io::owx::reader::read(&mut reader, config)
+            .map_err(OwlConversionError::parse)?
+            .0,
+        OwlSyntax::Functional => horned_owl::io::ofn::reader::read(&mut reader, config)
+            .map_err(OwlConversionError::parse)?
+            .0,
+    };
+    Ok(set.into_iter().collect())
+}
+
+/// The number of OWL components of an RDF document (a quick validity probe).
+pub fn owl_component_count(rdf: &[u8], format: RdfFormat) -> Result<usize, OwlConversionError> {
+    Ok(rdf_owl_components(rdf, format)?.len())
+}

@@ -1,0 +1,176 @@
+//! IRIs of the DyKnow, DyKnow-ROS and standard vocabularies used by the knowledge service.
+//!
+//! The names follow the seed's Appendix A (`dyknow`) and Ch. 5.3.1 (`dkros`).
+
+macro_rules! terms {
+    ($ns:literal; $($(#[$doc:meta])* $name:ident = $local:literal;)*) => {
+        /// The namespace IRI.
+        pub const NAMESPACE: &str = $ns;
+        $(
+            $(#[$doc])*
+            pub const $name: oxrdf::NamedNodeRef<'static> =
+                oxrdf::NamedNodeRef::new_unchecked(concat!($ns, $local));
+        )*
+    };
+}
+
+/// The DyKnow core ontology, `http://www.dyknow.eu/ontology/dyknow#` (seed, Appendix A).
+pub mod dyknow {
+    terms! { "http://www.dyknow.eu/ontology/dyknow#";
+        /// `dyknow:Transformation`, a stream-generating function (seed Def. 17).
+        TRANSFORMATION = "Transformation";
+        /// `dyknow:Source`, a transformation without in ports.
+        SOURCE = "Source";
+        /// `dyknow:Sink`, a transformation without out ports.
+        SINK = "Sink";
+        /// `dyknow:ComputationUnit` (seed 4.59).
+        COMPUTATION_UNIT = "ComputationUnit";
+        /// `dyknow:Target` (seed Def. 19).
+        TARGET = "Target";
+        /// `dyknow:Channel`.
+        CHANNEL = "Channel";
+        /// `dyknow:Port`.
+        PORT = "Port";
+        /// `dyknow:InPort`.
+        IN_PORT = "InPort";
+        /// `dyknow:OutPort`.
+        OUT_PORT = "OutPort";
+        /// `dyknow:Tag`.
+        TAG = "Tag";
+        /// `dyknow:Parameter`.
+        PARAMETER = "Parameter";
+        /// `dyknow:Subscription`.
+        SUBSCRIPTION = "Subscription";
+        /// `dyknow:CostModel`.
+        COST_MODEL = "CostModel";
+        /// `dyknow:LabourCostModel`.
+        LABOUR_COST_MODEL = "LabourCostModel";
+        /// `dyknow:UpkeepCostModel`.
+        UPKEEP_COST_MODEL = "UpkeepCostModel";
+        /// `dyknow:ChangeSet`.
+        CHANGE_SET = "ChangeSet";
+        /// `dyknow:Environment`.
+        ENVIRONMENT = "Environment";
+        /// `dyknow:hasInPort`.
+        HAS_IN_PORT = "hasInPort";
+        /// `dyknow:hasOutPort`.
+        HAS_OUT_PORT = "hasOutPort";
+        /// `dyknow:hasName`.
+        HAS_NAME = "hasName";
+        /// `dyknow:hasPortName` (⊑ `hasName`).
+        HAS_PORT_NAME = "hasPortName";
+        /// `dyknow:hasChannelName` (⊑ `hasName`).
+        HAS_CHANNEL_NAME = "hasChannelName";
+        /// `dyknow:hasTag`.
+        HAS_TAG = "hasTag";
+        /// `dyknow:hasTagDescription`.
+        HAS_TAG_DESCRIPTION = "hasTagDescription";
+        /// `dyknow:hasValue`.
+        HAS_VALUE = "hasValue";
+        /// `dyknow:hasLabel`.
+        HAS_LABEL = "hasLabel";
+        /// `dyknow:hasCostModel`.
+        HAS_COST_MODEL = "hasCostModel";
+        /// `dyknow:hasChannel`.
+        HAS_CHANNEL = "hasChannel";
+        /// `dyknow:instanceOf`.
+        INSTANCE_OF = "instanceOf";
+        /// `dyknow:hasInstance`.
+        HAS_INSTANCE = "hasInstance";
+        /// `dyknow:hasSubscription`.
+        HAS_SUBSCRIPTION = "hasSubscription";
+        /// `dyknow:toCU`.
+        TO_CU = "toCU";
+        /// `dyknow:fromCU`.
+        FROM_CU = "fromCU";
+        /// `dyknow:toPort`.
+        TO_PORT = "toPort";
+        /// `dyknow:fromPort`.
+        FROM_PORT = "fromPort";
+        /// `dyknow:dependsOn` (seed 4.63).
+        DEPENDS_ON = "dependsOn";
+        /// `dyknow:similarTo`, this project's addition (symmetric, not transitive).
+        SIMILAR_TO = "similarTo";
+    }
+}
+
+/// The DyKnow-ROS extension, `http://www.dyknow.eu/ontology/dyknow-ros#` (seed, Ch. 5.3.1).
+pub mod dkros {
+    terms! { "http://www.dyknow.eu/ontology/dyknow-ros#";
+        /// `dkros:ROSTransformation` (seed 5.3).
+        ROS_TRANSFORMATION = "ROSTransformation";
+        /// `dkros:ROSTarget`.
+        ROS_TARGET = "ROSTarget";
+        /// `dkros:Topic` (⊑ `dyknow:Channel`).
+        TOPIC = "Topic";
+        /// `dkros:Nodelet` (⊑ `dyknow:ComputationUnit`, seed 5.7).
+        NODELET = "Nodelet";
+        /// `dkros:hasPort` (seed 5.4, 5.5).
+        HAS_PORT = "hasPort";
+        /// `dkros:hasType`.
+        HAS_TYPE = "hasType";
+        /// `dkros:hasSource`.
+        HAS_SOURCE = "hasSource";
+        /// `dkros:hasParam`.
+        HAS_PARAM = "hasParam";
+    }
+}
+
+/// RDF.
+pub mod rdf {
+    terms! { "http://www.w3.org/1999/02/22-rdf-syntax-ns#";
+        /// `rdf:type`.
+        TYPE = "type";
+    }
+}
+
+/// RDFS.
+pub mod rdfs {
+    terms! { "http://www.w3.org/2000/01/rdf-schema#";
+        /// `rdfs:label`.
+        LABEL = "label";
+        /// `rdfs:subClassOf`.
+        SUB_CLASS_OF = "subClassOf";
+        /// `rdfs:comment`.
+        COMMENT = "comment";
+    }
+}
+
+/// OWL.
+pub mod owl {
+    terms! { "http://www.w3.org/2002/07/owl#";
+        /// `owl:Ontology`.
+        ONTOLOGY = "Ontology";
+        /// `owl:equivalentClass`.
+        EQUIVALENT_CLASS = "equivalentClass";
+    }
+}
+
+/// XSD.
+pub mod xsd {
+    terms! { "http://www.w3.org/2001/XMLSchema#";
+        /// `xsd:string`.
+        STRING = "string";
+        /// `xsd:double`.
+        DOUBLE = "double";
+        /// `xsd:decimal`.
+        DECIMAL = "decimal";
+        /// `xsd:integer`.
+        INTEGER = "integer";
+        /// `xsd:float`.
+        FLOAT = "float";
+        /// `xsd:boolean`.
+        BOOLEAN = "boolean";
+    }
+}
+
+/// The prefixes used when the service writes RDF or OWL, as `(prefix, namespace)`.
+pub const PREFIXES: [(&str, &str); 7] = [
+    ("dyknow", dyknow::NAMESPACE),
+    ("dkros", dkros::NAMESPACE),
+    ("rdf", rdf::NAMESPACE),
+    ("rdfs", rdfs::NAMESPACE),
+    ("owl", owl::NAMESPACE),
+    ("xsd", xsd::NAMESPACE),
+    ("dc", "http://purl.org/dc/terms/"),
+];

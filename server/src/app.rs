@@ -1,0 +1,186 @@
+//! The router: `app(state)` joins the route modules and the middleware.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::{Body, to_bytes};
+use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
+use axum::http::{Method, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use dyknow_store::KnowledgeBase;
+
+use crate::error::ApiError;
+use crate::metrics::Metrics;
+use crate::routes;
+
+/// Settings of a running service.
+#[derive(Debug, Clone)]
+pub struct ServerConfig {
+    /// The bearer token mutating requests must carry, if any.
+    pub token: Option<String>,
+    /// The largest accepted request body, in bytes.
+    pub max_body_bytes: usize,
+    /// How long a SPARQL query may run.
+    pub query_timeout: Duration,
+    /// The review horizon H (seed Def. 34), in time units; used by the engine.
+    pub horizon: f64,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            token: None,
+            max_body_bytes: 16 * 1024 * 1024,
+            query_timeout: Duration::from_secs(30),
+            horizon: 10.0,
+        }
+    }
+}
+
+/// Shared state of the handlers: cheap to clone.
+#[derive(Clone)]
+pub struct AppState {
+    /// The knowledge base.
+    pub kb: Arc<KnowledgeBase>,
+    /// Settings.
+    pub config: Arc<ServerConfig>,
+    /// Request metrics.
+    pub metrics: Arc<Metrics>,
+}
+
+impl AppState {
+    /// State over a knowledge base with the given settings.
+    pub fn new(kb: KnowledgeBase, config: ServerConfig) -> Self {
+        Self {
+            kb: Arc::new(kb),
+            config: Arc::new(config),
+            metrics: Arc::new(Metrics::default()),
+        }
+    }
+}
+
+/// Runs blocking knowledge-base work off the async runtime.
+pub(crate) async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(ApiError::internal)?
+}
+
+/// The HTTP API of `dyknow serve` (contract `http-api.md`).
+pub fn app(state: AppState) -> Router {
+    let max_body = state.config.max_body_bytes;
+    Router::new()
+        .merge(routes::specs::router())
+        .merge(routes::ontology::router())
+        .merge(routes::sparql::router())
+        .merge(routes::model::router())
+        .merge(routes::ops::router())
+        .fallback(not_found)
+        .layer(middleware::from_fn_with_state(state.clone(), authorize))
+        .layer(DefaultBodyLimit::max(max_body))
+        .layer(middleware::from_fn(json_errors))
+        .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
+        .with_state(state)
+}
+
+async fn not_found(method: Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::not_found(format!("no resource at {method} {}", uri.path()))
+}
+
+/// Mutating requests need the bearer token when one is configured; reads (including SPARQL
+/// queries sent with POST) never do.
+async fn authorize(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    let mutating = matches!(
+        *request.method(),
+        Method::POST | Method::PUT | Method::DELETE | Method::PATCH
+    ) && request.uri().path() != "/sparql";
+    if let (true, Some(token)) = (mutating, &state.config.token) {
+        let given = request
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .map(str::trim);
+        if !given.is_some_and(|g| constant_time_eq(g.as_bytes(), token.as_bytes())) {
+            return ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "this request changes the model and needs 'Authorization: Bearer <token>'",
+            )
+            .into_response();
+        }
+    }
+    next.run(request).await
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// Every error answer is the contract's JSON, including those axum produces itself (405 from
+/// the method router, 413 from the body limit, 400 from extractors).
+async fn json_errors(request: Request, next: Next) -> Response {
+    let response = next.run(request).await;
+    let status = response.status();
+    if !(status.is_client_error() || status.is_server_error()) {
+        return response;
+    }
+    let is_json = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if is_json {
+        return response;
+    }
+    let (parts, body) = response.into_parts();
+    let text = to_bytes(body, 64 * 1024)
+        .await
+        .map(|b| String::from_utf8_lossy(&b).trim().to_owned())
+        .unwrap_or_default();
+    let message = match status {
+        StatusCode::METHOD_NOT_ALLOWED => format!(
+            "method not allowed here; allowed: {}",
+            parts
+                .headers
+                .get(header::ALLOW)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("see /openapi.json")
+        ),
+        StatusCode::PAYLOAD_TOO_LARGE => "the request body is larger than the server accepts".to_owned(),
+        _ if !text.is_empty() => text,
+        _ => status
+            .canonical_reason()
+            .unwrap_or("request failed")
+            .to_owned(),
+    };
+    let mut rebuilt = ApiError::new(status, message).into_response();
+    for (name, value) in &parts.headers {
+        if name != header::CONTENT_TYPE && name != header::CONTENT_LENGTH {
+            rebuilt.headers_mut().insert(name, value.clone());
+        }
+    }
+    rebuilt
+}
+
+async fn record_metrics(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    let start = Instant::now();
+    let method = request.method().clone();
+    let route = request
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_owned(), |p| p.as_str().to_owned());
+    let response = next.run(request).await;
+    state
+        .metrics
+        .record(method.as_str(), &route, response.status().as_u16(), start.elapsed());
+    response
+}
+
+/// A response with a body and a content type.
+pub(crate) fn typed(status: StatusCode, media_type: &str, body: impl Into<Body>) -> Response {
+    (status, [(header::CONTENT_TYPE, media_type.to_owned())], body.into()).into_response()
+}

@@ -1,0 +1,307 @@
+//! The `dyknow` command line (contract `cli.md`). Exit status: 0 success, 1 a negative answer
+//! where a subcommand says so, 2 bad usage or bad input (one line on stderr naming the file, line
+//! and column where there is one).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Parser, Subcommand};
+use dyknow_store::{IngestError, InputFormat, KnowledgeBase, ModelFormat};
+
+use crate::app::{AppState, ServerConfig, app};
+
+/// DyKnow: a stream reasoning knowledge service.
+#[derive(Debug, Parser)]
+#[command(name = "dyknow", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Runs the knowledge service (HTTP API, see docs/http-api.md).
+    Serve(ServeArgs),
+    /// Loads Turtle specs and ontology extensions into a store offline.
+    Load {
+        /// The store directory.
+        #[arg(long, value_name = "DIR")]
+        data: PathBuf,
+        /// Files to load (`.ttl`, `.nt`, `.jsonld`); each file is loaded atomically.
+        #[arg(required = true, value_name = "FILE")]
+        files: Vec<PathBuf>,
+    },
+    /// Writes the model of a store (GetModel) to standard output.
+    Export {
+        /// The store directory (opened read-only, so a running server may hold it).
+        #[arg(long, value_name = "DIR")]
+        data: PathBuf,
+        /// turtle, rdfxml, owx, ofn, ntriples, jsonld or dyknow (JSON).
+        #[arg(long, value_name = "F", default_value = "turtle")]
+        format: String,
+        /// Leave out inferred triples.
+        #[arg(long)]
+        no_inferred: bool,
+    },
+}
+
+/// Options of `dyknow serve`.
+#[derive(Debug, clap::Args)]
+pub struct ServeArgs {
+    /// The store directory (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "./dyknow-data", conflicts_with = "in_memory")]
+    pub data: PathBuf,
+    /// Keep the store in memory only (tests, demos).
+    #[arg(long)]
+    pub in_memory: bool,
+    /// The address to listen on. A non-loopback address requires a token.
+    #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7878")]
+    pub bind: SocketAddr,
+    /// Bearer token required by mutating requests.
+    #[arg(long, value_name = "T", env = "DYKNOW_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// The review horizon H in time units (seed Def. 34), used by the reconfiguration engine.
+    #[arg(long, value_name = "H", default_value_t = 10.0)]
+    pub horizon: f64,
+    /// Turtle specs and ontology extensions (files or directories) to load at start-up.
+    #[arg(long, value_name = "FILE_OR_DIR", num_args = 1..)]
+    pub specs: Vec<PathBuf>,
+    /// How long a SPARQL query may run, in seconds.
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
+    pub query_timeout: f64,
+    /// The largest accepted request body, in bytes.
+    #[arg(long, value_name = "BYTES", default_value_t = 16 * 1024 * 1024)]
+    pub max_body: usize,
+}
+
+/// A failure of a subcommand: the one-line message and the exit status.
+struct Failure(u8, String);
+
+impl<E: std::fmt::Display> From<E> for Failure {
+    fn from(e: E) -> Self {
+        Self(2, e.to_string())
+    }
+}
+
+/// Runs the command line.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Serve(args) => serve(args),
+        Command::Load { data, files } => load(&data, &files),
+        Command::Export {
+            data,
+            format,
+            no_inferred,
+        } => export(&data, &format, !no_inferred),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failure(code, message)) => {
+            eprintln!("dyknow: {message}");
+            ExitCode::from(code)
+        }
+    }
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Expands directories into their RDF files (sorted), keeping files as given.
+fn rdf_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>, Failure> {
+    let mut out = Vec::new();
+    for path in paths {
+        if path.is_dir() {
+            let mut entries: Vec<PathBuf> = std::fs::read_dir(path)
+                .map_err(|e| Failure(2, format!("{}: {e}", path.display())))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| InputFormat::from_path(p).is_some())
+                .collect();
+            entries.sort();
+            out.extend(entries);
+        } else {
+            out.push(path.clone());
+        }
+    }
+    Ok(out)
+}
+
+/// Loads one file; errors name the file, and the line and column of syntax errors.
+fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
+    let format = InputFormat::from_path(path).ok_or_else(|| {
+        Failure(
+            2,
+            format!("{}: unknown file type (use .ttl, .nt or .jsonld)", path.display()),
+        )
+    })?;
+    let body = std::fs::read(path).map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
+    match kb.load_document(&body, format) {
+        Ok(report) => Ok(format!(
+            "{}: {} transformation(s), {} target(s){}",
+            path.display(),
+            report.transformations.labels.len(),
+            report.targets.labels.len(),
+            report
+                .extension
+                .map(|g| format!(", ontology extension <{g}>"))
+                .unwrap_or_default()
+        )),
+        Err(IngestError::Parse(e)) => Err(Failure(
+            2,
+            format!("{}:{}:{}: {}", path.display(), e.0.line, e.0.column, e.0.message),
+        )),
+        Err(IngestError::Invalid(v)) => Err(Failure(
+            2,
+            format!(
+                "{}: {}",
+                path.display(),
+                v.0.iter()
+                    .map(|x| format!("{} ({})", x.constraint, x.subject))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+        )),
+        Err(e) => Err(Failure(2, format!("{}: {e}", path.display()))),
+    }
+}
+
+#[cfg(feature = "rocksdb")]
+fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
+    KnowledgeBase::open(data).map_err(|e| Failure(2, format!("{}: {e}", data.display())))
+}
+
+#[cfg(not(feature = "rocksdb"))]
+fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
+    Err(Failure(
+        2,
+        format!("{}: this build has no on-disk store (feature rocksdb); use --in-memory", data.display()),
+    ))
+}
+
+fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
+    let kb = open_store(data)?;
+    for file in rdf_files(files)? {
+        println!("{}", load_file(&kb, &file)?);
+    }
+    kb.flush()?;
+    Ok(())
+}
+
+fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
+    if !data.join("CURRENT").exists() {
+        return Err(Failure(2, format!("{}: no DyKnow store here", data.display())));
+    }
+    #[cfg(feature = "rocksdb")]
+    let kb = KnowledgeBase::open_read_only(data)
+        .map_err(|e| Failure(2, format!("{}: {e}", data.display())))?;
+    #[cfg(not(feature = "rocksdb"))]
+    let kb = open_store(data)?;
+    use std::io::Write;
+    let body = if format == "dyknow" || format == "json" {
+        let json = crate::routes::model::model_json(&kb).map_err(|e| Failure(2, e.message))?;
+        serde_json::to_vec_pretty(&json)?
+    } else {
+        let format = ModelFormat::from_name(format).ok_or_else(|| {
+            Failure(
+                2,
+                format!("unknown format {format:?}; use turtle, rdfxml, owx, ofn, ntriples, jsonld or dyknow"),
+            )
+        })?;
+        kb.export(format, inferred)?.body
+    };
+    let mut out = std::io::stdout().lock();
+    out.write_all(&body)?;
+    out.flush()?;
+    Ok(())
+}
+
+fn serve(args: ServeArgs) -> Result<(), Failure> {
+    init_logging();
+    if !args.bind.ip().is_loopback() && args.token.is_none() {
+        return Err(Failure(
+            2,
+            format!(
+                "refusing to listen on the non-loopback address {} without a token (--token or DYKNOW_TOKEN)",
+                args.bind
+            ),
+        ));
+    }
+    if !(args.horizon.is_finite() && args.horizon >= 0.0) {
+        return Err(Failure(2, "--horizon must be a non-negative number".into()));
+    }
+    if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {
+        return Err(Failure(2, "--query-timeout must be a positive number of seconds".into()));
+    }
+    let kb = if args.in_memory {
+        KnowledgeBase::in_memory()?
+    } else {
+        open_store(&args.data)?
+    };
+    for file in rdf_files(&args.specs)? {
+        tracing::info!("{}", load_file(&kb, &file)?);
+    }
+    let config = ServerConfig {
+        token: args.token,
+        max_body_bytes: args.max_body,
+        query_timeout: Duration::from_secs_f64(args.query_timeout),
+        horizon: args.horizon,
+    };
+    let state = AppState::new(kb, config);
+    let kb = state.kb.clone();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(args.bind)
+            .await
+            .map_err(|e| Failure(2, format!("cannot listen on {}: {e}", args.bind)))?;
+        tracing::info!(
+            "DyKnow knowledge service listening on http://{} ({})",
+            listener.local_addr()?,
+            if args.in_memory {
+                "in memory".to_owned()
+            } else {
+                format!("store in {}", args.data.display())
+            }
+        );
+        axum::serve(listener, app(state))
+            .with_graceful_shutdown(shutdown_signal())
+            .await?;
+        Ok::<(), Failure>(())
+    })?;
+    kb.flush()?;
+    tracing::info!("stopped");
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = terminate => {},
+    }
+    tracing::info!("shutting down");
+}

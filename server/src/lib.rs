@@ -1,0 +1,13 @@
+#![doc = include_str!("../README.md")]
+
+mod app;
+pub mod cli;
+mod error;
+mod metrics;
+mod negotiate;
+mod openapi;
+pub mod routes;
+
+pub use app::{AppState, ServerConfig, app};
+pub use error::{ApiError, ErrorBody};
+pub use openapi::ApiDoc;

@@ -1,0 +1,5 @@
+//! The `dyknow` binary.
+
+fn main() -> std::process::ExitCode {
+    dyknow_server::cli::main()
+}

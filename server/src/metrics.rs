@@ -1,0 +1,128 @@
+//! Request metrics in the Prometheus text exposition format.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use dyknow_store::StoreStatistics;
+
+/// Upper bounds of the latency histogram buckets, in seconds.
+const BUCKETS: [f64; 12] = [
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 5.0,
+];
+
+#[derive(Default)]
+struct Histogram {
+    counts: [u64; BUCKETS.len()],
+    count: u64,
+    sum: f64,
+}
+
+#[derive(Default)]
+struct Inner {
+    /// (method, route, status) → count.
+    requests: BTreeMap<(String, String, u16), u64>,
+    /// (method, route) → latency histogram.
+    latency: BTreeMap<(String, String), Histogram>,
+}
+
+/// Counts and latencies of requests by route and status.
+#[derive(Default)]
+pub struct Metrics {
+    inner: Mutex<Inner>,
+}
+
+impl Metrics {
+    /// Records one answered request.
+    pub fn record(&self, method: &str, route: &str, status: u16, elapsed: Duration) {
+        let mut inner = self
+            .inner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        *inner
+            .requests
+            .entry((method.to_owned(), route.to_owned(), status))
+            .or_default() += 1;
+        let h = inner
+            .latency
+            .entry((method.to_owned(), route.to_owned()))
+            .or_default();
+        let secs = elapsed.as_secs_f64();
+        for (i, bound) in BUCKETS.iter().enumerate() {
+            if secs <= *bound {
+                h.counts[i] += 1;
+            }
+        }
+        h.count += 1;
+        h.sum += secs;
+    }
+
+    /// The Prometheus text format, with the store's size.
+    pub fn render(&self, stats: &StoreStatistics) -> String {
+        let inner = self
+            .inner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut out = String::new();
+        let _ = writeln!(out, "# HELP dyknow_http_requests_total HTTP requests answered, by route and status.");
+        let _ = writeln!(out, "# TYPE dyknow_http_requests_total counter");
+        for ((method, route, status), n) in &inner.requests {
+            let _ = writeln!(
+                out,
+                "dyknow_http_requests_total{{method=\"{method}\",route=\"{}\",status=\"{status}\"}} {n}",
+                escape(route)
+            );
+        }
+        let _ = writeln!(out, "# HELP dyknow_http_request_duration_seconds Latency of HTTP requests, by route.");
+        let _ = writeln!(out, "# TYPE dyknow_http_request_duration_seconds histogram");
+        for ((method, route), h) in &inner.latency {
+            let labels = format!("method=\"{method}\",route=\"{}\"", escape(route));
+            for (bound, count) in BUCKETS.iter().zip(h.counts) {
+                let _ = writeln!(
+                    out,
+                    "dyknow_http_request_duration_seconds_bucket{{{labels},le=\"{bound}\"}} {count}"
+                );
+            }
+            let _ = writeln!(
+                out,
+                "dyknow_http_request_duration_seconds_bucket{{{labels},le=\"+Inf\"}} {}",
+                h.count
+            );
+            let _ = writeln!(out, "dyknow_http_request_duration_seconds_sum{{{labels}}} {}", h.sum);
+            let _ = writeln!(out, "dyknow_http_request_duration_seconds_count{{{labels}}} {}", h.count);
+        }
+        for (name, help, value) in [
+            ("dyknow_store_quads", "Quads in the store.", stats.quads),
+            ("dyknow_transformations", "Transformation specs in the model.", stats.transformations),
+            ("dyknow_targets", "Target specs in the model.", stats.targets),
+            ("dyknow_ontology_extensions", "Ontology extensions in the model.", stats.extensions),
+        ] {
+            let _ = writeln!(out, "# HELP {name} {help}");
+            let _ = writeln!(out, "# TYPE {name} gauge");
+            let _ = writeln!(out, "{name} {value}");
+        }
+        out
+    }
+}
+
+fn escape(label: &str) -> String {
+    label.replace('\\', "\\\\").replace('"', "\\\"").replace('\n', "\\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_buckets_are_cumulative() {
+        let m = Metrics::default();
+        m.record("GET", "/health", 200, Duration::from_micros(300));
+        m.record("GET", "/health", 200, Duration::from_millis(30));
+        let text = m.render(&StoreStatistics::default());
+        assert!(text.contains(r#"dyknow_http_requests_total{method="GET",route="/health",status="200"} 2"#));
+        assert!(text.contains(r#"dyknow_http_request_duration_seconds_bucket{method="GET",route="/health",le="0.0005"} 1"#));
+        assert!(text.contains(r#"dyknow_http_request_duration_seconds_bucket{method="GET",route="/health",le="0.05"} 2"#));
+        assert!(text.contains(r#"dyknow_http_request_duration_seconds_count{method="GET",route="/health"} 2"#));
+    }
+}

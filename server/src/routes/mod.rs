@@ -1,0 +1,7 @@
+//! The route modules, one per part of the contract's HTTP API.
+
+pub mod model;
+pub mod ontology;
+pub mod ops;
+pub mod sparql;
+pub mod specs;

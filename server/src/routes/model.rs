@@ -1,0 +1,125 @@
+//! GetModel (seed Ch. 5.3): the ontology and the environment, for other agents.
+
+use axum::extract::{Query, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode};
+use axum::response::Response;
+use axum::routing::get;
+use axum::{Json, Router};
+use dyknow_store::spec::SpecKind;
+use dyknow_store::{KnowledgeBase, ModelFormat};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::app::{AppState, blocking, typed};
+use crate::error::{ApiError, ErrorBody};
+use crate::negotiate::negotiate;
+use crate::routes::specs::spec_json;
+
+pub(crate) fn router() -> Router<AppState> {
+    Router::new().route("/model", get(get_model))
+}
+
+/// Parameters of GetModel.
+#[derive(Debug, Default, Deserialize, utoipa::IntoParams)]
+pub struct ModelParams {
+    /// `turtle`, `rdfxml`, `owx`, `ofn`, `ntriples`, `jsonld` or `dyknow`; overrides `Accept`.
+    pub format: Option<String>,
+    /// `false` leaves out inferred triples.
+    pub inferred: Option<bool>,
+}
+
+/// A channel of the model.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ChannelJson {
+    /// The channel's name.
+    pub name: String,
+    /// Targets that want a stream on it.
+    pub targets: Vec<String>,
+    /// The CU publishing on it, if any.
+    pub producer: Option<String>,
+}
+
+/// The DyKnow JSON form of the model.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ModelJson {
+    /// Transformation specs (as `GET /transformations`).
+    pub transformations: Vec<serde_json::Value>,
+    /// Target specs (as `GET /targets`).
+    pub targets: Vec<serde_json::Value>,
+    /// Computation units (as `GET /cus`).
+    pub cus: Vec<serde_json::Value>,
+    /// Channels.
+    pub channels: Vec<ChannelJson>,
+}
+
+const OFFERS: [&str; 7] = [
+    "text/turtle",
+    "application/rdf+xml",
+    "application/owl+xml",
+    "text/owl-functional",
+    "application/n-triples",
+    "application/ld+json",
+    "application/json",
+];
+
+/// Builds the DyKnow JSON model.
+pub fn model_json(kb: &KnowledgeBase) -> Result<ModelJson, ApiError> {
+    let mut channels = Vec::new();
+    for (name, targets) in kb.channels()? {
+        let producer = kb.channel_producer(&name)?;
+        channels.push(ChannelJson {
+            name,
+            targets,
+            producer,
+        });
+    }
+    Ok(ModelJson {
+        transformations: kb
+            .specs(SpecKind::Transformation)?
+            .into_iter()
+            .map(|s| spec_json(kb, s))
+            .collect::<Result<_, _>>()?,
+        targets: kb
+            .specs(SpecKind::Target)?
+            .into_iter()
+            .map(|s| spec_json(kb, s))
+            .collect::<Result<_, _>>()?,
+        cus: Vec::new(),
+        channels,
+    })
+}
+
+/// GetModel: negotiated by `Accept` or `?format=`.
+#[utoipa::path(get, path = "/model", tag = "model", params(ModelParams),
+    responses((status = 200, description = "the model in the negotiated format"),
+              (status = 400, body = ErrorBody), (status = 406, body = ErrorBody)))]
+pub async fn get_model(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    Query(params): Query<ModelParams>,
+) -> Result<Response, ApiError> {
+    let format = match params.format.as_deref() {
+        Some("dyknow" | "json") => None,
+        Some(name) => Some(ModelFormat::from_name(name).ok_or_else(|| {
+            ApiError::bad_request(format!(
+                "unknown format {name:?}; use turtle, rdfxml, owx, ofn, ntriples, jsonld or dyknow"
+            ))
+        })?),
+        None => match negotiate(&headers, &OFFERS)? {
+            "application/json" => None,
+            media => ModelFormat::ALL.into_iter().find(|f| f.media_type() == media),
+        },
+    };
+    let inferred = params.inferred.unwrap_or(true);
+    let kb = state.kb.clone();
+    let Some(format) = format else {
+        let json = blocking(move || model_json(&kb)).await?;
+        return Ok(axum::response::IntoResponse::into_response(Json(json)));
+    };
+    let exported = blocking(move || Ok(kb.export(format, inferred)?)).await?;
+    let mut response = typed(StatusCode::OK, format.media_type(), exported.body);
+    if let Ok(v) = HeaderValue::from_str(&exported.unparsed_triples.to_string()) {
+        response.headers_mut().insert("x-dyknow-unparsed-triples", v);
+    }
+    Ok(response)
+}

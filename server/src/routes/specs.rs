@@ -1,0 +1,310 @@
+//! AddTransformation, RemoveTransformation, AddTarget, RemoveTarget (seed Ch. 5.3) and their
+//! listings: `/transformations`, `/targets`.
+
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use dyknow_store::oxigraph::io::RdfFormat;
+use dyknow_store::spec::{Port, Spec, SpecKind, Tag};
+use dyknow_store::{InputFormat, KnowledgeBase, serialize};
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::app::{AppState, blocking, typed};
+use crate::error::{ApiError, ErrorBody};
+use crate::negotiate::{content_type, negotiate};
+
+/// The RDF media types accepted in request bodies.
+pub const RDF_INPUTS: [&str; 3] = ["text/turtle", "application/n-triples", "application/ld+json"];
+
+pub(crate) fn router() -> Router<AppState> {
+    Router::new()
+        .route(
+            "/transformations",
+            get(list_transformations).post(post_transformations),
+        )
+        .route(
+            "/transformations/{label}",
+            get(get_transformation).delete(delete_transformation),
+        )
+        .route("/targets", get(list_targets).post(post_targets))
+        .route("/targets/{label}", get(get_target).delete(delete_target))
+}
+
+/// A tag in full: its value and/or its description concept.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct TagJson {
+    /// `dyknow:hasValue`.
+    pub value: Option<String>,
+    /// `dyknow:hasTagDescription` (an IRI).
+    pub description: Option<String>,
+}
+
+/// A port of a transformation.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PortJson {
+    /// The port's name.
+    pub port: String,
+    /// The tags as strings: the value, or `<iri>` of the description when there is no value.
+    pub tags: Vec<String>,
+    /// The tags in full.
+    pub tag_details: Vec<TagJson>,
+}
+
+/// A transformation spec.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct TransformationJson {
+    /// The label (*tid*).
+    pub label: String,
+    /// In ports.
+    pub inputs: Vec<PortJson>,
+    /// Out ports.
+    pub outputs: Vec<PortJson>,
+    /// Labour estimate: the cost of one spawn.
+    pub labour: f64,
+    /// Upkeep estimate: cost per time unit of one running CU.
+    pub upkeep: f64,
+    /// The IRI of the transformation in the model.
+    pub iri: String,
+    /// `dkros:hasType`.
+    #[serde(rename = "type")]
+    pub exec_type: Option<String>,
+    /// `dkros:hasSource`.
+    pub source: Option<String>,
+}
+
+/// A target spec.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct TargetJson {
+    /// The label (*qid*).
+    pub label: String,
+    /// The channel the stream must appear on.
+    pub channel: String,
+    /// The tags as strings (see `PortJson::tags`).
+    pub tags: Vec<String>,
+    /// The tags in full.
+    pub tag_details: Vec<TagJson>,
+    /// Whether a CU currently produces the stream on the channel.
+    pub satisfied: bool,
+    /// The name of that CU.
+    pub producer: Option<String>,
+    /// The IRI of the target in the model.
+    pub iri: String,
+}
+
+/// The answer to a spec POST.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PostedJson {
+    /// Labels written, in document order.
+    pub labels: Vec<String>,
+    /// Those that replaced an existing spec.
+    pub replaced: Vec<String>,
+}
+
+fn tags_json(tags: &[Tag]) -> (Vec<String>, Vec<TagJson>) {
+    (
+        tags.iter().map(Tag::display).collect(),
+        tags.iter()
+            .map(|t| TagJson {
+                value: t.value.clone(),
+                description: t.description.clone(),
+            })
+            .collect(),
+    )
+}
+
+fn port_json(port: &Port) -> PortJson {
+    let (tags, tag_details) = tags_json(&port.tags);
+    PortJson {
+        port: port.name.clone(),
+        tags,
+        tag_details,
+    }
+}
+
+/// The JSON of a spec (targets look up their producer in the model).
+pub(crate) fn spec_json(kb: &KnowledgeBase, spec: Spec) -> Result<serde_json::Value, ApiError> {
+    let value = match spec {
+        Spec::Transformation(t) => serde_json::to_value(TransformationJson {
+            inputs: t.inputs.iter().map(port_json).collect(),
+            outputs: t.outputs.iter().map(port_json).collect(),
+            label: t.label,
+            labour: t.labour,
+            upkeep: t.upkeep,
+            iri: t.iri,
+            exec_type: t.exec_type,
+            source: t.source,
+        }),
+        Spec::Target(t) => {
+            let producer = kb.channel_producer(&t.channel)?;
+            let (tags, tag_details) = tags_json(&t.tags);
+            serde_json::to_value(TargetJson {
+                label: t.label,
+                channel: t.channel,
+                tags,
+                tag_details,
+                satisfied: producer.is_some(),
+                producer,
+                iri: t.iri,
+            })
+        }
+    };
+    value.map_err(ApiError::internal)
+}
+
+/// The format of a request body from its `Content-Type`, or a 415.
+pub(crate) fn input_format(headers: &HeaderMap) -> Result<InputFormat, ApiError> {
+    let media = content_type(headers);
+    media
+        .as_deref()
+        .and_then(InputFormat::from_media_type)
+        .ok_or_else(|| ApiError::unsupported_media_type(media.as_deref(), &RDF_INPUTS))
+}
+
+async fn post_specs(
+    state: AppState,
+    headers: HeaderMap,
+    body: Bytes,
+    kind: SpecKind,
+) -> Result<Response, ApiError> {
+    let format = input_format(&headers)?;
+    let kb = state.kb.clone();
+    let report = blocking(move || Ok(kb.post_specs(&body, format, kind)?)).await?;
+    Ok((
+        StatusCode::CREATED,
+        Json(PostedJson {
+            labels: report.labels,
+            replaced: report.replaced,
+        }),
+    )
+        .into_response())
+}
+
+async fn list_specs(state: AppState, headers: HeaderMap, kind: SpecKind) -> Result<Response, ApiError> {
+    let media = negotiate(&headers, &["application/json", "text/turtle"])?;
+    let kb = state.kb.clone();
+    if media == "text/turtle" {
+        let body = blocking(move || {
+            let mut triples = Vec::new();
+            for (_, graph) in kb.spec_graphs(kind)? {
+                triples.extend(kb.graph_triples(graph.as_ref())?);
+            }
+            serialize(&triples, RdfFormat::Turtle).map_err(ApiError::internal)
+        })
+        .await?;
+        return Ok(typed(StatusCode::OK, "text/turtle", body));
+    }
+    let list = blocking(move || {
+        kb.specs(kind)?
+            .into_iter()
+            .map(|s| spec_json(&kb, s))
+            .collect::<Result<Vec<_>, _>>()
+    })
+    .await?;
+    Ok(Json(list).into_response())
+}
+
+async fn get_spec(
+    state: AppState,
+    headers: HeaderMap,
+    kind: SpecKind,
+    label: String,
+) -> Result<Response, ApiError> {
+    let media = negotiate(&headers, &["application/json", "text/turtle"])?;
+    let kb = state.kb.clone();
+    let missing = || ApiError::not_found(format!("no {} labelled {label:?}", kind.name()));
+    let graph = dyknow_store::graphs::spec_graph(kind, &label);
+    let triples = {
+        let kb = kb.clone();
+        blocking(move || Ok(kb.graph_triples(graph.as_ref())?)).await?
+    };
+    if triples.is_empty() {
+        return Err(missing());
+    }
+    if media == "text/turtle" {
+        let body = serialize(&triples, RdfFormat::Turtle).map_err(ApiError::internal)?;
+        return Ok(typed(StatusCode::OK, "text/turtle", body));
+    }
+    let label2 = label.clone();
+    let value = blocking(move || match kb.spec(kind, &label2)? {
+        Some(spec) => spec_json(&kb, spec).map(Some),
+        None => Ok(None),
+    })
+    .await?
+    .ok_or_else(missing)?;
+    Ok(Json(value).into_response())
+}
+
+async fn delete_spec(state: AppState, kind: SpecKind, label: String) -> Result<StatusCode, ApiError> {
+    let kb = state.kb.clone();
+    blocking(move || Ok(kb.remove_spec(kind, &label)?)).await?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// AddTransformation: one or more transformation specs (Turtle, N-Triples or JSON-LD); a label
+/// that exists is replaced. Atomic.
+#[utoipa::path(post, path = "/transformations", tag = "specs",
+    request_body(content = String, content_type = "text/turtle", description = "transformation specs"),
+    responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
+              (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
+pub async fn post_transformations(State(s): State<AppState>, h: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+    post_specs(s, h, body, SpecKind::Transformation).await
+}
+
+/// The transformation specs, sorted by label (`Accept: text/turtle` gives them as Turtle).
+#[utoipa::path(get, path = "/transformations", tag = "specs",
+    responses((status = 200, body = [TransformationJson]), (status = 406, body = ErrorBody)))]
+pub async fn list_transformations(State(s): State<AppState>, h: HeaderMap) -> Result<Response, ApiError> {
+    list_specs(s, h, SpecKind::Transformation).await
+}
+
+/// One transformation spec.
+#[utoipa::path(get, path = "/transformations/{label}", tag = "specs",
+    params(("label" = String, Path, description = "the label, percent-encoded")),
+    responses((status = 200, body = TransformationJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
+pub async fn get_transformation(State(s): State<AppState>, h: HeaderMap, Path(label): Path<String>) -> Result<Response, ApiError> {
+    get_spec(s, h, SpecKind::Transformation, label).await
+}
+
+/// RemoveTransformation (a perturbation: deregister).
+#[utoipa::path(delete, path = "/transformations/{label}", tag = "specs",
+    params(("label" = String, Path, description = "the label, percent-encoded")),
+    responses((status = 204), (status = 404, body = ErrorBody)))]
+pub async fn delete_transformation(State(s): State<AppState>, Path(label): Path<String>) -> Result<StatusCode, ApiError> {
+    delete_spec(s, SpecKind::Transformation, label).await
+}
+
+/// AddTarget: one or more target specs; a label that exists is replaced. Atomic.
+#[utoipa::path(post, path = "/targets", tag = "specs",
+    request_body(content = String, content_type = "text/turtle", description = "target specs"),
+    responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
+              (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
+pub async fn post_targets(State(s): State<AppState>, h: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+    post_specs(s, h, body, SpecKind::Target).await
+}
+
+/// The target specs, sorted by label.
+#[utoipa::path(get, path = "/targets", tag = "specs",
+    responses((status = 200, body = [TargetJson]), (status = 406, body = ErrorBody)))]
+pub async fn list_targets(State(s): State<AppState>, h: HeaderMap) -> Result<Response, ApiError> {
+    list_specs(s, h, SpecKind::Target).await
+}
+
+/// One target spec.
+#[utoipa::path(get, path = "/targets/{label}", tag = "specs",
+    params(("label" = String, Path, description = "the label, percent-encoded")),
+    responses((status = 200, body = TargetJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
+pub async fn get_target(State(s): State<AppState>, h: HeaderMap, Path(label): Path<String>) -> Result<Response, ApiError> {
+    get_spec(s, h, SpecKind::Target, label).await
+}
+
+/// RemoveTarget (a perturbation: release).
+#[utoipa::path(delete, path = "/targets/{label}", tag = "specs",
+    params(("label" = String, Path, description = "the label, percent-encoded")),
+    responses((status = 204), (status = 404, body = ErrorBody)))]
+pub async fn delete_target(State(s): State<AppState>, Path(label): Path<String>) -> Result<StatusCode, ApiError> {
+    delete_spec(s, SpecKind::Target, label).await
+}

@@ -1,0 +1,548 @@
+//! The knowledge base: the environment as a live DyKnow ontology in an Oxigraph store.
+//!
+//! Every write goes through one lock and one Oxigraph transaction: a request is applied whole or
+//! not at all, and concurrent writers never interleave (Oxigraph 0.5 does not detect all
+//! write-write conflicts, so the service serialises them).
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard, RwLock};
+
+use dyknow_ontology::BUILTIN_ONTOLOGIES;
+use dyknow_ontology::vocab::{dyknow, owl, rdf, rdfs};
+use oxigraph::model::{
+    GraphNameRef, NamedNode, NamedNodeRef, NamedOrBlankNodeRef, QuadRef, Term, Triple,
+};
+use oxigraph::sparql::{QueryResults, SparqlEvaluator};
+use oxigraph::store::{StorageError, Store};
+use serde::Serialize;
+
+use crate::error::{IngestError, SpecValidationError, StoreOpenError, Violation};
+use crate::graphs::{
+    extension_graph, fnv1a, is_extension_graph, spec_graph, spec_of_graph,
+};
+use crate::rdf_input::{InputFormat, parse_triples};
+use crate::spec::{ExtractedSpec, Spec, SpecClasses, SpecKind, extract_specs, spec_from_graph};
+
+/// The knowledge base. Cheap to share behind an `Arc`; all methods take `&self`.
+pub struct KnowledgeBase {
+    store: Store,
+    location: Option<PathBuf>,
+    write_lock: Mutex<()>,
+    classes: RwLock<SpecClasses>,
+}
+
+/// What a spec POST did.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct PostReport {
+    /// The labels of the specs written, in document order.
+    pub labels: Vec<String>,
+    /// Those of them that replaced an existing spec.
+    pub replaced: Vec<String>,
+}
+
+/// What an ontology extension POST did.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ExtensionReport {
+    /// The named graph holding the extension.
+    pub graph: String,
+    /// Whether the same extension was there already (and was replaced).
+    pub replaced: bool,
+}
+
+/// An ontology extension in the store.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ExtensionInfo {
+    /// Its named graph.
+    pub graph: String,
+    /// The `owl:Ontology` it declares, if any.
+    pub ontology: Option<String>,
+    /// How many triples it holds.
+    pub triples: usize,
+}
+
+/// What loading a mixed document did (offline `load`, `serve --specs`).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct LoadReport {
+    /// Transformation specs written.
+    pub transformations: PostReport,
+    /// Target specs written.
+    pub targets: PostReport,
+    /// The extension graph written for the remaining triples, if any.
+    pub extension: Option<String>,
+}
+
+/// Counts for monitoring.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct StoreStatistics {
+    /// Quads in the store.
+    pub quads: usize,
+    /// Transformation specs.
+    pub transformations: usize,
+    /// Target specs.
+    pub targets: usize,
+    /// Ontology extensions.
+    pub extensions: usize,
+}
+
+impl KnowledgeBase {
+    /// Opens (or creates) the on-disk knowledge base in `path`.
+    #[cfg(feature = "rocksdb")]
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, StoreOpenError> {
+        let path = path.as_ref();
+        std::fs::create_dir_all(path).map_err(|source| StoreOpenError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::with_store(Store::open(path)?, Some(path.to_path_buf()))
+    }
+
+    /// Opens the on-disk knowledge base in `path` read-only (e.g. to export while a server runs).
+    #[cfg(feature = "rocksdb")]
+    pub fn open_read_only(path: impl AsRef<Path>) -> Result<Self, StoreOpenError> {
+        let path = path.as_ref();
+        let store = Store::open_read_only(path)?;
+        let kb = Self {
+            store,
+            location: Some(path.to_path_buf()),
+            write_lock: Mutex::new(()),
+            classes: RwLock::new(SpecClasses::default()),
+        };
+        kb.refresh_classes()?;
+        Ok(kb)
+    }
+
+    /// A knowledge base in memory (tests, demos, `--in-memory`).
+    pub fn in_memory() -> Result<Self, StoreOpenError> {
+        Self::with_store(Store::new()?, None)
+    }
+
+    fn with_store(store: Store, location: Option<PathBuf>) -> Result<Self, StoreOpenError> {
+        let kb = Self {
+            store,
+            location,
+            write_lock: Mutex::new(()),
+            classes: RwLock::new(SpecClasses::default()),
+        };
+        kb.install_builtin_ontologies()?;
+        kb.refresh_classes()?;
+        Ok(kb)
+    }
+
+    /// The underlying Oxigraph store (reads only: writes must go through the knowledge base).
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// The directory of an on-disk knowledge base.
+    pub fn location(&self) -> Option<&Path> {
+        self.location.as_deref()
+    }
+
+    fn lock(&self) -> MutexGuard<'_, ()> {
+        // A panic while holding the lock cannot leave a half-written transaction (it is dropped,
+        // i.e. rolled back), so the poison flag carries no information.
+        self.write_lock
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// (Re)writes the built-in ontology graphs, so a new release's ontology replaces the old one.
+    fn install_builtin_ontologies(&self) -> Result<(), StoreOpenError> {
+        let _guard = self.lock();
+        let mut transaction = self.store.start_transaction()?;
+        for (iri, ttl) in BUILTIN_ONTOLOGIES {
+            let triples = parse_triples(ttl.as_bytes(), InputFormat::Turtle)
+                .map_err(|e| StoreOpenError::Ontology(format!("{iri}: {e}")))?;
+            let graph = NamedNodeRef::new_unchecked(iri);
+            transaction.clear_graph(graph)?;
+            for t in &triples {
+                transaction.insert(t.as_ref().in_graph(graph));
+            }
+        }
+        transaction.commit()?;
+        Ok(())
+    }
+
+    /// Recomputes the classes whose instances are spec roots (sub-classes may come from
+    /// extensions).
+    fn refresh_classes(&self) -> Result<(), StorageError> {
+        let mut classes = SpecClasses::default();
+        for (base, set) in [
+            (dyknow::TRANSFORMATION, &mut classes.transformation),
+            (dyknow::TARGET, &mut classes.target),
+        ] {
+            let query = format!(
+                "SELECT DISTINCT ?c WHERE {{ ?c (<{}>|<{}>)* <{}> FILTER(isIRI(?c)) }}",
+                rdfs::SUB_CLASS_OF.as_str(),
+                owl::EQUIVALENT_CLASS.as_str(),
+                base.as_str()
+            );
+            let mut prepared = SparqlEvaluator::new()
+                .parse_query(&query)
+                .map_err(|e| StorageError::Other(Box::new(e)))?;
+            prepared.dataset_mut().set_default_graph_as_union();
+            if let Ok(QueryResults::Solutions(solutions)) = prepared.on_store(&self.store).execute()
+            {
+                for solution in solutions.flatten() {
+                    if let Some(Term::NamedNode(c)) = solution.get("c") {
+                        set.insert(c.clone());
+                    }
+                }
+            }
+        }
+        *self
+            .classes
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = classes;
+        Ok(())
+    }
+
+    fn classes(&self) -> SpecClasses {
+        self.classes
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// AddTransformation / AddTarget: writes the specs of `kind` in `body`, atomically. A spec
+    /// whose label exists replaces it.
+    pub fn post_specs(
+        &self,
+        body: &[u8],
+        format: InputFormat,
+        kind: SpecKind,
+    ) -> Result<PostReport, IngestError> {
+        let triples = parse_triples(body, format)?;
+        let doc = extract_specs(&triples, &self.classes(), Some(kind))?;
+        let _guard = self.lock();
+        self.check_identities(&doc.specs)?;
+        let mut transaction = self.store.start_transaction()?;
+        let report = write_specs(&mut transaction, &doc.specs)?;
+        transaction.commit()?;
+        Ok(report)
+    }
+
+    /// Loads a document holding any mix of transformation specs, target specs and vocabulary
+    /// (the latter becomes one ontology extension), atomically.
+    pub fn load_document(&self, body: &[u8], format: InputFormat) -> Result<LoadReport, IngestError> {
+        let triples = parse_triples(body, format)?;
+        let doc = extract_specs(&triples, &self.classes(), None)?;
+        let _guard = self.lock();
+        self.check_identities(&doc.specs)?;
+        let mut transaction = self.store.start_transaction()?;
+        let (tfs, tgs): (Vec<ExtractedSpec>, Vec<ExtractedSpec>) = doc
+            .specs
+            .into_iter()
+            .partition(|s| s.spec.kind() == SpecKind::Transformation);
+        let mut report = LoadReport {
+            transformations: write_specs(&mut transaction, &tfs)?,
+            targets: write_specs(&mut transaction, &tgs)?,
+            extension: None,
+        };
+        if !doc.rest.is_empty() {
+            let graph = extension_graph(fnv1a(body));
+            transaction.clear_graph(&graph)?;
+            for t in &doc.rest {
+                transaction.insert(t.as_ref().in_graph(&graph));
+            }
+            report.extension = Some(graph.into_string());
+        }
+        transaction.commit()?;
+        drop(_guard);
+        if report.extension.is_some() {
+            self.refresh_classes()?;
+        }
+        Ok(report)
+    }
+
+    /// A spec given by IRI must not be the resource of another spec already.
+    fn check_identities(&self, specs: &[ExtractedSpec]) -> Result<(), IngestError> {
+        let mut violations = Vec::new();
+        for spec in specs {
+            let Some(iri) = &spec.given_iri else { continue };
+            for quad in self.store.quads_for_pattern(
+                Some(NamedOrBlankNodeRef::from(iri.as_ref())),
+                Some(rdfs::LABEL),
+                None,
+                None,
+            ) {
+                let quad = quad?;
+                let oxigraph::model::GraphName::NamedNode(g) = &quad.graph_name else {
+                    continue;
+                };
+                if let Some((kind, label)) = spec_of_graph(g.as_str())
+                    && (kind != spec.spec.kind() || label != spec.spec.label())
+                {
+                    violations.push(Violation::new(
+                        format!(
+                            "one resource describes one spec: <{}> is already the {} labelled {label:?}",
+                            iri.as_str(),
+                            kind.name()
+                        ),
+                        spec.spec.label(),
+                    ));
+                }
+            }
+        }
+        if violations.is_empty() {
+            Ok(())
+        } else {
+            Err(SpecValidationError(violations).into())
+        }
+    }
+
+    /// RemoveTransformation / RemoveTarget.
+    pub fn remove_spec(&self, kind: SpecKind, label: &str) -> Result<(), IngestError> {
+        let graph = spec_graph(kind, label);
+        let _guard = self.lock();
+        if !self.store.contains_named_graph(&graph)? {
+            return Err(IngestError::NotFound(format!("no {} labelled {label:?}", kind.name())));
+        }
+        let mut transaction = self.store.start_transaction()?;
+        transaction.remove_named_graph(&graph)?;
+        transaction.commit()?;
+        Ok(())
+    }
+
+    /// The triples of a named graph.
+    pub fn graph_triples(&self, graph: NamedNodeRef<'_>) -> Result<Vec<Triple>, StorageError> {
+        self.store
+            .quads_for_pattern(None, None, None, Some(GraphNameRef::from(graph)))
+            .map(|q| q.map(Triple::from))
+            .collect()
+    }
+
+    /// The spec of `kind` labelled `label`.
+    pub fn spec(&self, kind: SpecKind, label: &str) -> Result<Option<Spec>, StorageError> {
+        let graph = spec_graph(kind, label);
+        let triples = self.graph_triples(graph.as_ref())?;
+        Ok(if triples.is_empty() {
+            None
+        } else {
+            spec_from_graph(&triples, kind)
+        })
+    }
+
+    /// The names of the graphs holding specs of `kind`, with their labels, sorted by label.
+    pub fn spec_graphs(&self, kind: SpecKind) -> Result<Vec<(String, NamedNode)>, StorageError> {
+        let mut out = BTreeMap::new();
+        for graph in self.store.named_graphs() {
+            if let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph?
+                && let Some((k, label)) = spec_of_graph(g.as_str())
+                && k == kind
+            {
+                out.insert(label, g);
+            }
+        }
+        Ok(out.into_iter().collect())
+    }
+
+    /// All specs of `kind`, sorted by label.
+    pub fn specs(&self, kind: SpecKind) -> Result<Vec<Spec>, StorageError> {
+        let mut out = Vec::new();
+        for (_, graph) in self.spec_graphs(kind)? {
+            if let Some(spec) = spec_from_graph(&self.graph_triples(graph.as_ref())?, kind) {
+                out.push(spec);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Posts an ontology extension (tag vocabularies, sub-concepts, `dyknow:similarTo`, domain
+    /// classes). The graph is named after the body's content, so re-posting it replaces it.
+    pub fn post_extension(
+        &self,
+        body: &[u8],
+        format: InputFormat,
+    ) -> Result<ExtensionReport, IngestError> {
+        let triples = parse_triples(body, format)?;
+        let doc = extract_specs(&triples, &self.classes(), None)?;
+        if !doc.specs.is_empty() {
+            let violations = doc
+                .specs
+                .iter()
+                .map(|s| {
+                    Violation::new(
+                        format!(
+                            "ontology extensions hold vocabularies; post {} specs to /{}s",
+                            s.spec.kind().name(),
+                            s.spec.kind().name()
+                        ),
+                        s.spec.label(),
+                    )
+                })
+                .collect();
+            return Err(SpecValidationError(violations).into());
+        }
+        if triples.is_empty() {
+            return Err(SpecValidationError(vec![Violation::new(
+                "an ontology extension has at least one statement",
+                "the request body",
+            )])
+            .into());
+        }
+        let graph = extension_graph(fnv1a(body));
+        let guard = self.lock();
+        let replaced = self.store.contains_named_graph(&graph)?;
+        let mut transaction = self.store.start_transaction()?;
+        transaction.clear_graph(&graph)?;
+        for t in &triples {
+            transaction.insert(t.as_ref().in_graph(&graph));
+        }
+        transaction.commit()?;
+        drop(guard);
+        self.refresh_classes()?;
+        Ok(ExtensionReport {
+            graph: graph.into_string(),
+            replaced,
+        })
+    }
+
+    /// The ontology extensions, sorted by graph name.
+    pub fn extensions(&self) -> Result<Vec<ExtensionInfo>, StorageError> {
+        let mut out = Vec::new();
+        for graph in self.store.named_graphs() {
+            let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph? else {
+                continue;
+            };
+            if !is_extension_graph(g.as_str()) {
+                continue;
+            }
+            let triples = self.graph_triples(g.as_ref())?;
+            let ontology = triples
+                .iter()
+                .find(|t| t.predicate == rdf::TYPE && t.object == Term::from(owl::ONTOLOGY))
+                .map(|t| t.subject.to_string().trim_matches(['<', '>']).to_owned());
+            out.push(ExtensionInfo {
+                graph: g.into_string(),
+                ontology,
+                triples: triples.len(),
+            });
+        }
+        out.sort_by(|a, b| a.graph.cmp(&b.graph));
+        Ok(out)
+    }
+
+    /// Removes an ontology extension.
+    pub fn remove_extension(&self, graph: &str) -> Result<(), IngestError> {
+        if BUILTIN_ONTOLOGIES.iter().any(|(iri, _)| *iri == graph) {
+            return Err(IngestError::Conflict(format!(
+                "<{graph}> is a built-in ontology and cannot be removed"
+            )));
+        }
+        if !is_extension_graph(graph) {
+            return Err(IngestError::NotFound(format!("<{graph}> is not an ontology extension")));
+        }
+        let graph = NamedNode::new_unchecked(graph);
+        let guard = self.lock();
+        if !self.store.contains_named_graph(&graph)? {
+            return Err(IngestError::NotFound(format!(
+                "no ontology extension <{}>",
+                graph.as_str()
+            )));
+        }
+        let mut transaction = self.store.start_transaction()?;
+        transaction.remove_named_graph(&graph)?;
+        transaction.commit()?;
+        drop(guard);
+        self.refresh_classes()?;
+        Ok(())
+    }
+
+    /// The channels named in the model, sorted, with the targets that name them.
+    pub fn channels(&self) -> Result<Vec<(String, Vec<String>)>, StorageError> {
+        let mut out: BTreeMap<String, Vec<String>> = BTreeMap::new();
+        for spec in self.specs(SpecKind::Target)? {
+            if let Spec::Target(t) = spec {
+                out.entry(t.channel).or_default().push(t.label);
+            }
+        }
+        Ok(out.into_iter().collect())
+    }
+
+    /// The name of the computation unit that publishes on the channel named `channel`, if one
+    /// does (a CU with a `dkros:hasPublication` whose `dkros:onChannel` has that name).
+    pub fn channel_producer(&self, channel: &str) -> Result<Option<String>, StorageError> {
+        let query = format!(
+            "PREFIX dyknow: <{}> PREFIX dkros: <{}> \
+             SELECT ?name WHERE {{ ?cu dkros:hasPublication ?p . ?p dkros:onChannel ?c . \
+             ?c dyknow:hasChannelName {} . ?cu dyknow:hasName ?name }} ORDER BY ?name LIMIT 1",
+            dyknow::NAMESPACE,
+            dyknow_ontology::vocab::dkros::NAMESPACE,
+            oxigraph::model::Literal::new_simple_literal(channel)
+        );
+        let mut prepared = SparqlEvaluator::new()
+            .parse_query(&query)
+            .map_err(|e| StorageError::Other(Box::new(e)))?;
+        prepared.dataset_mut().set_default_graph_as_union();
+        let results = prepared
+            .on_store(&self.store)
+            .execute()
+            .map_err(|e| StorageError::Other(Box::new(e)))?;
+        if let QueryResults::Solutions(mut solutions) = results
+            && let Some(solution) = solutions.next()
+        {
+            let solution = solution.map_err(|e| StorageError::Other(Box::new(e)))?;
+            if let Some(Term::Literal(name)) = solution.get("name") {
+                return Ok(Some(name.value().to_owned()));
+            }
+        }
+        Ok(None)
+    }
+
+    /// Counts for monitoring.
+    pub fn statistics(&self) -> Result<StoreStatistics, StorageError> {
+        let mut stats = StoreStatistics {
+            quads: self.store.len()?,
+            ..StoreStatistics::default()
+        };
+        for graph in self.store.named_graphs() {
+            if let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph? {
+                match spec_of_graph(g.as_str()) {
+                    Some((SpecKind::Transformation, _)) => stats.transformations += 1,
+                    Some((SpecKind::Target, _)) => stats.targets += 1,
+                    None if is_extension_graph(g.as_str()) => stats.extensions += 1,
+                    None => {}
+                }
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Flushes buffered writes to disk (a no-op in memory).
+    pub fn flush(&self) -> Result<(), StorageError> {
+        #[cfg(feature = "rocksdb")]
+        if self.location.is_some() {
+            self.store.flush()?;
+        }
+        Ok(())
+    }
+}
+
+fn write_specs(
+    transaction: &mut oxigraph::store::Transaction<'_>,
+    specs: &[ExtractedSpec],
+) -> Result<PostReport, StorageError> {
+    let mut report = PostReport::default();
+    let mut seen = HashSet::new();
+    for spec in specs {
+        if !seen.insert(spec.graph.clone()) {
+            continue;
+        }
+        if transaction.contains_named_graph(&spec.graph)? {
+            report.replaced.push(spec.spec.label().to_owned());
+            transaction.clear_graph(&spec.graph)?;
+        }
+        for t in &spec.triples {
+            transaction.insert(QuadRef::new(
+                &t.subject,
+                &t.predicate,
+                &t.object,
+                &spec.graph,
+            ));
+        }
+        report.labels.push(spec.spec.label().to_owned());
+    }
+    Ok(report)
+}

@@ -1,0 +1,21 @@
+#![doc = include_str!("../README.md")]
+
+mod error;
+mod export;
+pub mod graphs;
+mod knowledge_base;
+mod rdf_input;
+pub mod spec;
+mod sparql;
+
+pub use error::{
+    ExportError, IngestError, SparqlQueryError, SpecParseError, SpecValidationError,
+    StoreOpenError, SyntaxErrorDetail, Violation,
+};
+pub use export::{ExportedModel, INFERRED_GRAPH, MODEL_ONTOLOGY_IRI, ModelFormat, serialize};
+pub use knowledge_base::{
+    ExtensionInfo, ExtensionReport, KnowledgeBase, LoadReport, PostReport, StoreStatistics,
+};
+pub use oxigraph;
+pub use rdf_input::{InputFormat, parse_triples};
+pub use sparql::{ParsedQuery, QueryAnswer, QueryForm, ResultFormat};

@@ -1,0 +1,819 @@
+//! From a posted RDF document to specs: find the spec roots, give every triple to the spec that
+//! reaches it, mint IRIs for blank nodes, normalise the two ways of writing ports, and check the
+//! structural constraints of the ontology (seed Appendix A; DyKnow-ROS Ch. 5.3.1) before anything
+//! is written.
+
+use std::collections::{HashMap, HashSet};
+
+use dyknow_ontology::vocab::{dkros, dyknow, rdf, rdfs, xsd};
+use oxigraph::model::{Literal, NamedNode, NamedNodeRef, NamedOrBlankNode, Term, Triple};
+
+use super::model::{Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec};
+use crate::error::{SpecValidationError, Violation};
+use crate::graphs::{channel_resource, encode, spec_graph, spec_resource};
+
+/// The most ports a transformation may have.
+pub const MAX_PORTS: usize = 256;
+/// The most tags a port or target may have.
+pub const MAX_TAGS: usize = 64;
+/// The labour and upkeep estimate of a spec that gives none (contract `specs.md`).
+pub const DEFAULT_COST: f64 = 1.0;
+
+/// The classes whose instances are spec roots: the transformation and target classes of the
+/// ontology, including sub-classes declared by extensions.
+#[derive(Debug, Clone)]
+pub struct SpecClasses {
+    /// Classes whose instances are transformations.
+    pub transformation: HashSet<NamedNode>,
+    /// Classes whose instances are targets.
+    pub target: HashSet<NamedNode>,
+}
+
+impl Default for SpecClasses {
+    fn default() -> Self {
+        Self {
+            transformation: [
+                dyknow::TRANSFORMATION,
+                dyknow::SOURCE,
+                dyknow::SINK,
+                dkros::ROS_TRANSFORMATION,
+            ]
+            .into_iter()
+            .map(NamedNodeRef::into_owned)
+            .collect(),
+            target: [dyknow::TARGET, dkros::ROS_TARGET]
+                .into_iter()
+                .map(NamedNodeRef::into_owned)
+                .collect(),
+        }
+    }
+}
+
+/// A spec found in a document, with the normalised triples of its graph.
+#[derive(Debug, Clone)]
+pub struct ExtractedSpec {
+    /// What the spec says.
+    pub spec: Spec,
+    /// The named graph it goes to.
+    pub graph: NamedNode,
+    /// The IRI of the spec resource if the document named it (rather than a blank node).
+    pub given_iri: Option<NamedNode>,
+    /// The normalised triples of its graph.
+    pub triples: Vec<Triple>,
+}
+
+/// The result of [`extract_specs`].
+#[derive(Debug, Clone, Default)]
+pub struct ExtractedDocument {
+    /// The specs, in document order.
+    pub specs: Vec<ExtractedSpec>,
+    /// Triples that belong to no spec (vocabulary: classes, `similarTo`, ...).
+    pub rest: Vec<Triple>,
+}
+
+/// Predicates along which a spec owns the nodes it points to (even when they are IRIs).
+const STRUCTURAL: [NamedNodeRef<'static>; 7] = [
+    dkros::HAS_PORT,
+    dyknow::HAS_IN_PORT,
+    dyknow::HAS_OUT_PORT,
+    dyknow::HAS_TAG,
+    dyknow::HAS_COST_MODEL,
+    dkros::HAS_PARAM,
+    dyknow::HAS_CHANNEL,
+];
+
+type Node = NamedOrBlankNode;
+
+fn term_node(term: &Term) -> Option<Node> {
+    match term {
+        Term::NamedNode(n) => Some(n.clone().into()),
+        Term::BlankNode(b) => Some(b.clone().into()),
+        _ => None,
+    }
+}
+
+/// Subject-indexed view of a document.
+struct Index<'a> {
+    by_subject: HashMap<&'a Node, Vec<&'a Triple>>,
+}
+
+impl<'a> Index<'a> {
+    fn new(triples: &'a [Triple]) -> Self {
+        let mut by_subject: HashMap<&Node, Vec<&Triple>> = HashMap::new();
+        for t in triples {
+            by_subject.entry(&t.subject).or_default().push(t);
+        }
+        Self { by_subject }
+    }
+    fn about(&self, node: &Node) -> &[&'a Triple] {
+        self.by_subject.get(node).map_or(&[], Vec::as_slice)
+    }
+    fn objects(&self, node: &Node, predicate: NamedNodeRef<'_>) -> Vec<&'a Term> {
+        self.about(node)
+            .iter()
+            .filter(|t| t.predicate == predicate)
+            .map(|t| &t.object)
+            .collect()
+    }
+    fn has_type(&self, node: &Node, class: NamedNodeRef<'_>) -> bool {
+        self.about(node)
+            .iter()
+            .any(|t| t.predicate == rdf::TYPE && t.object == Term::from(class))
+    }
+    /// Distinct literal values of `predicate`s on `node`; non-literals are reported separately.
+    fn literals(&self, node: &Node, predicates: &[NamedNodeRef<'_>]) -> (Vec<&'a Literal>, bool) {
+        let mut out: Vec<&Literal> = Vec::new();
+        let mut non_literal = false;
+        for t in self.about(node) {
+            if predicates.contains(&t.predicate.as_ref()) {
+                match &t.object {
+                    Term::Literal(l) => {
+                        if !out.iter().any(|o| o.value() == l.value()) {
+                            out.push(l);
+                        }
+                    }
+                    _ => non_literal = true,
+                }
+            }
+        }
+        (out, non_literal)
+    }
+}
+
+/// Describes a node for error messages.
+fn describe(node: &Node, names: &HashMap<Node, String>) -> String {
+    if let Some(name) = names.get(node) {
+        return name.clone();
+    }
+    match node {
+        NamedOrBlankNode::NamedNode(n) => n.as_str().to_owned(),
+        NamedOrBlankNode::BlankNode(_) => "a blank node".to_owned(),
+    }
+}
+
+/// Finds the specs of a document, mints IRIs for their blank nodes, normalises and validates
+/// them. With `expected = Some(kind)` the document must consist of specs of that kind only (the
+/// HTTP endpoints); with `None` specs of both kinds are taken and the remaining triples are
+/// returned as [`ExtractedDocument::rest`] (the offline loader).
+///
+/// All violations of the whole document are reported at once.
+pub fn extract_specs(
+    triples: &[Triple],
+    classes: &SpecClasses,
+    expected: Option<SpecKind>,
+) -> Result<ExtractedDocument, SpecValidationError> {
+    extract(triples, classes, expected, true)
+}
+
+fn extract(
+    triples: &[Triple],
+    classes: &SpecClasses,
+    expected: Option<SpecKind>,
+    reject_rest: bool,
+) -> Result<ExtractedDocument, SpecValidationError> {
+    let index = Index::new(triples);
+    let mut violations = Vec::new();
+
+    // Roots, in document order.
+    let mut roots: Vec<(Node, SpecKind)> = Vec::new();
+    let mut seen_roots = HashSet::new();
+    for t in triples {
+        if t.predicate != rdf::TYPE {
+            continue;
+        }
+        let Term::NamedNode(class) = &t.object else {
+            continue;
+        };
+        let kind = if classes.transformation.contains(class) {
+            SpecKind::Transformation
+        } else if classes.target.contains(class) {
+            SpecKind::Target
+        } else {
+            continue;
+        };
+        if seen_roots.insert(t.subject.clone()) {
+            roots.push((t.subject.clone(), kind));
+        } else if roots.iter().any(|(r, k)| *r == t.subject && *k != kind) {
+            violations.push(Violation::new(
+                "Transformation DisjointWith Target",
+                describe(&t.subject, &HashMap::new()),
+            ));
+        }
+    }
+    let root_set: HashSet<&Node> = roots.iter().map(|(r, _)| r).collect();
+
+    let mut claimed: HashSet<&Node> = HashSet::new();
+    let mut specs = Vec::new();
+    let mut labels_seen: HashSet<(SpecKind, String)> = HashSet::new();
+    for (root, kind) in &roots {
+        for node in owned_nodes(&index, &root_set, root) {
+            if let Some((k, _)) = index.by_subject.get_key_value(&node) {
+                claimed.insert(*k);
+            }
+        }
+        if let Some(expected) = expected
+            && expected != *kind
+        {
+            violations.push(Violation::new(
+                format!(
+                    "this endpoint accepts {} specs only; post {} specs to /{}s",
+                    expected.name(),
+                    kind.name(),
+                    kind.name()
+                ),
+                describe(root, &HashMap::new()),
+            ));
+            continue;
+        }
+        let (labels, label_not_literal) = index.literals(root, &[rdfs::LABEL]);
+        let label = match labels.as_slice() {
+            [one] if !label_not_literal => one.value().to_owned(),
+            _ => {
+                violations.push(Violation::new(
+                    format!(
+                        "{} has exactly 1 rdfs:label (a literal): it identifies the spec",
+                        capitalised(kind.name())
+                    ),
+                    describe(root, &HashMap::new()),
+                ));
+                continue;
+            }
+        };
+        if !labels_seen.insert((*kind, label.clone())) {
+            violations.push(Violation::new(
+                format!("labels are unique: the document has two {} specs with this label", kind.name()),
+                label.clone(),
+            ));
+            continue;
+        }
+        let spec = SpecBuilder::new(&index, &root_set, root.clone(), *kind, label);
+        let (extracted, mut found) = spec.build();
+        violations.append(&mut found);
+        if let Some(e) = extracted {
+            specs.push(e);
+        }
+    }
+
+    let rest: Vec<Triple> = triples
+        .iter()
+        .filter(|t| !claimed.contains(&t.subject) && !root_set.contains(&t.subject))
+        .cloned()
+        .collect();
+    if let Some(kind) = expected {
+        if roots.is_empty() {
+            violations.push(Violation::new(
+                format!(
+                    "the document describes no {} (a node typed {} or a sub-class)",
+                    kind.name(),
+                    match kind {
+                        SpecKind::Transformation => "dyknow:Transformation",
+                        SpecKind::Target => "dyknow:Target",
+                    }
+                ),
+                "the request body",
+            ));
+        }
+        let mut subjects: Vec<String> = Vec::new();
+        for t in &rest {
+            let d = describe(&t.subject, &HashMap::new());
+            if !subjects.contains(&d) {
+                subjects.push(d);
+            }
+        }
+        for s in subjects.into_iter().take(if reject_rest { 10 } else { 0 }) {
+            violations.push(Violation::new(
+                "every statement belongs to a spec (post vocabularies to /ontology)",
+                s,
+            ));
+        }
+    }
+    if violations.is_empty() {
+        Ok(ExtractedDocument { specs, rest })
+    } else {
+        Err(SpecValidationError(violations))
+    }
+}
+
+/// Walks every node a spec owns (structural links, and blank nodes along any link) and returns
+/// them in walk order, the root first.
+fn owned_nodes(index: &Index<'_>, roots: &HashSet<&Node>, root: &Node) -> Vec<Node> {
+    let mut order = vec![root.clone()];
+    let mut seen: HashSet<Node> = order.iter().cloned().collect();
+    let mut i = 0;
+    while i < order.len() {
+        let node = order[i].clone();
+        i += 1;
+        for t in index.about(&node) {
+            let Some(obj) = term_node(&t.object) else {
+                continue;
+            };
+            let follow = match &obj {
+                NamedOrBlankNode::BlankNode(_) => true,
+                NamedOrBlankNode::NamedNode(_) => {
+                    STRUCTURAL.contains(&t.predicate.as_ref()) && !index.about(&obj).is_empty()
+                }
+            };
+            if follow && !roots.contains(&obj) && seen.insert(obj.clone()) {
+                order.push(obj);
+            }
+        }
+    }
+    order
+}
+
+fn capitalised(s: &str) -> String {
+    let mut c = s.chars();
+    c.next()
+        .map(|f| f.to_uppercase().chain(c).collect())
+        .unwrap_or_default()
+}
+
+/// Builds one spec: walks the nodes it owns, names them, normalises and validates.
+struct SpecBuilder<'a, 'i> {
+    index: &'i Index<'a>,
+    roots: &'i HashSet<&'a Node>,
+    root: Node,
+    kind: SpecKind,
+    label: String,
+    base: String,
+    /// Minted IRIs for blank nodes, and given IRIs kept as they are.
+    iris: HashMap<Node, NamedNode>,
+    /// Human-readable names of nodes for violations.
+    names: HashMap<Node, String>,
+    violations: Vec<Violation>,
+    out: Vec<Triple>,
+    out_set: HashSet<Triple>,
+}
+
+impl<'a, 'i> SpecBuilder<'a, 'i> {
+    fn new(
+        index: &'i Index<'a>,
+        roots: &'i HashSet<&'a Node>,
+        root: Node,
+        kind: SpecKind,
+        label: String,
+    ) -> Self {
+        let base = spec_resource(kind, &label);
+        let mut names = HashMap::new();
+        names.insert(root.clone(), label.clone());
+        Self {
+            index,
+            roots,
+            root,
+            kind,
+            label,
+            base,
+            iris: HashMap::new(),
+            names,
+            violations: Vec::new(),
+            out: Vec::new(),
+            out_set: HashSet::new(),
+        }
+    }
+
+    fn violation(&mut self, constraint: impl Into<String>, node: &Node) {
+        let subject = describe(node, &self.names);
+        self.violations.push(Violation::new(constraint, subject));
+    }
+
+    /// The IRI of `node` in the stored model: given IRIs stay, blank nodes get `minted`.
+    fn name_node(&mut self, node: &Node, minted: impl FnOnce() -> String) -> NamedNode {
+        if let Some(iri) = self.iris.get(node) {
+            return iri.clone();
+        }
+        let iri = match node {
+            NamedOrBlankNode::NamedNode(n) => n.clone(),
+            NamedOrBlankNode::BlankNode(_) => {
+                let mut candidate = minted();
+                if self.iris.values().any(|v| v.as_str() == candidate) {
+                    candidate = format!("{candidate}-{}", self.iris.len());
+                }
+                NamedNode::new_unchecked(candidate)
+            }
+        };
+        self.iris.insert(node.clone(), iri.clone());
+        iri
+    }
+
+    fn emit(&mut self, s: &NamedNode, p: NamedNodeRef<'_>, o: impl Into<Term>) {
+        let t = Triple::new(s.clone(), p, o);
+        if self.out_set.insert(t.clone()) {
+            self.out.push(t);
+        }
+    }
+
+    fn build(mut self) -> (Option<ExtractedSpec>, Vec<Violation>) {
+        let owned = owned_nodes(self.index, self.roots, &self.root);
+        let root = self.root.clone();
+        let base = self.base.clone();
+        let root_iri = self.name_node(&root, || base.clone());
+        let given_iri = match &root {
+            NamedOrBlankNode::NamedNode(n) => Some(n.clone()),
+            NamedOrBlankNode::BlankNode(_) => None,
+        };
+        let spec = match self.kind {
+            SpecKind::Transformation => self.transformation(&root_iri).map(Spec::Transformation),
+            SpecKind::Target => self.target(&root_iri).map(Spec::Target),
+        };
+        // Copy the remaining statements of every owned node, renamed; structural links were
+        // already written in normal form above.
+        for node in &owned {
+            let subject = self.name_node(node, || format!("{base}/node/{}", encode_id(node)));
+            let index = self.index;
+            for t in index.about(node) {
+                if self.skip_copy(node, t) {
+                    continue;
+                }
+                let object = match &t.object {
+                    Term::BlankNode(b) => {
+                        let n: Node = b.clone().into();
+                        if owned.contains(&n) {
+                            Term::from(self.name_node(&n, || format!("{base}/node/{}", b.as_str())))
+                        } else {
+                            t.object.clone()
+                        }
+                    }
+                    other => other.clone(),
+                };
+                let predicate = if t.predicate == dyknow::HAS_PORT_NAME {
+                    dyknow::HAS_NAME.into_owned()
+                } else {
+                    t.predicate.clone()
+                };
+                self.emit(&subject, predicate.as_ref(), object);
+            }
+        }
+        let violations = std::mem::take(&mut self.violations);
+        let extracted = match spec {
+            Some(spec) if violations.is_empty() => Some(ExtractedSpec {
+                graph: spec_graph(self.kind, &self.label),
+                spec,
+                given_iri,
+                triples: self.out,
+            }),
+            _ => None,
+        };
+        (extracted, violations)
+    }
+
+    /// Statements rewritten by normalisation rather than copied.
+    fn skip_copy(&self, node: &Node, t: &Triple) -> bool {
+        if *node == self.root {
+            return [dkros::HAS_PORT, dyknow::HAS_IN_PORT, dyknow::HAS_OUT_PORT]
+                .contains(&t.predicate.as_ref());
+        }
+        false
+    }
+
+    fn tags(&mut self, owner: &Node, owner_iri: &NamedNode) -> Vec<Tag> {
+        let tag_nodes: Vec<Term> = self
+            .index
+            .objects(owner, dyknow::HAS_TAG)
+            .into_iter()
+            .cloned()
+            .collect();
+        if tag_nodes.len() > MAX_TAGS {
+            self.violation(format!("at most {MAX_TAGS} tags per port or target"), owner);
+            return Vec::new();
+        }
+        let mut tags = Vec::new();
+        for (i, term) in tag_nodes.iter().enumerate() {
+            let Some(node) = term_node(term) else {
+                self.violation("dyknow:hasTag links to a Tag node, not a literal", owner);
+                continue;
+            };
+            let owner_str = owner_iri.as_str().to_owned();
+            let iri = self.name_node(&node, || format!("{owner_str}/tag/{i}"));
+            let owner_name = describe(owner, &self.names);
+            self.names
+                .entry(node.clone())
+                .or_insert_with(|| format!("{owner_name}/tag {i}"));
+            let (values, value_not_literal) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
+            let descriptions = self.index.objects(&node, dyknow::HAS_TAG_DESCRIPTION);
+            if value_not_literal || values.len() > 1 {
+                self.violation("a Tag has at most 1 dyknow:hasValue, a literal (functional)", &node);
+            }
+            let description = match descriptions.as_slice() {
+                [] => None,
+                [Term::NamedNode(d)] => Some(d.as_str().to_owned()),
+                _ => {
+                    self.violation(
+                        "a Tag has at most 1 dyknow:hasTagDescription, an IRI naming a concept (functional)",
+                        &node,
+                    );
+                    None
+                }
+            };
+            let value = values.first().map(|l| l.value().to_owned());
+            if value.is_none() && description.is_none() && !value_not_literal {
+                self.violation(
+                    "a Tag has a dyknow:hasValue or a dyknow:hasTagDescription",
+                    &node,
+                );
+            }
+            self.emit(owner_iri, dyknow::HAS_TAG, iri.clone());
+            self.emit(&iri, rdf::TYPE, dyknow::TAG);
+            tags.push(Tag { value, description });
+        }
+        tags
+    }
+
+    fn transformation(&mut self, root_iri: &NamedNode) -> Option<TransformationSpec> {
+        let root = self.root.clone();
+        self.emit(root_iri, rdf::TYPE, dyknow::TRANSFORMATION);
+        // Ports: (node, direction as stated by the predicate).
+        let mut links: Vec<(Node, Option<PortDirection>)> = Vec::new();
+        let index = self.index;
+        for t in index.about(&root) {
+            let direction = if t.predicate == dyknow::HAS_IN_PORT {
+                Some(PortDirection::In)
+            } else if t.predicate == dyknow::HAS_OUT_PORT {
+                Some(PortDirection::Out)
+            } else if t.predicate == dkros::HAS_PORT {
+                None
+            } else {
+                continue;
+            };
+            match term_node(&t.object) {
+                Some(n) => links.push((n, direction)),
+                None => self.violation("a port link points to a Port node, not a literal", &root),
+            }
+        }
+        if links.len() > MAX_PORTS {
+            self.violation(format!("a transformation has at most {MAX_PORTS} ports"), &root);
+            return None;
+        }
+        let mut ports: Vec<(Node, Port)> = Vec::new();
+        let mut port_names: HashSet<String> = HashSet::new();
+        for (node, stated) in links {
+            let is_in = self.index.has_type(&node, dyknow::IN_PORT);
+            let is_out = self.index.has_type(&node, dyknow::OUT_PORT);
+            let (names, name_not_literal) = self
+                .index
+                .literals(&node, &[dyknow::HAS_NAME, dyknow::HAS_PORT_NAME]);
+            let name = match names.as_slice() {
+                [one] if !name_not_literal => Some(one.value().to_owned()),
+                _ => None,
+            };
+            self.names.insert(
+                node.clone(),
+                format!("{}/port {}", self.label, name.as_deref().unwrap_or("(unnamed)")),
+            );
+            let Some(name) = name else {
+                self.violation("a Port has exactly 1 name (dyknow:hasName), a literal", &node);
+                continue;
+            };
+            let direction = match (stated, is_in, is_out) {
+                (_, true, true)
+                | (Some(PortDirection::In), _, true)
+                | (Some(PortDirection::Out), true, _) => {
+                    self.violation("InPort DisjointWith OutPort", &node);
+                    continue;
+                }
+                (Some(d), _, _) => d,
+                (None, true, false) => PortDirection::In,
+                (None, false, true) => PortDirection::Out,
+                (None, false, false) => {
+                    self.violation(
+                        "a port linked by dkros:hasPort is typed dyknow:InPort or dyknow:OutPort",
+                        &node,
+                    );
+                    continue;
+                }
+            };
+            if let Some((_, other)) = ports.iter().find(|(n, _)| *n == node) {
+                if other.direction != direction {
+                    self.violation("InPort DisjointWith OutPort", &node);
+                }
+                continue;
+            }
+            if !port_names.insert(name.clone()) {
+                self.violation("port names are unique within a transformation", &node);
+                continue;
+            }
+            let base = self.base.clone();
+            let iri = self.name_node(&node, || format!("{base}/port/{}", encode(&name)));
+            let (link, class) = match direction {
+                PortDirection::In => (dyknow::HAS_IN_PORT, dyknow::IN_PORT),
+                PortDirection::Out => (dyknow::HAS_OUT_PORT, dyknow::OUT_PORT),
+            };
+            self.emit(root_iri, link, iri.clone());
+            self.emit(&iri, rdf::TYPE, class);
+            let tags = self.tags(&node, &iri);
+            if tags.is_empty() && self.index.objects(&node, dyknow::HAS_TAG).is_empty() {
+                self.violation("a Port has some Tag (dyknow:hasTag)", &node);
+            }
+            ports.push((
+                node,
+                Port {
+                    name,
+                    direction,
+                    tags,
+                },
+            ));
+        }
+        let inputs: Vec<Port> = ports
+            .iter()
+            .filter(|(_, p)| p.direction == PortDirection::In)
+            .map(|(_, p)| p.clone())
+            .collect();
+        let outputs: Vec<Port> = ports
+            .iter()
+            .filter(|(_, p)| p.direction == PortDirection::Out)
+            .map(|(_, p)| p.clone())
+            .collect();
+        if self.index.has_type(&root, dyknow::SOURCE) && !inputs.is_empty() {
+            self.violation("Source has exactly 0 InPort (hasInPort exactly 0 InPort)", &root);
+        }
+        if self.index.has_type(&root, dyknow::SINK) && !outputs.is_empty() {
+            self.violation("Sink has exactly 0 OutPort (hasOutPort exactly 0 OutPort)", &root);
+        }
+        let (labour, upkeep) = self.costs(&root, root_iri);
+        let (sources, _) = self.index.literals(&root, &[dkros::HAS_SOURCE]);
+        if sources.len() > 1 {
+            self.violation("ROSTransformation has exactly 1 dkros:hasSource", &root);
+        }
+        let (types, _) = self.index.literals(&root, &[dkros::HAS_TYPE]);
+        Some(TransformationSpec {
+            label: self.label.clone(),
+            iri: root_iri.as_str().to_owned(),
+            inputs,
+            outputs,
+            labour,
+            upkeep,
+            exec_type: types.first().map(|l| l.value().to_owned()),
+            source: sources.first().map(|l| l.value().to_owned()),
+        })
+    }
+
+    fn costs(&mut self, root: &Node, root_iri: &NamedNode) -> (f64, f64) {
+        let mut labour = None;
+        let mut upkeep = None;
+        let models: Vec<Term> = self
+            .index
+            .objects(root, dyknow::HAS_COST_MODEL)
+            .into_iter()
+            .cloned()
+            .collect();
+        for term in models {
+            let Some(node) = term_node(&term) else {
+                self.violation("dyknow:hasCostModel links to a CostModel node, not a literal", root);
+                continue;
+            };
+            let is_labour = self.index.has_type(&node, dyknow::LABOUR_COST_MODEL);
+            let is_upkeep = self.index.has_type(&node, dyknow::UPKEEP_COST_MODEL);
+            let (slot, which) = match (is_labour, is_upkeep) {
+                (true, false) => (&mut labour, "labour"),
+                (false, true) => (&mut upkeep, "upkeep"),
+                _ => {
+                    self.names
+                        .insert(node.clone(), format!("{}/cost model", self.label));
+                    self.violation(
+                        "a cost model is either a dyknow:LabourCostModel or a dyknow:UpkeepCostModel",
+                        &node,
+                    );
+                    continue;
+                }
+            };
+            self.names
+                .insert(node.clone(), format!("{}/{which} cost", self.label));
+            if slot.is_some() {
+                self.violation(format!("a transformation has at most 1 {which} cost model"), &node);
+                continue;
+            }
+            let (values, not_literal) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
+            match (values.as_slice(), not_literal) {
+                ([v], false) => match cost_value(v) {
+                    Some(x) => *slot = Some(x),
+                    None => {
+                        self.violation(
+                            format!("a {which} cost is a non-negative number (dyknow:hasValue), not {v}"),
+                            &node,
+                        );
+                        *slot = Some(DEFAULT_COST);
+                    }
+                },
+                _ => {
+                    self.violation(
+                        format!("a {which} cost model has exactly 1 dyknow:hasValue, a non-negative number"),
+                        &node,
+                    );
+                    *slot = Some(DEFAULT_COST);
+                }
+            }
+            let base = self.base.clone();
+            let iri = self.name_node(&node, || format!("{base}/cost/{which}"));
+            self.emit(root_iri, dyknow::HAS_COST_MODEL, iri);
+        }
+        // Missing estimates default to 1.0 and are written, so the model is complete.
+        for (slot, which, class) in [
+            (&mut labour, "labour", dyknow::LABOUR_COST_MODEL),
+            (&mut upkeep, "upkeep", dyknow::UPKEEP_COST_MODEL),
+        ] {
+            if slot.is_none() {
+                *slot = Some(DEFAULT_COST);
+                let iri = NamedNode::new_unchecked(format!("{}/cost/{which}", self.base));
+                let t1 = Triple::new(root_iri.clone(), dyknow::HAS_COST_MODEL, iri.clone());
+                let t2 = Triple::new(iri.clone(), rdf::TYPE, class);
+                let t3 = Triple::new(
+                    iri,
+                    dyknow::HAS_VALUE,
+                    Literal::new_typed_literal("1.0", xsd::DOUBLE),
+                );
+                for t in [t1, t2, t3] {
+                    if self.out_set.insert(t.clone()) {
+                        self.out.push(t);
+                    }
+                }
+            }
+        }
+        (labour.unwrap_or(DEFAULT_COST), upkeep.unwrap_or(DEFAULT_COST))
+    }
+
+    fn target(&mut self, root_iri: &NamedNode) -> Option<TargetSpec> {
+        let root = self.root.clone();
+        self.emit(root_iri, rdf::TYPE, dyknow::TARGET);
+        let channels: Vec<Term> = self
+            .index
+            .objects(&root, dyknow::HAS_CHANNEL)
+            .into_iter()
+            .cloned()
+            .collect();
+        let mut channel = None;
+        match channels.as_slice() {
+            [term] => match term_node(term) {
+                Some(node) => {
+                    self.names
+                        .insert(node.clone(), format!("{}/channel", self.label));
+                    let (names, not_literal) =
+                        self.index.literals(&node, &[dyknow::HAS_CHANNEL_NAME]);
+                    match names.as_slice() {
+                        [name] if !not_literal => {
+                            let name = name.value().to_owned();
+                            let iri = self.name_node(&node, || channel_resource(&name));
+                            self.emit(root_iri, dyknow::HAS_CHANNEL, iri.clone());
+                            self.emit(&iri, rdf::TYPE, dyknow::CHANNEL);
+                            channel = Some(name);
+                        }
+                        _ => self.violation(
+                            "a Channel has exactly 1 dyknow:hasChannelName, a literal",
+                            &node,
+                        ),
+                    }
+                }
+                None => self.violation("dyknow:hasChannel links to a Channel node, not a literal", &root),
+            },
+            _ => self.violation("a Target has exactly 1 Channel (dyknow:hasChannel)", &root),
+        }
+        let tags = self.tags(&root, root_iri);
+        if self.index.objects(&root, dyknow::HAS_TAG).is_empty() {
+            self.violation("a Target has some Tag (dyknow:hasTag)", &root);
+        }
+        Some(TargetSpec {
+            label: self.label.clone(),
+            iri: root_iri.as_str().to_owned(),
+            channel: channel?,
+            tags,
+        })
+    }
+}
+
+fn encode_id(node: &Node) -> String {
+    match node {
+        NamedOrBlankNode::BlankNode(b) => encode(b.as_str()),
+        NamedOrBlankNode::NamedNode(n) => encode(n.as_str()),
+    }
+}
+
+/// A cost: a finite, non-negative number given as an XSD numeric literal.
+fn cost_value(literal: &Literal) -> Option<f64> {
+    const NUMERIC: [&str; 13] = [
+        "double",
+        "float",
+        "decimal",
+        "integer",
+        "int",
+        "long",
+        "short",
+        "byte",
+        "nonNegativeInteger",
+        "positiveInteger",
+        "unsignedInt",
+        "unsignedLong",
+        "unsignedShort",
+    ];
+    let datatype = literal.datatype();
+    let local = datatype.as_str().strip_prefix(xsd::NAMESPACE)?;
+    if !NUMERIC.contains(&local) {
+        return None;
+    }
+    let x: f64 = literal.value().trim().parse().ok()?;
+    (x.is_finite() && x >= 0.0).then_some(x)
+}
+
+/// Rebuilds the spec held in a spec graph (the graph is in normal form).
+pub(crate) fn spec_from_graph(triples: &[Triple], kind: SpecKind) -> Option<Spec> {
+    let doc = extract(triples, &SpecClasses::default(), Some(kind), false).ok()?;
+    doc.specs.into_iter().next().map(|s| s.spec)
+}
+

@@ -1,0 +1,11 @@
+//! Transformation and target specs: the Rust model, and their extraction from RDF documents.
+
+mod extract;
+mod model;
+
+pub use extract::{
+    DEFAULT_COST, ExtractedDocument, ExtractedSpec, MAX_PORTS, MAX_TAGS, SpecClasses,
+    extract_specs,
+};
+pub(crate) use extract::spec_from_graph;
+pub use model::{Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec};
