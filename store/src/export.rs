@@ -1,11 +1,11 @@
 //! GetModel (seed Ch. 5.3): the ontology and the environment, as RDF or as OWL for other agents.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use dyknow_ontology::vocab::{owl, rdf};
 use dyknow_ontology::{OwlSyntax, rdf_to_owl};
 use oxigraph::io::{RdfFormat, RdfSerializer};
-use oxigraph::model::{GraphName, NamedNode, NamedOrBlankNode, Term, Triple};
+use oxigraph::model::{BlankNode, GraphName, NamedNode, NamedOrBlankNode, Term, Triple};
 use oxigraph::store::StorageError;
 
 use crate::error::ExportError;
@@ -111,7 +111,7 @@ impl KnowledgeBase {
         // Sorted by their N-Triples form (subject first), duplicates across graphs removed.
         keyed.sort_unstable_by(|a, b| a.0.cmp(&b.0));
         keyed.dedup_by(|a, b| a.0 == b.0);
-        Ok(keyed.into_iter().map(|(_, t)| t).collect())
+        Ok(relabel_blank_nodes(keyed.into_iter().map(|(_, t)| t)))
     }
 
     /// GetModel: serialises the model in `format`.
@@ -158,4 +158,30 @@ fn as_one_ontology(triples: Vec<Triple>) -> Vec<Triple> {
     let mut out = vec![Triple::new(model, rdf::TYPE, owl::ONTOLOGY)];
     out.extend(triples.into_iter().filter(|t| !headers.contains(&t.subject)));
     out
+}
+
+/// Renames blank nodes `b0`, `b1`, ... in order of appearance: stable, readable output, and
+/// labels that every Turtle parser accepts (store-generated labels may start with a digit).
+fn relabel_blank_nodes(triples: impl Iterator<Item = Triple>) -> Vec<Triple> {
+    let mut names: HashMap<BlankNode, BlankNode> = HashMap::new();
+    let mut rename = |b: &BlankNode| {
+        let next = names.len();
+        names
+            .entry(b.clone())
+            .or_insert_with(|| BlankNode::new_unchecked(format!("b{next}")))
+            .clone()
+    };
+    triples
+        .map(|t| {
+            let subject = match t.subject {
+                NamedOrBlankNode::BlankNode(b) => NamedOrBlankNode::from(rename(&b)),
+                other => other,
+            };
+            let object = match t.object {
+                Term::BlankNode(b) => Term::from(rename(&b)),
+                other => other,
+            };
+            Triple::new(subject, t.predicate, object)
+        })
+        .collect()
 }

@@ -1,0 +1,90 @@
+//! The README's tour, run verbatim: every `$ ` command of its console blocks is executed with
+//! bash against a fresh `dyknow serve --in-memory`, and its output must be what the README shows.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// (command, expected output) pairs of the tour section.
+fn tour(readme: &str) -> Vec<(String, String)> {
+    let start = readme.find("<!-- tour:start -->").expect("tour start marker");
+    let end = readme.find("<!-- tour:end -->").expect("tour end marker");
+    let mut steps = Vec::new();
+    let mut in_block = false;
+    let mut current: Option<(String, String)> = None;
+    let mut continued = false;
+    for line in readme[start..end].lines() {
+        if line.starts_with("```") {
+            if in_block && let Some(step) = current.take() {
+                steps.push(step);
+            }
+            in_block = line.trim() == "```console";
+            continue;
+        }
+        if !in_block {
+            continue;
+        }
+        if let Some(command) = line.strip_prefix("$ ") {
+            if let Some(step) = current.take() {
+                steps.push(step);
+            }
+            current = Some((command.to_owned(), String::new()));
+            continued = command.contains("query=") && !command.trim_end().ends_with('\'');
+        } else if let Some((command, output)) = current.as_mut() {
+            if continued {
+                command.push('\n');
+                command.push_str(line);
+                continued = !line.trim_end().ends_with('\'');
+            } else {
+                output.push_str(line);
+                output.push('\n');
+            }
+        }
+    }
+    steps
+}
+
+#[test]
+fn the_readme_tour_gives_the_answers_the_readme_shows() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let steps = tour(&readme);
+    assert!(steps.len() >= 6, "found only {} tour steps", steps.len());
+
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dyknow"))
+        .args(["serve", "--in-memory", "--bind", "127.0.0.1:0"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let address = loop {
+        assert!(Instant::now() < deadline, "server did not start");
+        let line = lines.next().expect("server exited").unwrap();
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+
+    for (command, expected) in steps {
+        let command = command.replace("localhost:7878", &address);
+        let out = Command::new("bash")
+            .args(["-c", &command])
+            .current_dir(&root)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{command}: {}", String::from_utf8_lossy(&out.stderr));
+        // CSV results end lines with CRLF; the README shows them as lines.
+        let got = String::from_utf8(out.stdout).unwrap().replace("\r\n", "\n");
+        assert_eq!(
+            got.trim_end(),
+            expected.trim_end(),
+            "the README's command\n{command}\nprinted something else"
+        );
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
