@@ -79,8 +79,8 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::sparql::router())
         .merge(routes::model::router())
         .merge(routes::ops::router())
+        .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
-        .layer(middleware::from_fn_with_state(state.clone(), authorize))
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::from_fn(json_errors))
         .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
@@ -142,14 +142,9 @@ async fn json_errors(request: Request, next: Next) -> Response {
         .map(|b| String::from_utf8_lossy(&b).trim().to_owned())
         .unwrap_or_default();
     let message = match status {
-        StatusCode::METHOD_NOT_ALLOWED => format!(
-            "method not allowed here; allowed: {}",
-            parts
-                .headers
-                .get(header::ALLOW)
-                .and_then(|v| v.to_str().ok())
-                .unwrap_or("see /openapi.json")
-        ),
+        StatusCode::METHOD_NOT_ALLOWED => {
+            "this method is not allowed on this resource (see the Allow header)".to_owned()
+        }
         StatusCode::PAYLOAD_TOO_LARGE => "the request body is larger than the server accepts".to_owned(),
         _ if !text.is_empty() => text,
         _ => status

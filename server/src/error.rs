@@ -139,6 +139,7 @@ impl From<SparqlQueryError> for ApiError {
                 format!("the query was cancelled after the {} s query timeout", t.as_secs_f64()),
             ),
             SparqlQueryError::UnsupportedFormat(m) => Self::new(StatusCode::NOT_ACCEPTABLE, m),
+            SparqlQueryError::Unsupported(m) => Self::bad_request(m),
             other => Self::internal(other),
         }
     }

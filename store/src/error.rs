@@ -98,6 +98,10 @@ pub enum SparqlQueryError {
     /// The requested result format does not fit the query form.
     #[error("{0}")]
     UnsupportedFormat(String),
+    /// The query uses a feature the service does not offer (e.g. federated `SERVICE` calls, or a
+    /// custom function).
+    #[error("{0}")]
+    Unsupported(String),
     /// Evaluation failed.
     #[error("query evaluation failed: {0}")]
     Evaluation(String),

@@ -546,3 +546,175 @@ fn write_specs(
     }
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dyknow_ontology::vocab::dkros;
+
+    const PREFIXES: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+@prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .
+@prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+@prefix owl: <http://www.w3.org/2002/07/owl#> .
+@prefix ex: <http://example.org/ex#> .
+";
+
+    fn ttl(body: &str) -> Vec<u8> {
+        format!("{PREFIXES}{body}").into_bytes()
+    }
+
+    fn kb() -> KnowledgeBase {
+        KnowledgeBase::in_memory().expect("in memory")
+    }
+
+    fn ex(local: &str) -> NamedNode {
+        NamedNode::new_unchecked(format!("http://example.org/ex#{local}"))
+    }
+
+    #[test]
+    fn a_new_knowledge_base_holds_the_built_in_ontologies_and_nothing_else() {
+        let kb = kb();
+        assert_eq!(kb.location(), None);
+        for (iri, _) in BUILTIN_ONTOLOGIES {
+            let graph = NamedNodeRef::new_unchecked(iri);
+            assert!(!kb.graph_triples(graph).expect("storage").is_empty(), "{iri}");
+        }
+        let stats = kb.statistics().expect("storage");
+        assert_eq!((stats.transformations, stats.targets, stats.extensions), (0, 0, 0));
+        assert!(stats.quads > 100, "{stats:?}");
+        assert_eq!(kb.store().named_graphs().count(), BUILTIN_ONTOLOGIES.len());
+        kb.flush().expect("a no-op in memory");
+        // Re-installing the ontologies (as on every open) does not duplicate them.
+        let before = kb.store().len().expect("storage");
+        kb.install_builtin_ontologies().expect("install");
+        assert_eq!(kb.store().len().expect("storage"), before);
+    }
+
+    #[test]
+    fn the_spec_classes_come_from_the_ontology() {
+        let kb = kb();
+        let classes = kb.classes();
+        for c in [dyknow::TRANSFORMATION, dyknow::SOURCE, dyknow::SINK, dkros::ROS_TRANSFORMATION] {
+            assert!(classes.transformation.contains(&c.into_owned()), "{c}");
+        }
+        for c in [dyknow::TARGET, dkros::ROS_TARGET] {
+            assert!(classes.target.contains(&c.into_owned()), "{c}");
+        }
+        assert!(!classes.transformation.contains(&dyknow::IN_PORT.into_owned()));
+        assert!(!classes.transformation.contains(&dyknow::TARGET.into_owned()));
+        assert!(!classes.target.contains(&dyknow::TRANSFORMATION.into_owned()));
+    }
+
+    #[test]
+    fn extensions_add_spec_classes_through_sub_class_and_equivalence() {
+        let kb = kb();
+        let report = kb
+            .post_extension(
+                &ttl("ex:Camera rdfs:subClassOf ex:Sensor . ex:Sensor rdfs:subClassOf dkros:ROSTransformation .
+                      ex:Job owl:equivalentClass dyknow:Transformation .
+                      ex:Query rdfs:subClassOf dyknow:Target .
+                      ex:Unrelated rdfs:subClassOf ex:Sensorless ."),
+                InputFormat::Turtle,
+            )
+            .expect("valid extension");
+        let classes = kb.classes();
+        for c in ["Camera", "Sensor", "Job"] {
+            assert!(classes.transformation.contains(&ex(c)), "{c}");
+        }
+        assert!(classes.target.contains(&ex("Query")));
+        assert!(!classes.transformation.contains(&ex("Unrelated")));
+        assert!(!classes.target.contains(&ex("Camera")));
+
+        kb.remove_extension(&report.graph).expect("present");
+        let classes = kb.classes();
+        assert!(!classes.transformation.contains(&ex("Camera")));
+        assert!(!classes.target.contains(&ex("Query")));
+        assert!(classes.transformation.contains(&dkros::ROS_TRANSFORMATION.into_owned()));
+    }
+
+    /// `owl:equivalentClass` is symmetric: `dyknow:Transformation owl:equivalentClass ex:Job`
+    /// says the same as `ex:Job owl:equivalentClass dyknow:Transformation`, but the class query
+    /// in `refresh_classes` follows the property one way only.
+    #[test]
+    #[ignore = "BUG: refresh_classes follows owl:equivalentClass in one direction only"]
+    fn equivalence_is_symmetric() {
+        let kb = kb();
+        kb.post_extension(&ttl("dyknow:Transformation owl:equivalentClass ex:Job ."), InputFormat::Turtle)
+            .expect("valid extension");
+        assert!(kb.classes().transformation.contains(&ex("Job")));
+    }
+
+    #[test]
+    fn load_document_refreshes_the_classes_of_its_vocabulary() {
+        let kb = kb();
+        let report = kb
+            .load_document(&ttl("ex:Camera rdfs:subClassOf dyknow:Transformation ."), InputFormat::Turtle)
+            .expect("vocabulary only");
+        assert!(report.extension.is_some());
+        assert!(report.transformations.labels.is_empty());
+        assert!(kb.classes().transformation.contains(&ex("Camera")));
+    }
+
+    #[test]
+    fn identities_are_checked_against_the_stored_specs() {
+        let kb = kb();
+        let spec = |label: &str, class: &str| {
+            ttl(&format!(
+                "ex:thing a {class} ; rdfs:label \"{label}\" ;
+                   dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] ;
+                   dyknow:hasChannel [ dyknow:hasChannelName \"/c\" ] ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ."
+            ))
+        };
+        let extracted = |body: &[u8]| {
+            let triples = parse_triples(body, InputFormat::Turtle).expect("Turtle");
+            extract_specs(&triples, &kb.classes(), None).expect("valid").specs
+        };
+        let first = extracted(&spec("a", "dyknow:Transformation"));
+        assert_eq!(first[0].given_iri, Some(ex("thing")));
+        kb.check_identities(&first).expect("nothing stored yet");
+        kb.post_specs(&spec("a", "dyknow:Transformation"), InputFormat::Turtle, SpecKind::Transformation)
+            .expect("valid");
+        kb.check_identities(&first).expect("the same spec may be re-posted");
+        let other_label = extracted(&spec("b", "dyknow:Transformation"));
+        let Err(IngestError::Invalid(SpecValidationError(v))) = kb.check_identities(&other_label) else {
+            panic!("another label on the same IRI")
+        };
+        assert_eq!(v.len(), 1);
+        assert!(v[0].constraint.contains("<http://example.org/ex#thing> is already the transformation labelled \"a\""), "{v:?}");
+        assert_eq!(v[0].subject, "b");
+        let other_kind = extracted(&spec("a", "dyknow:Target"));
+        assert!(matches!(kb.check_identities(&other_kind), Err(IngestError::Invalid(_))));
+    }
+
+    #[test]
+    fn write_specs_reports_replacements() {
+        let kb = kb();
+        let body = ttl("[] a dyknow:Transformation ; rdfs:label \"a\" ;
+            dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] .");
+        let triples = parse_triples(&body, InputFormat::Turtle).expect("Turtle");
+        let specs = extract_specs(&triples, &kb.classes(), None).expect("valid").specs;
+        let mut transaction = kb.store.start_transaction().expect("transaction");
+        let report = write_specs(&mut transaction, &specs).expect("write");
+        assert_eq!(report, PostReport { labels: vec!["a".into()], replaced: vec![] });
+        let report = write_specs(&mut transaction, &specs).expect("write");
+        assert_eq!(report, PostReport { labels: vec!["a".into()], replaced: vec!["a".into()] });
+        transaction.commit().expect("commit");
+        let graph = spec_graph(SpecKind::Transformation, "a");
+        assert_eq!(kb.graph_triples(graph.as_ref()).expect("storage").len(), specs[0].triples.len());
+        assert_eq!(kb.statistics().expect("storage").transformations, 1);
+    }
+
+    #[test]
+    fn extension_graphs_are_named_by_the_hash_of_the_body() {
+        let kb = kb();
+        let body = ttl("ex:A dyknow:similarTo ex:B .");
+        let report = kb.post_extension(&body, InputFormat::Turtle).expect("valid");
+        assert_eq!(report.graph, extension_graph(fnv1a(&body)).into_string());
+        let info = kb.extensions().expect("storage");
+        assert_eq!(info, [ExtensionInfo { graph: report.graph.clone(), ontology: None, triples: 1 }]);
+        assert!(matches!(
+            kb.remove_extension("urn:dyknow:graph:transformation:a"),
+            Err(IngestError::NotFound(_))
+        ));
+    }
+}

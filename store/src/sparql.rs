@@ -125,6 +125,17 @@ impl KnowledgeBase {
         let cancel = query.cancel.clone();
         let map = |e: QueryEvaluationError| match e {
             QueryEvaluationError::Cancelled => SparqlQueryError::Timeout(timeout),
+            e @ (QueryEvaluationError::UnsupportedService(_)
+            | QueryEvaluationError::UnboundService
+            | QueryEvaluationError::InvalidServiceName(_)
+            | QueryEvaluationError::Service(_)) => SparqlQueryError::Unsupported(format!(
+                "{e}: this endpoint answers from its own store and makes no federated SERVICE calls"
+            )),
+            e @ (QueryEvaluationError::UnsupportedCustomFunction(_)
+            | QueryEvaluationError::UnsupportedCustomFunctionArity { .. }
+            | QueryEvaluationError::NotExistingSubstitutedVariable(_)) => {
+                SparqlQueryError::Unsupported(e.to_string())
+            }
             other => SparqlQueryError::Evaluation(other.to_string()),
         };
         let results = query

@@ -1703,6 +1703,32 @@ fn ports_come_back_in_document_order() {
     assert_eq!(t.inputs[0].tags, [vtag("1"), vtag("2")]);
 }
 
+/// Extraction is quadratic in the number of nodes of a document: `SpecBuilder::name_node`
+/// scans every minted IRI for each new one (`self.iris.values().any(..)`) and `build` looks
+/// blank objects up in a `Vec` (`owned.contains(..)`). It runs even for a spec already rejected
+/// for having too many ports. Doubling the ports must not quadruple the time (a linear
+/// implementation gives about 2x; today it is about 15x).
+#[test]
+#[ignore = "BUG: spec extraction is quadratic in the number of nodes (CPU cost of one POST)"]
+fn extraction_time_is_linear_in_the_document_size() {
+    let time = |n: usize| {
+        let ports: Vec<String> = (0..n)
+            .map(|i| format!("dyknow:hasOutPort [ dyknow:hasName \"p{i}\" ; dyknow:hasTag [ dyknow:hasValue \"T\" ] ]"))
+            .collect();
+        let body = tf_with(&ports.join(" ;\n   "));
+        let kb = kb();
+        let start = std::time::Instant::now();
+        violations(post_tf(&kb, &body));
+        start.elapsed()
+    };
+    let small = time(2000);
+    let large = time(8000);
+    assert!(
+        large < small * 8,
+        "2000 ports: {small:?}, 8000 ports: {large:?} (linear would be about 4x)"
+    );
+}
+
 // ---------------------------------------------------------------------------------------------
 // Property: post_specs accepts exactly the valid specs and stores exactly what they say
 // ---------------------------------------------------------------------------------------------

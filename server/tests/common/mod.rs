@@ -50,8 +50,12 @@ impl Answer {
     }
 
     pub fn json(&self) -> Value {
-        serde_json::from_slice(&self.body)
-            .unwrap_or_else(|e| panic!("the body is not JSON ({e}): {}", String::from_utf8_lossy(&self.body)))
+        serde_json::from_slice(&self.body).unwrap_or_else(|e| {
+            panic!(
+                "the body is not JSON ({e}): {}",
+                String::from_utf8_lossy(&self.body)
+            )
+        })
     }
 
     pub fn header(&self, name: impl header::AsHeaderName) -> Option<&str> {
@@ -84,7 +88,11 @@ impl Answer {
     /// `{"error": "<non-empty>", "details": [...]}`. Returns the details.
     pub fn expect_error(&self, status: u16) -> Vec<Value> {
         self.expect(status);
-        assert_eq!(self.media_type(), "application/json", "error answers are JSON: {self:?}");
+        assert_eq!(
+            self.media_type(),
+            "application/json",
+            "error answers are JSON: {self:?}"
+        );
         let body = self.json();
         let object = body.as_object().expect("an error body is an object");
         let error = object
@@ -149,7 +157,11 @@ impl Api {
             .await
             .expect("the router is infallible");
         let (parts, body) = response.into_parts();
-        let body = body.collect().await.expect("the body can be read").to_bytes();
+        let body = body
+            .collect()
+            .await
+            .expect("the body can be read")
+            .to_bytes();
         Answer {
             status: parts.status,
             headers: parts.headers,
@@ -166,7 +178,11 @@ impl Api {
             .await
             .expect("the router is infallible");
         let (parts, body) = response.into_parts();
-        let body = body.collect().await.expect("the body can be read").to_bytes();
+        let body = body
+            .collect()
+            .await
+            .expect("the body can be read")
+            .to_bytes();
         Answer {
             status: parts.status,
             headers: parts.headers,
@@ -175,12 +191,18 @@ impl Api {
     }
 
     pub async fn get(&self, uri: &str) -> Answer {
-        self.send(request(Method::GET, uri, &[], Body::empty())).await
+        self.send(request(Method::GET, uri, &[], Body::empty()))
+            .await
     }
 
     pub async fn get_accept(&self, uri: &str, accept: &str) -> Answer {
-        self.send(request(Method::GET, uri, &[(header::ACCEPT.as_str(), accept)], Body::empty()))
-            .await
+        self.send(request(
+            Method::GET,
+            uri,
+            &[(header::ACCEPT.as_str(), accept)],
+            Body::empty(),
+        ))
+        .await
     }
 
     pub async fn post(&self, uri: &str, content_type: &str, body: impl Into<Body>) -> Answer {
@@ -198,7 +220,8 @@ impl Api {
     }
 
     pub async fn delete(&self, uri: &str) -> Answer {
-        self.send(request(Method::DELETE, uri, &[], Body::empty())).await
+        self.send(request(Method::DELETE, uri, &[], Body::empty()))
+            .await
     }
 
     /// The whole model as N-Triples (sorted by the server, so comparable).

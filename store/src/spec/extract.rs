@@ -338,6 +338,8 @@ struct SpecBuilder<'a, 'i> {
     base: String,
     /// Minted IRIs for blank nodes, and given IRIs kept as they are.
     iris: HashMap<Node, NamedNode>,
+    /// The IRIs minted so far (to keep minted IRIs unique in constant time).
+    minted: HashSet<String>,
     /// Human-readable names of nodes for violations.
     names: HashMap<Node, String>,
     violations: Vec<Violation>,
@@ -364,6 +366,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             label,
             base,
             iris: HashMap::new(),
+            minted: HashSet::new(),
             names,
             violations: Vec::new(),
             out: Vec::new(),
@@ -385,9 +388,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             NamedOrBlankNode::NamedNode(n) => n.clone(),
             NamedOrBlankNode::BlankNode(_) => {
                 let mut candidate = minted();
-                if self.iris.values().any(|v| v.as_str() == candidate) {
+                if self.minted.contains(&candidate) {
                     candidate = format!("{candidate}-{}", self.iris.len());
                 }
+                self.minted.insert(candidate.clone());
                 NamedNode::new_unchecked(candidate)
             }
         };
@@ -415,6 +419,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             SpecKind::Transformation => self.transformation(&root_iri).map(Spec::Transformation),
             SpecKind::Target => self.target(&root_iri).map(Spec::Target),
         };
+        if spec.is_none() || !self.violations.is_empty() {
+            // Rejected: no triples to write, so no need to copy the rest.
+            return (None, std::mem::take(&mut self.violations));
+        }
         // Copy the remaining statements of every owned node, renamed; structural links were
         // already written in normal form above.
         for node in &owned {
@@ -817,3 +825,234 @@ pub(crate) fn spec_from_graph(triples: &[Triple], kind: SpecKind) -> Option<Spec
     doc.specs.into_iter().next().map(|s| s.spec)
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rdf_input::{InputFormat, parse_triples};
+
+    const PREFIXES: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+@prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .
+@prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+@prefix xsd: <http://www.w3.org/2001/XMLSchema#> .
+@prefix ex: <http://example.org/ex#> .
+";
+
+    fn doc(body: &str) -> Vec<Triple> {
+        parse_triples(format!("{PREFIXES}{body}").as_bytes(), InputFormat::Turtle)
+            .expect("valid Turtle")
+    }
+
+    fn typed(value: &str, datatype: &str) -> Literal {
+        Literal::new_typed_literal(value, NamedNode::new_unchecked(format!("{}{datatype}", xsd::NAMESPACE)))
+    }
+
+    fn is_blank_free(t: &Triple) -> bool {
+        !matches!(t.subject, NamedOrBlankNode::BlankNode(_)) && !matches!(t.object, Term::BlankNode(_))
+    }
+
+    #[test]
+    fn costs_are_finite_non_negative_xsd_numbers() {
+        for (value, datatype, expected) in [
+            ("1.0", "double", Some(1.0)),
+            ("1.5E2", "double", Some(150.0)),
+            ("0", "integer", Some(0.0)),
+            (" 2.5 ", "decimal", Some(2.5)),
+            ("3", "nonNegativeInteger", Some(3.0)),
+            ("0.25", "float", Some(0.25)),
+            ("7", "unsignedShort", Some(7.0)),
+            ("-1", "integer", None),
+            ("-0.001", "decimal", None),
+            ("NaN", "double", None),
+            ("INF", "double", None),
+            ("-INF", "float", None),
+            ("1e400", "double", None),
+            ("abc", "double", None),
+            ("1.0", "string", None),
+            ("true", "boolean", None),
+            ("1", "dateTime", None),
+        ] {
+            assert_eq!(cost_value(&typed(value, datatype)), expected, "{value:?}^^xsd:{datatype}");
+        }
+        // Negative zero is not below zero.
+        assert_eq!(cost_value(&typed("-0", "decimal")), Some(0.0));
+        assert_eq!(cost_value(&Literal::new_simple_literal("1.0")), None);
+        assert_eq!(cost_value(&Literal::new_language_tagged_literal_unchecked("1.0", "en")), None);
+        assert_eq!(
+            cost_value(&Literal::new_typed_literal("1.0", NamedNode::new_unchecked("http://example.org/double"))),
+            None,
+            "only XSD datatypes"
+        );
+    }
+
+    #[test]
+    fn the_default_spec_classes_are_the_ontology_classes() {
+        let classes = SpecClasses::default();
+        for c in [dyknow::TRANSFORMATION, dyknow::SOURCE, dyknow::SINK, dkros::ROS_TRANSFORMATION] {
+            assert!(classes.transformation.contains(&c.into_owned()), "{c}");
+            assert!(!classes.target.contains(&c.into_owned()), "{c}");
+        }
+        for c in [dyknow::TARGET, dkros::ROS_TARGET] {
+            assert!(classes.target.contains(&c.into_owned()), "{c}");
+        }
+        assert_eq!((classes.transformation.len(), classes.target.len()), (4, 2));
+    }
+
+    #[test]
+    fn a_mixed_document_yields_both_kinds_in_order_and_the_rest() {
+        let triples = doc(r#"
+[] a dkros:ROSTarget ; rdfs:label "q" ;
+   dyknow:hasChannel [ a dkros:Topic ; dyknow:hasChannelName "/c" ] ; dyknow:hasTag [ dyknow:hasValue "T" ] .
+ex:A dyknow:similarTo ex:B .
+[] a dyknow:Transformation ; rdfs:label "t" ;
+   dyknow:hasOutPort [ dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "T" ] ] .
+"#);
+        let extracted = extract_specs(&triples, &SpecClasses::default(), None).expect("valid");
+        let kinds: Vec<(SpecKind, &str)> =
+            extracted.specs.iter().map(|s| (s.spec.kind(), s.spec.label())).collect();
+        assert_eq!(kinds, [(SpecKind::Target, "q"), (SpecKind::Transformation, "t")]);
+        assert_eq!(extracted.rest.len(), 1);
+        assert_eq!(extracted.rest[0].predicate, dyknow::SIMILAR_TO);
+        for spec in &extracted.specs {
+            assert_eq!(spec.given_iri, None);
+            assert_eq!(spec.graph, spec_graph(spec.spec.kind(), spec.spec.label()));
+            assert!(spec.triples.iter().all(is_blank_free), "{:#?}", spec.triples);
+            let base = spec_resource(spec.spec.kind(), spec.spec.label());
+            assert!(
+                spec.triples.iter().all(|t| t.subject.to_string().starts_with(&format!("<{base}"))
+                    || t.subject.to_string().starts_with("<urn:dyknow:channel:")),
+                "every minted IRI is under the spec's resource: {:#?}",
+                spec.triples
+            );
+        }
+        // The channel is named by its name, so targets naming one channel share it.
+        let target = &extracted.specs[0];
+        assert!(target.triples.iter().any(|t| t.predicate == dyknow::HAS_CHANNEL
+            && t.object == Term::from(NamedNode::new_unchecked("urn:dyknow:channel:%2Fc"))));
+
+        // The endpoints take one kind, and no vocabulary.
+        let err = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
+            .expect_err("a target and vocabulary");
+        assert!(err.0.iter().any(|v| v.constraint.contains("accepts transformation specs only")));
+        assert!(err.0.iter().any(|v| v.constraint.contains("every statement belongs to a spec")
+            && v.subject == "http://example.org/ex#A"));
+    }
+
+    #[test]
+    fn specs_own_blank_nodes_and_iris_along_structural_links_only() {
+        let triples = doc(r#"
+[] a dyknow:Transformation ; rdfs:label "t" ;
+   dyknow:hasOutPort ex:port ;
+   rdfs:seeAlso ex:elsewhere ;
+   ex:note [ ex:text "owned, as a blank node" ] .
+ex:port dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "T" ] .
+ex:elsewhere rdfs:label "not owned" .
+"#);
+        let extracted = extract_specs(&triples, &SpecClasses::default(), None).expect("valid");
+        assert_eq!(extracted.specs.len(), 1);
+        let spec = &extracted.specs[0];
+        let Spec::Transformation(t) = &spec.spec else { panic!("a transformation") };
+        assert_eq!(t.outputs.len(), 1);
+        assert_eq!(t.outputs[0].name, "o");
+        let port = NamedNode::new_unchecked("http://example.org/ex#port");
+        assert!(
+            spec.triples.iter().any(|t| t.predicate == dyknow::HAS_OUT_PORT && t.object == Term::from(port.clone())),
+            "a port given by IRI keeps its IRI"
+        );
+        assert!(spec.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("owned, as a blank node"))));
+        assert!(spec.triples.iter().any(|t| t.predicate == rdfs::LABEL.into_owned()
+            && t.object == Term::from(Literal::new_simple_literal("t"))));
+        assert!(!spec.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("not owned"))));
+        assert_eq!(extracted.rest.len(), 1, "{:#?}", extracted.rest);
+        assert_eq!(extracted.rest[0].subject.to_string(), "<http://example.org/ex#elsewhere>");
+    }
+
+    #[test]
+    fn a_spec_does_not_swallow_another_spec_it_links_to() {
+        let triples = doc(r#"
+_:a a dyknow:Transformation ; rdfs:label "a" ; ex:next _:b ;
+   dyknow:hasOutPort [ dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "T" ] ] .
+_:b a dyknow:Transformation ; rdfs:label "b" ;
+   dyknow:hasOutPort [ dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "U" ] ] .
+"#);
+        let extracted = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
+            .expect("valid");
+        assert_eq!(extracted.specs.len(), 2);
+        let a = &extracted.specs[0];
+        assert_eq!(a.spec.label(), "a");
+        assert!(
+            !a.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("b"))
+                || t.object == Term::from(Literal::new_simple_literal("U"))),
+            "b's statements are b's: {:#?}",
+            a.triples
+        );
+        assert!(extracted.rest.is_empty());
+    }
+
+    #[test]
+    fn every_violation_of_a_document_is_reported_at_once() {
+        let triples = doc(r#"
+[] a dyknow:Transformation ; rdfs:label "a" ;
+   dyknow:hasOutPort [ dyknow:hasName "o" ] .
+[] a dyknow:Source ; rdfs:label "b" ;
+   dyknow:hasInPort [ dyknow:hasName "i" ; dyknow:hasTag [ dyknow:hasValue "T" ] ] ;
+   dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue -1 ] .
+[] a dyknow:Transformation .
+"#);
+        let err = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
+            .expect_err("invalid");
+        let found: Vec<(&str, &str)> =
+            err.0.iter().map(|v| (v.constraint.as_str(), v.subject.as_str())).collect();
+        assert!(found.iter().any(|(c, s)| c.starts_with("a Port has some Tag") && *s == "a/port o"), "{found:#?}");
+        assert!(found.iter().any(|(c, s)| c.starts_with("Source has exactly 0 InPort") && *s == "b"), "{found:#?}");
+        assert!(found.iter().any(|(c, s)| c.contains("upkeep cost is a non-negative number") && *s == "b/upkeep cost"), "{found:#?}");
+        assert!(found.iter().any(|(c, s)| c.contains("exactly 1 rdfs:label") && *s == "a blank node"), "{found:#?}");
+        assert_eq!(found.len(), 4, "{found:#?}");
+    }
+
+    #[test]
+    fn a_stored_graph_reads_back_as_the_posted_spec() {
+        let triples = doc(r#"
+[] a dkros:ROSTransformation ; rdfs:label "Undistort(cam1)" ;
+   dkros:hasType "nodelet" ; dkros:hasSource "package/Undistort" ;
+   dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName "configPath" ; dyknow:hasValue "/p/" ] ;
+   dkros:hasPort [ a dyknow:InPort ; dyknow:hasPortName "raw" ; dyknow:hasTag [ dyknow:hasValue "A" ] ] ;
+   dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName "undist" ; dyknow:hasTag [ dyknow:hasTagDescription ex:B ] ] ;
+   dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue 0.5 ] .
+"#);
+        let extracted = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
+            .expect("valid");
+        let spec = &extracted.specs[0];
+        let Spec::Transformation(t) = &spec.spec else { panic!("a transformation") };
+        assert_eq!((t.labour, t.upkeep), (DEFAULT_COST, 0.5));
+        assert_eq!(t.inputs[0].name, "raw");
+        assert_eq!(t.outputs[0].tags, [Tag { value: None, description: Some("http://example.org/ex#B".into()) }]);
+        // The normal form: hasPortName becomes hasName, hasPort becomes hasIn/OutPort, the
+        // missing labour estimate is written.
+        assert!(!spec.triples.iter().any(|t| t.predicate == dyknow::HAS_PORT_NAME || t.predicate == dkros::HAS_PORT));
+        assert!(spec.triples.iter().any(|t| t.predicate == rdf::TYPE && t.object == Term::from(dyknow::LABOUR_COST_MODEL)));
+        assert_eq!(spec_from_graph(&spec.triples, SpecKind::Transformation), Some(spec.spec.clone()));
+        assert_eq!(spec_from_graph(&spec.triples, SpecKind::Target), None);
+        assert_eq!(spec_from_graph(&[], SpecKind::Transformation), None);
+        // Normalising is idempotent.
+        let again = extract_specs(&spec.triples, &SpecClasses::default(), Some(SpecKind::Transformation))
+            .expect("the normal form is valid");
+        let mut first: Vec<String> = spec.triples.iter().map(ToString::to_string).collect();
+        let mut second: Vec<String> = again.specs[0].triples.iter().map(ToString::to_string).collect();
+        first.sort();
+        second.sort();
+        assert_eq!(first, second);
+    }
+
+    #[test]
+    fn capitalised_and_describe() {
+        assert_eq!(capitalised("transformation"), "Transformation");
+        assert_eq!(capitalised(""), "");
+        let iri: Node = NamedNode::new_unchecked("http://example.org/x").into();
+        let blank: Node = oxigraph::model::BlankNode::default().into();
+        assert_eq!(describe(&iri, &HashMap::new()), "http://example.org/x");
+        assert_eq!(describe(&blank, &HashMap::new()), "a blank node");
+        let names = HashMap::from([(blank.clone(), "t/port o".to_owned())]);
+        assert_eq!(describe(&blank, &names), "t/port o");
+    }
+}

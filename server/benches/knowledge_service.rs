@@ -1,0 +1,297 @@
+#![expect(clippy::expect_used, reason = "a benchmark harness: a failed set-up aborts the run")]
+//! Knowledge-service benchmark (issue: knowledge service core). Prints a table.
+//!
+//! * Ingestion on the on-disk store: 1,000 single-spec POSTs in sequence, and one POST of a
+//!   batch of 10,000 specs.
+//! * SPARQL: three queries over 10,000 transformations, against `dyknow serve` and, side by side
+//!   in the same run, `oxigraph serve` (PyPI package `oxigraph`) loaded with the same quads
+//!   (`--union-default-graph`, so both answer over the same union).
+//!
+//! Both servers run as child processes on loopback and are driven by the same HTTP client.
+//! `OXIGRAPH_BIN` names the peer's binary (`./dev bench` installs it); without it the peer's
+//! column is left empty. `BENCH_QUICK=1` shrinks the sizes for a smoke run.
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .unwrap_or(17878)
+}
+
+fn start_dyknow(data: &std::path::Path) -> Server {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_dyknow"))
+        .args(["serve", "--bind", "127.0.0.1:0", "--data"])
+        .arg(data)
+        .env("RUST_LOG", "warn,dyknow_server=info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("dyknow binary");
+    let mut lines = BufReader::new(child.stderr.take().expect("stderr")).lines();
+    let url = loop {
+        let line = lines.next().expect("dyknow exited").expect("stderr line");
+        if let Some(rest) = line.split("listening on ").nth(1) {
+            break rest.split_whitespace().next().expect("address").to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    Server { child, url }
+}
+
+fn start_oxigraph(bin: &str, location: &std::path::Path) -> Server {
+    let port = free_port();
+    let child = Command::new(bin)
+        .args(["serve", "--union-default-graph", "--bind"])
+        .arg(format!("127.0.0.1:{port}"))
+        .arg("--location")
+        .arg(location)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("oxigraph binary");
+    let url = format!("http://127.0.0.1:{port}");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while agent().get(&url).call().is_err() {
+        assert!(Instant::now() < deadline, "oxigraph serve did not start");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Server { child, url }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(600)))
+        .build()
+        .into()
+}
+
+const PREFIXES: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+@prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
+@prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n";
+
+/// One transformation in the style of Listing 5.3: a parameter, one in and one out port.
+fn spec(i: usize) -> String {
+    format!(
+        "[] a dkros:ROSTransformation ; rdfs:label \"tf-{i:05}\" ; dkros:hasType \"nodelet\" ; \
+         dkros:hasSource \"package/Tf{i}\" ;\n\
+         dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"config\" ; dyknow:hasValue \"/etc/tf/{i}\" ] ;\n\
+         dkros:hasPort [ a dyknow:InPort ; dyknow:hasName \"in\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({})\" ] ] ;\n\
+         dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName \"out\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({i})\" ] ] ;\n\
+         dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] , [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .\n",
+        i.saturating_sub(1)
+    )
+}
+
+fn post(agent: &ureq::Agent, url: &str, content_type: &str, body: &[u8]) -> u16 {
+    let mut r = agent
+        .post(url)
+        .header("Content-Type", content_type)
+        .send(body)
+        .expect("request");
+    let _ = r.body_mut().read_to_vec();
+    r.status().as_u16()
+}
+
+fn query(agent: &ureq::Agent, endpoint: &str, q: &str) -> (Duration, Vec<u8>) {
+    let start = Instant::now();
+    let mut r = agent
+        .post(endpoint)
+        .header("Content-Type", "application/sparql-query")
+        .header("Accept", "application/sparql-results+json")
+        .send(q.as_bytes())
+        .expect("query");
+    let body = r.body_mut().read_to_vec().expect("body");
+    let elapsed = start.elapsed();
+    assert_eq!(r.status().as_u16(), 200, "{}", String::from_utf8_lossy(&body));
+    (elapsed, body)
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+fn rows_of(json: &[u8]) -> usize {
+    serde_json::from_slice::<serde_json::Value>(json)
+        .ok()
+        .and_then(|v| v["results"]["bindings"].as_array().map(Vec::len))
+        .unwrap_or(0)
+}
+
+fn main() {
+    // `cargo bench` passes --bench; a filter argument is not supported by this harness.
+    let quick = std::env::var("BENCH_QUICK").is_ok();
+    let (singles, batch, reps) = if quick { (100, 1_000, 11) } else { (1_000, 10_000, 101) };
+    let peer = std::env::var("OXIGRAPH_BIN").ok().filter(|p| std::path::Path::new(p).exists());
+    let dir = tempfile::tempdir().expect("tempdir");
+    let agent = agent();
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "# DyKnow knowledge service benchmark ({singles} single POSTs, batch of {batch}, {reps} runs per query)");
+
+    // --- Ingestion -----------------------------------------------------------------------
+    let server = start_dyknow(&dir.path().join("ingest"));
+    let url = format!("{}/transformations", server.url);
+    let bodies: Vec<String> = (0..singles).map(|i| format!("{PREFIXES}{}", spec(i))).collect();
+    let start = Instant::now();
+    for body in &bodies {
+        assert_eq!(post(&agent, &url, "text/turtle", body.as_bytes()), 201);
+    }
+    let single_rate = singles as f64 / start.elapsed().as_secs_f64();
+    let mut doc = String::from(PREFIXES);
+    for i in singles..singles + batch {
+        doc.push_str(&spec(i));
+    }
+    let start = Instant::now();
+    assert_eq!(post(&agent, &url, "text/turtle", doc.as_bytes()), 201);
+    let batch_elapsed = start.elapsed();
+    let batch_rate = batch as f64 / batch_elapsed.as_secs_f64();
+    drop(server);
+
+    // Peer ingestion of the same specs as N-Triples graphs (no validation), for scale.
+    let mut peer_single_rate = None;
+    if let Some(bin) = &peer {
+        let p = start_oxigraph(bin, &dir.path().join("peer-ingest"));
+        let nt: Vec<Vec<u8>> = bodies
+            .iter()
+            .map(|b| turtle_to_ntriples(b))
+            .collect();
+        let start = Instant::now();
+        for (i, body) in nt.iter().enumerate() {
+            let status = post(
+                &agent,
+                &format!("{}/store?graph=urn:bench:{i}", p.url),
+                "application/n-triples",
+                body,
+            );
+            assert!(status == 201 || status == 204, "oxigraph answered {status}");
+        }
+        peer_single_rate = Some(singles as f64 / start.elapsed().as_secs_f64());
+    }
+
+    let _ = writeln!(out, "\n## Ingestion (on-disk store, HTTP on loopback)\n");
+    let _ = writeln!(out, "| measure | dyknow | oxigraph serve (POST /store, no validation) | bar |");
+    let _ = writeln!(out, "| --- | --- | --- | --- |");
+    let _ = writeln!(
+        out,
+        "| {singles} single-spec POSTs, sequential | {single_rate:.0} POSTs/s | {} | ≥ 500 POSTs/s |",
+        peer_single_rate.map_or("n/a".into(), |r| format!("{r:.0} POSTs/s"))
+    );
+    let _ = writeln!(
+        out,
+        "| one POST of {batch} specs ({:.1} MB Turtle) | {batch_rate:.0} specs/s ({:.0} ms) | | ≥ 20,000 specs/s |",
+        doc.len() as f64 / 1e6,
+        batch_elapsed.as_secs_f64() * 1e3
+    );
+
+    // --- SPARQL ---------------------------------------------------------------------------
+    let data = dir.path().join("sparql");
+    let server = start_dyknow(&data);
+    let mut doc = String::from(PREFIXES);
+    for i in 0..batch {
+        doc.push_str(&spec(i));
+    }
+    assert_eq!(
+        post(&agent, &format!("{}/transformations", server.url), "text/turtle", doc.as_bytes()),
+        201
+    );
+    let mut peer_server = None;
+    if let Some(bin) = &peer {
+        // The same quads: every named graph of our store, exported with SPARQL.
+        let dump = agent
+            .post(&format!("{}/sparql", server.url))
+            .header("Content-Type", "application/sparql-query")
+            .header("Accept", "application/n-triples")
+            .send("CONSTRUCT { ?s ?p ?o } WHERE { ?s ?p ?o }".as_bytes())
+            .expect("dump")
+            .body_mut()
+            .with_config()
+            .limit(1 << 30)
+            .read_to_vec()
+            .expect("dump body");
+        let file = dir.path().join("model.nt");
+        std::fs::write(&file, &dump).expect("write dump");
+        let location = dir.path().join("peer-sparql");
+        let status = Command::new(bin)
+            .args(["load", "--location"])
+            .arg(&location)
+            .arg("--file")
+            .arg(&file)
+            .stderr(Stdio::null())
+            .status()
+            .expect("oxigraph load");
+        assert!(status.success());
+        peer_server = Some(start_oxigraph(bin, &location));
+    }
+    let queries = [
+        (
+            "lookup by label",
+            "PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#> SELECT ?t WHERE { ?t rdfs:label \"tf-05000\" }",
+        ),
+        (
+            "ports and tags of all transformations",
+            "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#> \
+             SELECT ?label ?port ?tag WHERE { ?t a dyknow:Transformation ; rdfs:label ?label ; \
+             (dyknow:hasInPort|dyknow:hasOutPort) ?p . ?p dyknow:hasName ?port ; dyknow:hasTag/dyknow:hasValue ?tag }",
+        ),
+        (
+            "count",
+            "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> SELECT (COUNT(?t) AS ?n) WHERE { ?t a dyknow:Transformation }",
+        ),
+    ];
+    let _ = writeln!(out, "\n## SPARQL over {batch} transformations (median latency, same client, interleaved)\n");
+    let _ = writeln!(out, "| query | rows | dyknow | oxigraph serve | ratio dyknow/oxigraph | bar |");
+    let _ = writeln!(out, "| --- | --- | --- | --- | --- | --- |");
+    for (name, q) in queries {
+        let ours_endpoint = format!("{}/sparql", server.url);
+        let peer_endpoint = peer_server.as_ref().map(|p| format!("{}/query", p.url));
+        // Warm-up, and a check that both answer the same number of rows.
+        let (_, ours_body) = query(&agent, &ours_endpoint, q);
+        let rows = rows_of(&ours_body);
+        if let Some(pe) = &peer_endpoint {
+            let (_, peer_body) = query(&agent, pe, q);
+            assert_eq!(rows, rows_of(&peer_body), "{name}: the two servers disagree");
+        }
+        let mut ours = Vec::new();
+        let mut theirs = Vec::new();
+        for _ in 0..reps {
+            ours.push(query(&agent, &ours_endpoint, q).0);
+            if let Some(pe) = &peer_endpoint {
+                theirs.push(query(&agent, pe, q).0);
+            }
+        }
+        let ours = median(ours);
+        let theirs = (!theirs.is_empty()).then(|| median(theirs));
+        let _ = writeln!(
+            out,
+            "| {name} | {rows} | {:.3} ms | {} | {} | ≤ 1.2 |",
+            ours.as_secs_f64() * 1e3,
+            theirs.map_or("n/a".into(), |t| format!("{:.3} ms", t.as_secs_f64() * 1e3)),
+            theirs.map_or("n/a".into(), |t| format!("{:.2}", ours.as_secs_f64() / t.as_secs_f64()))
+        );
+    }
+}
+
+/// Converts a Turtle document to N-Triples (for the peer, which gets plain graphs).
+fn turtle_to_ntriples(turtle: &str) -> Vec<u8> {
+    let triples = dyknow_store::parse_triples(turtle.as_bytes(), dyknow_store::InputFormat::Turtle)
+        .expect("valid Turtle");
+    dyknow_store::serialize(&triples, dyknow_store::oxigraph::io::RdfFormat::NTriples)
+        .expect("serialise")
+}
