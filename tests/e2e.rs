@@ -43,6 +43,7 @@ async fn every_example_spec_loads_through_the_api() {
     assert_eq!(labels, ["qid1", "qid2", "target1", "undistortSub"]);
 }
 
+#[expect(clippy::expect_used, reason = "test helper")]
 fn turtle_graph(text: &str) -> LightGraph {
     TurtleParser::new()
         .parse_str(text)
@@ -50,6 +51,7 @@ fn turtle_graph(text: &str) -> LightGraph {
         .expect("valid Turtle")
 }
 
+#[expect(clippy::expect_used, reason = "test helper")]
 fn nt_graph(text: &str) -> LightGraph {
     NTriplesParser::new()
         .parse_str(text)
@@ -70,7 +72,10 @@ async fn model_turtle_reimported_into_an_empty_store_is_isomorphic() {
     // Re-import into an empty Oxigraph store and dump it again.
     let store = dyknow_store::oxigraph::store::Store::new().unwrap();
     store
-        .load_from_slice(dyknow_store::oxigraph::io::RdfFormat::Turtle, turtle.as_bytes())
+        .load_from_slice(
+            dyknow_store::oxigraph::io::RdfFormat::Turtle,
+            turtle.as_bytes(),
+        )
         .unwrap();
     let mut dumped = Vec::new();
     store
@@ -130,7 +135,15 @@ fn assert_same(a: &Components, b: &Components, an: &str, bn: &str) {
 async fn owl_exports_read_back_into_the_same_axioms() {
     let router = service();
     load_examples(&router).await;
-    let (status, ct, ofn) = send(&router, "GET", "/model", None, Some("text/owl-functional"), vec![]).await;
+    let (status, ct, ofn) = send(
+        &router,
+        "GET",
+        "/model",
+        None,
+        Some("text/owl-functional"),
+        vec![],
+    )
+    .await;
     assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&ofn));
     assert_eq!(ct, "text/owl-functional");
     let (status, ct, owx) = send(&router, "GET", "/model?format=owx", None, None, vec![]).await;
@@ -160,7 +173,12 @@ async fn owl_exports_read_back_into_the_same_axioms() {
     assert_same(&from_ofn, &from_rdf, "OFN", "RDF");
 
     // The core's characteristic axioms and the environment's facts are there.
-    assert!(ofn.contains("TransitiveObjectProperty(dyknow:dependsOn)"), "{ofn:.2000}");
+    assert!(
+        ofn.contains("TransitiveObjectProperty(dyknow:dependsOn)"),
+        "{ofn:.2000}"
+    );
     assert!(ofn.contains("ObjectPropertyChain(dyknow:hasSubscription dyknow:fromCU)"));
-    assert!(ofn.contains("ClassAssertion(dkros:ROSTransformation <urn:dyknow:transformation:Undistort%28cam1%29>)"));
+    assert!(ofn.contains(
+        "ClassAssertion(dkros:ROSTransformation <urn:dyknow:transformation:Undistort%28cam1%29>)"
+    ));
 }

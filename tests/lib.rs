@@ -1,4 +1,7 @@
-#![expect(clippy::expect_used, reason = "test harness: a failed set-up is a failed test")]
+#![expect(
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
 //! Helpers shared by DyKnow's end-to-end tests: an in-process service driven without a socket.
 
 use axum::Router;

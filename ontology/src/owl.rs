@@ -65,13 +65,12 @@ fn parse_rdf(
     config.common.local_only = true;
     config.format = Some(format);
     let mut reader = BufReader::new(rdf);
-    let (ontology, incomplete) = horned_owl::io::rdf::reader::read::<
-        ArcStr,
-        ArcAnnotatedComponent,
-        _,
-        _,
-    >(&mut reader, config)
-    .map_err(OwlConversionError::parse)?;
+    let (ontology, incomplete) =
+        horned_owl::io::rdf::reader::read::<ArcStr, ArcAnnotatedComponent, _, _>(
+            &mut reader,
+            config,
+        )
+        .map_err(OwlConversionError::parse)?;
     let unparsed = incomplete.simple.len() + incomplete.bnode.len() + incomplete.bnode_seq.len();
     Ok((ontology.into(), unparsed))
 }
@@ -119,12 +118,16 @@ pub fn read_owl(
     let config = ParserConfiguration::new(build);
     let mut reader = BufReader::new(text.as_bytes());
     let set: SetOntology<ArcStr> = match syntax {
-        OwlSyntax::OwlXml => horned_owl::io::owx::reader::read(&mut reader, config)
-            .map_err(OwlConversionError::parse)?
-            .0,
-        OwlSyntax::Functional => horned_owl::io::ofn::reader::read(&mut reader, config)
-            .map_err(OwlConversionError::parse)?
-            .0,
+        OwlSyntax::OwlXml => {
+            horned_owl::io::owx::reader::read(&mut reader, config)
+                .map_err(OwlConversionError::parse)?
+                .0
+        }
+        OwlSyntax::Functional => {
+            horned_owl::io::ofn::reader::read(&mut reader, config)
+                .map_err(OwlConversionError::parse)?
+                .0
+        }
     };
     Ok(set.into_iter().collect())
 }

@@ -113,6 +113,8 @@ pub mod dkros {
         HAS_SOURCE = "hasSource";
         /// `dkros:hasParam`.
         HAS_PARAM = "hasParam";
+        /// `dkros:hasIndex`, the position of a port or tag in the posted spec.
+        HAS_INDEX = "hasIndex";
     }
 }
 
@@ -161,6 +163,8 @@ pub mod xsd {
         FLOAT = "float";
         /// `xsd:boolean`.
         BOOLEAN = "boolean";
+        /// `xsd:nonNegativeInteger`.
+        NON_NEGATIVE_INTEGER = "nonNegativeInteger";
     }
 }
 

@@ -1,4 +1,7 @@
-#![expect(clippy::expect_used, reason = "a benchmark harness: a failed set-up aborts the run")]
+#![expect(
+    clippy::expect_used,
+    reason = "a benchmark harness: a failed set-up aborts the run"
+)]
 //! Knowledge-service benchmark (issue: knowledge service core). Prints a table.
 //!
 //! * Ingestion on the on-disk store: 1,000 single-spec POSTs in sequence, and one POST of a
@@ -119,7 +122,12 @@ fn query(agent: &ureq::Agent, endpoint: &str, q: &str) -> (Duration, Vec<u8>) {
         .expect("query");
     let body = r.body_mut().read_to_vec().expect("body");
     let elapsed = start.elapsed();
-    assert_eq!(r.status().as_u16(), 200, "{}", String::from_utf8_lossy(&body));
+    assert_eq!(
+        r.status().as_u16(),
+        200,
+        "{}",
+        String::from_utf8_lossy(&body)
+    );
     (elapsed, body)
 }
 
@@ -138,17 +146,28 @@ fn rows_of(json: &[u8]) -> usize {
 fn main() {
     // `cargo bench` passes --bench; a filter argument is not supported by this harness.
     let quick = std::env::var("BENCH_QUICK").is_ok();
-    let (singles, batch, reps) = if quick { (100, 1_000, 11) } else { (1_000, 10_000, 101) };
-    let peer = std::env::var("OXIGRAPH_BIN").ok().filter(|p| std::path::Path::new(p).exists());
+    let (singles, batch, reps) = if quick {
+        (100, 1_000, 11)
+    } else {
+        (1_000, 10_000, 101)
+    };
+    let peer = std::env::var("OXIGRAPH_BIN")
+        .ok()
+        .filter(|p| std::path::Path::new(p).exists());
     let dir = tempfile::tempdir().expect("tempdir");
     let agent = agent();
     let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "# DyKnow knowledge service benchmark ({singles} single POSTs, batch of {batch}, {reps} runs per query)");
+    let _ = writeln!(
+        out,
+        "# DyKnow knowledge service benchmark ({singles} single POSTs, batch of {batch}, {reps} runs per query)"
+    );
 
     // --- Ingestion -----------------------------------------------------------------------
     let server = start_dyknow(&dir.path().join("ingest"));
     let url = format!("{}/transformations", server.url);
-    let bodies: Vec<String> = (0..singles).map(|i| format!("{PREFIXES}{}", spec(i))).collect();
+    let bodies: Vec<String> = (0..singles)
+        .map(|i| format!("{PREFIXES}{}", spec(i)))
+        .collect();
     let start = Instant::now();
     for body in &bodies {
         assert_eq!(post(&agent, &url, "text/turtle", body.as_bytes()), 201);
@@ -168,10 +187,7 @@ fn main() {
     let mut peer_single_rate = None;
     if let Some(bin) = &peer {
         let p = start_oxigraph(bin, &dir.path().join("peer-ingest"));
-        let nt: Vec<Vec<u8>> = bodies
-            .iter()
-            .map(|b| turtle_to_ntriples(b))
-            .collect();
+        let nt: Vec<Vec<u8>> = bodies.iter().map(|b| turtle_to_ntriples(b)).collect();
         let start = Instant::now();
         for (i, body) in nt.iter().enumerate() {
             let status = post(
@@ -186,7 +202,10 @@ fn main() {
     }
 
     let _ = writeln!(out, "\n## Ingestion (on-disk store, HTTP on loopback)\n");
-    let _ = writeln!(out, "| measure | dyknow | oxigraph serve (POST /store, no validation) | bar |");
+    let _ = writeln!(
+        out,
+        "| measure | dyknow | oxigraph serve (POST /store, no validation) | bar |"
+    );
     let _ = writeln!(out, "| --- | --- | --- | --- |");
     let _ = writeln!(
         out,
@@ -208,7 +227,12 @@ fn main() {
         doc.push_str(&spec(i));
     }
     assert_eq!(
-        post(&agent, &format!("{}/transformations", server.url), "text/turtle", doc.as_bytes()),
+        post(
+            &agent,
+            &format!("{}/transformations", server.url),
+            "text/turtle",
+            doc.as_bytes()
+        ),
         201
     );
     let mut peer_server = None;
@@ -255,8 +279,14 @@ fn main() {
             "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> SELECT (COUNT(?t) AS ?n) WHERE { ?t a dyknow:Transformation }",
         ),
     ];
-    let _ = writeln!(out, "\n## SPARQL over {batch} transformations (median latency, same client, interleaved)\n");
-    let _ = writeln!(out, "| query | rows | dyknow | oxigraph serve | ratio dyknow/oxigraph | bar |");
+    let _ = writeln!(
+        out,
+        "\n## SPARQL over {batch} transformations (median latency, same client, interleaved)\n"
+    );
+    let _ = writeln!(
+        out,
+        "| query | rows | dyknow | oxigraph serve | ratio dyknow/oxigraph | bar |"
+    );
     let _ = writeln!(out, "| --- | --- | --- | --- | --- | --- |");
     for (name, q) in queries {
         let ours_endpoint = format!("{}/sparql", server.url);
@@ -266,7 +296,11 @@ fn main() {
         let rows = rows_of(&ours_body);
         if let Some(pe) = &peer_endpoint {
             let (_, peer_body) = query(&agent, pe, q);
-            assert_eq!(rows, rows_of(&peer_body), "{name}: the two servers disagree");
+            assert_eq!(
+                rows,
+                rows_of(&peer_body),
+                "{name}: the two servers disagree"
+            );
         }
         let mut ours = Vec::new();
         let mut theirs = Vec::new();
@@ -283,7 +317,10 @@ fn main() {
             "| {name} | {rows} | {:.3} ms | {} | {} | ≤ 1.2 |",
             ours.as_secs_f64() * 1e3,
             theirs.map_or("n/a".into(), |t| format!("{:.3} ms", t.as_secs_f64() * 1e3)),
-            theirs.map_or("n/a".into(), |t| format!("{:.2}", ours.as_secs_f64() / t.as_secs_f64()))
+            theirs.map_or("n/a".into(), |t| format!(
+                "{:.2}",
+                ours.as_secs_f64() / t.as_secs_f64()
+            ))
         );
     }
 }

@@ -83,7 +83,10 @@ pub fn app(state: AppState) -> Router {
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::from_fn(json_errors))
-        .layer(middleware::from_fn_with_state(state.clone(), record_metrics))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            record_metrics,
+        ))
         .with_state(state)
 }
 
@@ -145,7 +148,9 @@ async fn json_errors(request: Request, next: Next) -> Response {
         StatusCode::METHOD_NOT_ALLOWED => {
             "this method is not allowed on this resource (see the Allow header)".to_owned()
         }
-        StatusCode::PAYLOAD_TOO_LARGE => "the request body is larger than the server accepts".to_owned(),
+        StatusCode::PAYLOAD_TOO_LARGE => {
+            "the request body is larger than the server accepts".to_owned()
+        }
         _ if !text.is_empty() => text,
         _ => status
             .canonical_reason()
@@ -169,13 +174,21 @@ async fn record_metrics(State(state): State<AppState>, request: Request, next: N
         .get::<MatchedPath>()
         .map_or_else(|| "unmatched".to_owned(), |p| p.as_str().to_owned());
     let response = next.run(request).await;
-    state
-        .metrics
-        .record(method.as_str(), &route, response.status().as_u16(), start.elapsed());
+    state.metrics.record(
+        method.as_str(),
+        &route,
+        response.status().as_u16(),
+        start.elapsed(),
+    );
     response
 }
 
 /// A response with a body and a content type.
 pub(crate) fn typed(status: StatusCode, media_type: &str, body: impl Into<Body>) -> Response {
-    (status, [(header::CONTENT_TYPE, media_type.to_owned())], body.into()).into_response()
+    (
+        status,
+        [(header::CONTENT_TYPE, media_type.to_owned())],
+        body.into(),
+    )
+        .into_response()
 }

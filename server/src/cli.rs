@@ -53,7 +53,12 @@ pub enum Command {
 #[derive(Debug, clap::Args)]
 pub struct ServeArgs {
     /// The store directory (created if missing).
-    #[arg(long, value_name = "DIR", default_value = "./dyknow-data", conflicts_with = "in_memory")]
+    #[arg(
+        long,
+        value_name = "DIR",
+        default_value = "./dyknow-data",
+        conflicts_with = "in_memory"
+    )]
     pub data: PathBuf,
     /// Keep the store in memory only (tests, demos).
     #[arg(long)]
@@ -141,7 +146,10 @@ fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
     let format = InputFormat::from_path(path).ok_or_else(|| {
         Failure(
             2,
-            format!("{}: unknown file type (use .ttl, .nt or .jsonld)", path.display()),
+            format!(
+                "{}: unknown file type (use .ttl, .nt or .jsonld)",
+                path.display()
+            ),
         )
     })?;
     let body = std::fs::read(path).map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
@@ -158,7 +166,13 @@ fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
         )),
         Err(IngestError::Parse(e)) => Err(Failure(
             2,
-            format!("{}:{}:{}: {}", path.display(), e.0.line, e.0.column, e.0.message),
+            format!(
+                "{}:{}:{}: {}",
+                path.display(),
+                e.0.line,
+                e.0.column,
+                e.0.message
+            ),
         )),
         Err(IngestError::Invalid(v)) => Err(Failure(
             2,
@@ -184,7 +198,10 @@ fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
 fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
     Err(Failure(
         2,
-        format!("{}: this build has no on-disk store (feature rocksdb); use --in-memory", data.display()),
+        format!(
+            "{}: this build has no on-disk store (feature rocksdb); use --in-memory",
+            data.display()
+        ),
     ))
 }
 
@@ -199,7 +216,10 @@ fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
 
 fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
     if !data.join("CURRENT").exists() {
-        return Err(Failure(2, format!("{}: no DyKnow store here", data.display())));
+        return Err(Failure(
+            2,
+            format!("{}: no DyKnow store here", data.display()),
+        ));
     }
     #[cfg(feature = "rocksdb")]
     let kb = KnowledgeBase::open_read_only(data)
@@ -240,7 +260,10 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         return Err(Failure(2, "--horizon must be a non-negative number".into()));
     }
     if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {
-        return Err(Failure(2, "--query-timeout must be a positive number of seconds".into()));
+        return Err(Failure(
+            2,
+            "--query-timeout must be a positive number of seconds".into(),
+        ));
     }
     let kb = if args.in_memory {
         KnowledgeBase::in_memory()?

@@ -60,13 +60,19 @@ impl ApiError {
     pub fn not_acceptable(accepted: &[&str]) -> Self {
         Self::new(
             StatusCode::NOT_ACCEPTABLE,
-            format!("none of the accepted media types is offered; offered: {}", accepted.join(", ")),
+            format!(
+                "none of the accepted media types is offered; offered: {}",
+                accepted.join(", ")
+            ),
         )
     }
     /// 500: the cause is logged, the body says little.
     pub fn internal(cause: impl std::fmt::Display) -> Self {
         tracing::error!("internal error: {cause}");
-        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal error; see the server log")
+        Self::new(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "internal error; see the server log",
+        )
     }
     /// With details.
     pub fn with_details(mut self, details: Vec<Value>) -> Self {
@@ -136,7 +142,10 @@ impl From<SparqlQueryError> for ApiError {
             ),
             SparqlQueryError::Timeout(t) => Self::new(
                 StatusCode::SERVICE_UNAVAILABLE,
-                format!("the query was cancelled after the {} s query timeout", t.as_secs_f64()),
+                format!(
+                    "the query was cancelled after the {} s query timeout",
+                    t.as_secs_f64()
+                ),
             ),
             SparqlQueryError::UnsupportedFormat(m) => Self::new(StatusCode::NOT_ACCEPTABLE, m),
             SparqlQueryError::Unsupported(m) => Self::bad_request(m),

@@ -65,7 +65,10 @@ impl Metrics {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let mut out = String::new();
-        let _ = writeln!(out, "# HELP dyknow_http_requests_total HTTP requests answered, by route and status.");
+        let _ = writeln!(
+            out,
+            "# HELP dyknow_http_requests_total HTTP requests answered, by route and status."
+        );
         let _ = writeln!(out, "# TYPE dyknow_http_requests_total counter");
         for ((method, route, status), n) in &inner.requests {
             let _ = writeln!(
@@ -74,7 +77,10 @@ impl Metrics {
                 escape(route)
             );
         }
-        let _ = writeln!(out, "# HELP dyknow_http_request_duration_seconds Latency of HTTP requests, by route.");
+        let _ = writeln!(
+            out,
+            "# HELP dyknow_http_request_duration_seconds Latency of HTTP requests, by route."
+        );
         let _ = writeln!(out, "# TYPE dyknow_http_request_duration_seconds histogram");
         for ((method, route), h) in &inner.latency {
             let labels = format!("method=\"{method}\",route=\"{}\"", escape(route));
@@ -89,14 +95,34 @@ impl Metrics {
                 "dyknow_http_request_duration_seconds_bucket{{{labels},le=\"+Inf\"}} {}",
                 h.count
             );
-            let _ = writeln!(out, "dyknow_http_request_duration_seconds_sum{{{labels}}} {}", h.sum);
-            let _ = writeln!(out, "dyknow_http_request_duration_seconds_count{{{labels}}} {}", h.count);
+            let _ = writeln!(
+                out,
+                "dyknow_http_request_duration_seconds_sum{{{labels}}} {}",
+                h.sum
+            );
+            let _ = writeln!(
+                out,
+                "dyknow_http_request_duration_seconds_count{{{labels}}} {}",
+                h.count
+            );
         }
         for (name, help, value) in [
             ("dyknow_store_quads", "Quads in the store.", stats.quads),
-            ("dyknow_transformations", "Transformation specs in the model.", stats.transformations),
-            ("dyknow_targets", "Target specs in the model.", stats.targets),
-            ("dyknow_ontology_extensions", "Ontology extensions in the model.", stats.extensions),
+            (
+                "dyknow_transformations",
+                "Transformation specs in the model.",
+                stats.transformations,
+            ),
+            (
+                "dyknow_targets",
+                "Target specs in the model.",
+                stats.targets,
+            ),
+            (
+                "dyknow_ontology_extensions",
+                "Ontology extensions in the model.",
+                stats.extensions,
+            ),
         ] {
             let _ = writeln!(out, "# HELP {name} {help}");
             let _ = writeln!(out, "# TYPE {name} gauge");
@@ -107,7 +133,10 @@ impl Metrics {
 }
 
 fn escape(label: &str) -> String {
-    label.replace('\\', "\\\\").replace('"', "\\\"").replace('\n', "\\n")
+    label
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
 }
 
 #[cfg(test)]
@@ -120,9 +149,13 @@ mod tests {
         m.record("GET", "/health", 200, Duration::from_micros(300));
         m.record("GET", "/health", 200, Duration::from_millis(30));
         let text = m.render(&StoreStatistics::default());
-        assert!(text.contains(r#"dyknow_http_requests_total{method="GET",route="/health",status="200"} 2"#));
+        assert!(text.contains(
+            r#"dyknow_http_requests_total{method="GET",route="/health",status="200"} 2"#
+        ));
         assert!(text.contains(r#"dyknow_http_request_duration_seconds_bucket{method="GET",route="/health",le="0.0005"} 1"#));
         assert!(text.contains(r#"dyknow_http_request_duration_seconds_bucket{method="GET",route="/health",le="0.05"} 2"#));
-        assert!(text.contains(r#"dyknow_http_request_duration_seconds_count{method="GET",route="/health"} 2"#));
+        assert!(text.contains(
+            r#"dyknow_http_request_duration_seconds_count{method="GET",route="/health"} 2"#
+        ));
     }
 }

@@ -12,7 +12,10 @@ pub fn negotiate<'a>(headers: &HeaderMap, offers: &[&'a str]) -> Result<&'a str,
         .and_then(|v| v.to_str().ok())
         .filter(|v| !v.trim().is_empty())
     else {
-        return offers.first().copied().ok_or_else(|| ApiError::not_acceptable(offers));
+        return offers
+            .first()
+            .copied()
+            .ok_or_else(|| ApiError::not_acceptable(offers));
     };
     let ranges: Vec<(String, f32)> = accept
         .split(',')
@@ -57,7 +60,8 @@ pub fn negotiate<'a>(headers: &HeaderMap, offers: &[&'a str]) -> Result<&'a str,
             best = Some((offer, q));
         }
     }
-    best.map(|(o, _)| o).ok_or_else(|| ApiError::not_acceptable(offers))
+    best.map(|(o, _)| o)
+        .ok_or_else(|| ApiError::not_acceptable(offers))
 }
 
 /// The media type of the request body, without parameters, lower-cased.
@@ -65,7 +69,13 @@ pub fn content_type(headers: &HeaderMap) -> Option<String> {
     headers
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
-        .map(|v| v.split(';').next().unwrap_or("").trim().to_ascii_lowercase())
+        .map(|v| {
+            v.split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_ascii_lowercase()
+        })
 }
 
 #[cfg(test)]
@@ -92,7 +102,10 @@ mod tests {
             pick(Some("application/json;q=0.5, text/turtle"), &offers),
             Some("text/turtle")
         );
-        assert_eq!(pick(Some("*/*, application/json;q=0"), &offers), Some("text/turtle"));
+        assert_eq!(
+            pick(Some("*/*, application/json;q=0"), &offers),
+            Some("text/turtle")
+        );
         assert_eq!(pick(Some("image/png"), &offers), None);
         assert_eq!(pick(Some("text/turtle;q=0"), &offers[1..]), None);
     }

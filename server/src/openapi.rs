@@ -8,18 +8,41 @@ use crate::routes::{model, ontology, ops, sparql, specs};
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
 #[openapi(
-    info(title = "DyKnow knowledge service", description = "Stream reasoning knowledge service: the DyKnow model as a live ontology."),
+    info(
+        title = "DyKnow knowledge service",
+        description = "Stream reasoning knowledge service: the DyKnow model as a live ontology."
+    ),
     paths(
-        specs::post_transformations, specs::list_transformations, specs::get_transformation,
-        specs::delete_transformation, specs::post_targets, specs::list_targets, specs::get_target,
-        specs::delete_target, ontology::post_extension, ontology::list_extensions,
-        ontology::delete_extension, sparql::sparql_get, sparql::sparql_post, model::get_model,
-        ops::health, ops::metrics, ops::openapi,
+        specs::post_transformations,
+        specs::list_transformations,
+        specs::get_transformation,
+        specs::delete_transformation,
+        specs::post_targets,
+        specs::list_targets,
+        specs::get_target,
+        specs::delete_target,
+        ontology::post_extension,
+        ontology::list_extensions,
+        ontology::delete_extension,
+        sparql::sparql_get,
+        sparql::sparql_post,
+        model::get_model,
+        ops::health,
+        ops::metrics,
+        ops::openapi,
     ),
     components(schemas(
-        ErrorBody, specs::TransformationJson, specs::TargetJson, specs::PortJson, specs::TagJson,
-        specs::PostedJson, ontology::ExtensionJson, ontology::ExtensionPostedJson,
-        model::ModelJson, model::ChannelJson, ops::Health,
+        ErrorBody,
+        specs::TransformationJson,
+        specs::TargetJson,
+        specs::PortJson,
+        specs::TagJson,
+        specs::PostedJson,
+        ontology::ExtensionJson,
+        ontology::ExtensionPostedJson,
+        model::ModelJson,
+        model::ChannelJson,
+        ops::Health,
     ))
 )]
 pub struct ApiDoc;

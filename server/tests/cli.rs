@@ -1,6 +1,11 @@
 //! The `dyknow` binary as a process: serve on the on-disk store, `kill -9`, restart; load and
 //! export offline; start-up refusals; graceful shutdown.
 #![cfg(feature = "rocksdb")]
+#![expect(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -12,8 +17,12 @@ use std::time::{Duration, Instant};
 const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
 
 fn specs(file: &str) -> String {
-    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/turtle").join(file))
-        .unwrap()
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../specs/turtle")
+            .join(file),
+    )
+    .unwrap()
 }
 
 /// A running `dyknow serve` and its base URL.
@@ -119,7 +128,12 @@ fn kill_9_loses_no_acknowledged_write() {
     // Round 1: sequential writes, then SIGKILL right after the last acknowledgement.
     let server = Server::start(&["--data", data]);
     for i in 0..50 {
-        let (status, body) = post(&agent, &format!("{}/transformations", server.url), "text/turtle", &spec(&format!("t{i:03}")));
+        let (status, body) = post(
+            &agent,
+            &format!("{}/transformations", server.url),
+            "text/turtle",
+            &spec(&format!("t{i:03}")),
+        );
         assert_eq!(status, 201, "{body}");
     }
     server.kill9();
@@ -160,10 +174,18 @@ fn kill_9_loses_no_acknowledged_write() {
     let after = labels(&agent, &server.url);
     expected.extend(acknowledged.iter().cloned());
     for label in &expected {
-        assert!(after.contains(label), "acknowledged {label} lost after kill -9");
+        assert!(
+            after.contains(label),
+            "acknowledged {label} lost after kill -9"
+        );
     }
     // At most the one request in flight at the kill may have landed without acknowledgement.
-    assert!(after.len() <= expected.len() + 1, "{} > {} + 1", after.len(), expected.len());
+    assert!(
+        after.len() <= expected.len() + 1,
+        "{} > {} + 1",
+        after.len(),
+        expected.len()
+    );
 }
 
 fn agent_without_retries() -> ureq::Agent {
@@ -179,12 +201,31 @@ fn sigterm_shuts_down_gracefully_and_the_store_reopens() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().to_str().unwrap();
     let agent = agent();
-    let mut server = Server::start(&["--data", data, "--specs", &format!("{}/../specs/turtle/ch6-piff.ttl", env!("CARGO_MANIFEST_DIR"))]);
+    let mut server = Server::start(&[
+        "--data",
+        data,
+        "--specs",
+        &format!(
+            "{}/../specs/turtle/ch6-piff.ttl",
+            env!("CARGO_MANIFEST_DIR")
+        ),
+    ]);
     assert_eq!(labels(&agent, &server.url).len(), 7);
-    let (status, _) = post(&agent, &format!("{}/targets", server.url), "text/turtle", &specs("ch6-target.ttl"));
+    let (status, _) = post(
+        &agent,
+        &format!("{}/targets", server.url),
+        "text/turtle",
+        &specs("ch6-target.ttl"),
+    );
     assert_eq!(status, 201);
     let pid = server.child.id().to_string();
-    assert!(Command::new("kill").args(["-TERM", &pid]).status().unwrap().success());
+    assert!(
+        Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
     let status = server.child.wait().unwrap();
     assert!(status.success(), "exit status {status:?}");
     drop(server);
@@ -195,7 +236,11 @@ fn sigterm_shuts_down_gracefully_and_the_store_reopens() {
             .args(["export", "--data", data, "--format", format])
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         String::from_utf8(out.stdout).unwrap()
     };
     assert!(export("turtle").contains("\"circle_monitor(ball)\""));
@@ -215,13 +260,26 @@ fn load_and_export_offline() {
         .args(["load", "--data", data.to_str().unwrap(), &specs_dir])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report = String::from_utf8(out.stdout).unwrap();
-    assert!(report.contains("ch6-piff.ttl: 7 transformation(s), 0 target(s)"), "{report}");
+    assert!(
+        report.contains("ch6-piff.ttl: 7 transformation(s), 0 target(s)"),
+        "{report}"
+    );
     assert!(report.contains("example-12-similarity.ttl: 0 transformation(s), 0 target(s), ontology extension <urn:dyknow:graph:extension:"), "{report}");
 
     let out = Command::new(BIN)
-        .args(["export", "--data", data.to_str().unwrap(), "--format", "ntriples"])
+        .args([
+            "export",
+            "--data",
+            data.to_str().unwrap(),
+            "--format",
+            "ntriples",
+        ])
         .output()
         .unwrap();
     assert!(out.status.success());
@@ -232,7 +290,12 @@ fn load_and_export_offline() {
     let bad = dir.path().join("bad.ttl");
     std::fs::write(&bad, "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n[] a dyknow:Transformation ;\n   rdfs:label \"x\" .\n").unwrap();
     let out = Command::new(BIN)
-        .args(["load", "--data", data.to_str().unwrap(), bad.to_str().unwrap()])
+        .args([
+            "load",
+            "--data",
+            data.to_str().unwrap(),
+            bad.to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
@@ -242,12 +305,24 @@ fn load_and_export_offline() {
 
     // Exporting a directory that holds no store is bad input.
     let out = Command::new(BIN)
-        .args(["export", "--data", dir.path().join("nothing").to_str().unwrap(), "--format", "turtle"])
+        .args([
+            "export",
+            "--data",
+            dir.path().join("nothing").to_str().unwrap(),
+            "--format",
+            "turtle",
+        ])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     let out = Command::new(BIN)
-        .args(["export", "--data", data.to_str().unwrap(), "--format", "yaml"])
+        .args([
+            "export",
+            "--data",
+            data.to_str().unwrap(),
+            "--format",
+            "yaml",
+        ])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
@@ -264,7 +339,10 @@ fn start_up_refusals() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("without a token"));
     // Bad usage.
-    let out = Command::new(BIN).args(["serve", "--horizon", "-1"]).output().unwrap();
+    let out = Command::new(BIN)
+        .args(["serve", "--horizon", "-1"])
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(2));
     let out = Command::new(BIN).args(["frobnicate"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
@@ -293,6 +371,11 @@ fn token_protects_mutations_of_a_real_server() {
         .header("Authorization", "Bearer s3cret")
         .send(spec("x").as_bytes())
         .unwrap();
-    assert_eq!(r.status().as_u16(), 201, "{}", r.body_mut().read_to_string().unwrap());
+    assert_eq!(
+        r.status().as_u16(),
+        201,
+        "{}",
+        r.body_mut().read_to_string().unwrap()
+    );
     assert_eq!(get(&agent, &url).0, 200);
 }

@@ -1,6 +1,11 @@
 //! The README's tour, run verbatim: every `$ ` command of its console blocks is executed with
 //! bash against a fresh `dyknow serve --in-memory`, and its output must be what the README shows.
 
+#![expect(
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -8,7 +13,9 @@ use std::time::{Duration, Instant};
 
 /// (command, expected output) pairs of the tour section.
 fn tour(readme: &str) -> Vec<(String, String)> {
-    let start = readme.find("<!-- tour:start -->").expect("tour start marker");
+    let start = readme
+        .find("<!-- tour:start -->")
+        .expect("tour start marker");
     let end = readme.find("<!-- tour:end -->").expect("tour end marker");
     let mut steps = Vec::new();
     let mut in_block = false;
@@ -76,7 +83,11 @@ fn the_readme_tour_gives_the_answers_the_readme_shows() {
             .current_dir(&root)
             .output()
             .unwrap();
-        assert!(out.status.success(), "{command}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{command}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         // CSV results end lines with CRLF; the README shows them as lines.
         let got = String::from_utf8(out.stdout).unwrap().replace("\r\n", "\n");
         assert_eq!(

@@ -115,7 +115,11 @@ impl KnowledgeBase {
     }
 
     /// GetModel: serialises the model in `format`.
-    pub fn export(&self, format: ModelFormat, inferred: bool) -> Result<ExportedModel, ExportError> {
+    pub fn export(
+        &self,
+        format: ModelFormat,
+        inferred: bool,
+    ) -> Result<ExportedModel, ExportError> {
         let triples = self.model_triples(inferred)?;
         if let Some(rdf_format) = format.rdf_format() {
             return Ok(ExportedModel {
@@ -156,7 +160,11 @@ fn as_one_ontology(triples: Vec<Triple>) -> Vec<Triple> {
         .collect();
     let model = NamedNode::new_unchecked(MODEL_ONTOLOGY_IRI);
     let mut out = vec![Triple::new(model, rdf::TYPE, owl::ONTOLOGY)];
-    out.extend(triples.into_iter().filter(|t| !headers.contains(&t.subject)));
+    out.extend(
+        triples
+            .into_iter()
+            .filter(|t| !headers.contains(&t.subject)),
+    );
     out
 }
 

@@ -63,7 +63,10 @@ pub fn spec_of_graph(graph: &str) -> Option<(SpecKind, String)> {
     } else {
         (SpecKind::Target, graph.strip_prefix(TARGET_GRAPH_PREFIX)?)
     };
-    Some((kind, percent_decode_str(rest).decode_utf8().ok()?.into_owned()))
+    Some((
+        kind,
+        percent_decode_str(rest).decode_utf8().ok()?.into_owned(),
+    ))
 }
 
 /// Whether `graph` holds an ontology extension.
@@ -92,7 +95,13 @@ mod tests {
 
     #[test]
     fn labels_round_trip_through_graph_names() {
-        for label in ["Undistort(cam1)", "a b/c?d#e", "ünï", "convHull(piff, field)", ""] {
+        for label in [
+            "Undistort(cam1)",
+            "a b/c?d#e",
+            "ünï",
+            "convHull(piff, field)",
+            "",
+        ] {
             for kind in [SpecKind::Transformation, SpecKind::Target] {
                 let g = spec_graph(kind, label);
                 assert_eq!(spec_of_graph(g.as_str()), Some((kind, label.to_owned())));

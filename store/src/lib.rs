@@ -5,8 +5,8 @@ mod export;
 pub mod graphs;
 mod knowledge_base;
 mod rdf_input;
-pub mod spec;
 mod sparql;
+pub mod spec;
 
 pub use error::{
     ExportError, IngestError, SparqlQueryError, SpecParseError, SpecValidationError,

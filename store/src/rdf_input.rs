@@ -52,8 +52,7 @@ impl InputFormat {
 /// Parses `body` into triples. Blank nodes are renamed so that two documents never share one.
 /// Quads in named graphs are refused: specs are graphs of their own.
 pub fn parse_triples(body: &[u8], format: InputFormat) -> Result<Vec<Triple>, SpecParseError> {
-    let parser = RdfParser::from_format(format.rdf_format())
-        .rename_blank_nodes();
+    let parser = RdfParser::from_format(format.rdf_format()).rename_blank_nodes();
     let mut triples = Vec::new();
     for quad in parser.for_slice(body) {
         let quad = quad.map_err(|e| {

@@ -48,8 +48,7 @@ impl ParsedQuery {
     /// Parses `query`. Updates are recognised and refused; syntax errors carry line and column.
     pub fn parse(query: &str) -> Result<Self, SparqlQueryError> {
         let cancel = CancellationToken::new();
-        let evaluator = SparqlEvaluator::new()
-            .with_cancellation_token(cancel.clone());
+        let evaluator = SparqlEvaluator::new().with_cancellation_token(cancel.clone());
         match evaluator.parse_query(query) {
             Ok(mut prepared) => {
                 if prepared.dataset().is_default_dataset() {
@@ -63,10 +62,16 @@ impl ParsedQuery {
                 })
             }
             Err(query_error) => {
-                if SparqlEvaluator::new().parse_update(query).is_ok() {
+                // An update is refused (403); an empty one is just no query (400).
+                if spargebra::SparqlParser::new()
+                    .parse_update(query)
+                    .is_ok_and(|u| !u.operations.is_empty())
+                {
                     return Err(SparqlQueryError::UpdateRefused);
                 }
-                Err(SparqlQueryError::Syntax(syntax_detail(&query_error.to_string())))
+                Err(SparqlQueryError::Syntax(syntax_detail(
+                    &query_error.to_string(),
+                )))
             }
         }
     }
@@ -165,7 +170,9 @@ impl KnowledgeBase {
             (QueryResults::Graph(triples), ResultFormat::Rdf(f)) => {
                 let mut serializer = prefixed(RdfSerializer::from_format(f)).for_writer(&mut body);
                 for triple in triples {
-                    serializer.serialize_triple(&triple.map_err(map)?).map_err(io)?;
+                    serializer
+                        .serialize_triple(&triple.map_err(map)?)
+                        .map_err(io)?;
                 }
                 serializer.finish().map_err(io)?;
                 f.media_type()
@@ -206,7 +213,10 @@ mod tests {
 
     #[test]
     fn forms_are_recognised() {
-        assert_eq!(query_form("SELECT * WHERE { ?s ?p ?o }"), QueryForm::Solutions);
+        assert_eq!(
+            query_form("SELECT * WHERE { ?s ?p ?o }"),
+            QueryForm::Solutions
+        );
         assert_eq!(query_form("ask { ?s ?p ?o }"), QueryForm::Solutions);
         assert_eq!(
             query_form("PREFIX construct: <http://e/> CONSTRUCT { ?s ?p ?o } WHERE { ?s ?p ?o }"),

@@ -1,6 +1,8 @@
 //! The on-disk knowledge base (RocksDB): specs, extensions and the spec classes they declare
 //! survive a restart, and a read-only instance sees them.
 #![cfg(feature = "rocksdb")]
+// Helpers outside `#[test]` functions are test code too.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -100,7 +102,10 @@ fn specs_and_extensions_survive_a_restart() {
         kb.flush().expect("flush");
 
         // Only one read-write instance at a time.
-        assert!(open_rw(&path).is_err(), "the directory is locked while open");
+        assert!(
+            open_rw(&path).is_err(),
+            "the directory is locked while open"
+        );
 
         let undistort = kb
             .spec(SpecKind::Transformation, "Undistort(cam1)")
@@ -112,7 +117,13 @@ fn specs_and_extensions_survive_a_restart() {
             .expect("present");
         let model = ground(&kb);
         let model_len = kb.model_triples(true).expect("storage").len();
-        (undistort, target, kb.extensions().expect("storage"), model, model_len)
+        (
+            undistort,
+            target,
+            kb.extensions().expect("storage"),
+            model,
+            model_len,
+        )
     };
     assert_eq!(extensions.len(), 2);
     let Spec::Transformation(t) = &undistort else {
@@ -126,15 +137,31 @@ fn specs_and_extensions_survive_a_restart() {
         let kb = open_rw(&path).expect("reopen");
         assert_eq!(
             labels(&kb, SpecKind::Transformation),
-            ["Undistort(cam1)", "cam", "tid1", "tid2", "tid3", "tid4", "tid5"]
+            [
+                "Undistort(cam1)",
+                "cam",
+                "tid1",
+                "tid2",
+                "tid3",
+                "tid4",
+                "tid5"
+            ]
         );
         assert_eq!(labels(&kb, SpecKind::Target), ["undistortSub"]);
-        assert!(kb.spec(SpecKind::Transformation, "never").expect("storage").is_none());
+        assert!(
+            kb.spec(SpecKind::Transformation, "never")
+                .expect("storage")
+                .is_none()
+        );
         assert_eq!(
-            kb.spec(SpecKind::Transformation, "Undistort(cam1)").expect("storage"),
+            kb.spec(SpecKind::Transformation, "Undistort(cam1)")
+                .expect("storage"),
             Some(undistort.clone())
         );
-        assert_eq!(kb.spec(SpecKind::Target, "undistortSub").expect("storage"), Some(target.clone()));
+        assert_eq!(
+            kb.spec(SpecKind::Target, "undistortSub").expect("storage"),
+            Some(target.clone())
+        );
         assert_eq!(kb.extensions().expect("storage"), extensions);
         assert_eq!(ground(&kb), model);
         assert_eq!(
@@ -143,10 +170,14 @@ fn specs_and_extensions_survive_a_restart() {
             "re-installing the built-in ontologies does not duplicate them"
         );
         let stats = kb.statistics().expect("storage");
-        assert_eq!((stats.transformations, stats.targets, stats.extensions), (7, 1, 2));
+        assert_eq!(
+            (stats.transformations, stats.targets, stats.extensions),
+            (7, 1, 2)
+        );
 
         post(&kb, &camera("cam2"), SpecKind::Transformation);
-        kb.remove_spec(SpecKind::Transformation, "tid5").expect("present");
+        kb.remove_spec(SpecKind::Transformation, "tid5")
+            .expect("present");
         kb.flush().expect("flush");
     }
 
@@ -156,11 +187,23 @@ fn specs_and_extensions_survive_a_restart() {
         assert_eq!(kb.location(), Some(path.as_path()));
         assert_eq!(
             labels(&kb, SpecKind::Transformation),
-            ["Undistort(cam1)", "cam", "cam2", "tid1", "tid2", "tid3", "tid4"]
+            [
+                "Undistort(cam1)",
+                "cam",
+                "cam2",
+                "tid1",
+                "tid2",
+                "tid3",
+                "tid4"
+            ]
         );
-        assert_eq!(kb.spec(SpecKind::Target, "undistortSub").expect("storage"), Some(target));
         assert_eq!(
-            kb.spec(SpecKind::Transformation, "Undistort(cam1)").expect("storage"),
+            kb.spec(SpecKind::Target, "undistortSub").expect("storage"),
+            Some(target)
+        );
+        assert_eq!(
+            kb.spec(SpecKind::Transformation, "Undistort(cam1)")
+                .expect("storage"),
             Some(undistort)
         );
         assert_eq!(kb.extensions().expect("storage"), extensions);
@@ -181,10 +224,18 @@ fn specs_and_extensions_survive_a_restart() {
             "t\r\nurn:dyknow:transformation:cam2\r\n"
         );
         assert!(matches!(
-            kb.post_specs(camera("ro").as_bytes(), InputFormat::Turtle, SpecKind::Transformation),
+            kb.post_specs(
+                camera("ro").as_bytes(),
+                InputFormat::Turtle,
+                SpecKind::Transformation
+            ),
             Err(IngestError::Storage(_))
         ));
-        assert!(kb.spec(SpecKind::Transformation, "ro").expect("storage").is_none());
+        assert!(
+            kb.spec(SpecKind::Transformation, "ro")
+                .expect("storage")
+                .is_none()
+        );
     }
 }
 

@@ -107,7 +107,9 @@ pub async fn get_model(
         })?),
         None => match negotiate(&headers, &OFFERS)? {
             "application/json" => None,
-            media => ModelFormat::ALL.into_iter().find(|f| f.media_type() == media),
+            media => ModelFormat::ALL
+                .into_iter()
+                .find(|f| f.media_type() == media),
         },
     };
     let inferred = params.inferred.unwrap_or(true);
@@ -119,7 +121,9 @@ pub async fn get_model(
     let exported = blocking(move || Ok(kb.export(format, inferred)?)).await?;
     let mut response = typed(StatusCode::OK, format.media_type(), exported.body);
     if let Ok(v) = HeaderValue::from_str(&exported.unparsed_triples.to_string()) {
-        response.headers_mut().insert("x-dyknow-unparsed-triples", v);
+        response
+            .headers_mut()
+            .insert("x-dyknow-unparsed-triples", v);
     }
     Ok(response)
 }

@@ -16,7 +16,9 @@ use crate::routes::specs::input_format;
 pub(crate) fn router() -> Router<AppState> {
     Router::new().route(
         "/ontology",
-        get(list_extensions).post(post_extension).delete(delete_extension),
+        get(list_extensions)
+            .post(post_extension)
+            .delete(delete_extension),
     )
 }
 
@@ -73,7 +75,9 @@ pub async fn post_extension(
 /// Lists the ontology extensions.
 #[utoipa::path(get, path = "/ontology", tag = "ontology",
     responses((status = 200, body = [ExtensionJson])))]
-pub async fn list_extensions(State(state): State<AppState>) -> Result<Json<Vec<ExtensionJson>>, ApiError> {
+pub async fn list_extensions(
+    State(state): State<AppState>,
+) -> Result<Json<Vec<ExtensionJson>>, ApiError> {
     let kb = state.kb.clone();
     let list = blocking(move || Ok(kb.extensions()?)).await?;
     Ok(Json(

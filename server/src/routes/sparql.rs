@@ -63,7 +63,11 @@ fn result_format(form: QueryForm, headers: &HeaderMap) -> Result<ResultFormat, A
     })
 }
 
-async fn answer(state: AppState, headers: HeaderMap, params: SparqlParams) -> Result<Response, ApiError> {
+async fn answer(
+    state: AppState,
+    headers: HeaderMap,
+    params: SparqlParams,
+) -> Result<Response, ApiError> {
     if params.update.is_some() {
         return Err(SparqlQueryError::UpdateRefused.into());
     }
@@ -125,7 +129,10 @@ pub async fn sparql_post(
         other => {
             return Err(ApiError::unsupported_media_type(
                 other,
-                &["application/x-www-form-urlencoded", "application/sparql-query"],
+                &[
+                    "application/x-www-form-urlencoded",
+                    "application/sparql-query",
+                ],
             ));
         }
     };

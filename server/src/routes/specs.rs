@@ -18,7 +18,11 @@ use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
 
 /// The RDF media types accepted in request bodies.
-pub const RDF_INPUTS: [&str; 3] = ["text/turtle", "application/n-triples", "application/ld+json"];
+pub const RDF_INPUTS: [&str; 3] = [
+    "text/turtle",
+    "application/n-triples",
+    "application/ld+json",
+];
 
 pub(crate) fn router() -> Router<AppState> {
     Router::new()
@@ -183,7 +187,11 @@ async fn post_specs(
         .into_response())
 }
 
-async fn list_specs(state: AppState, headers: HeaderMap, kind: SpecKind) -> Result<Response, ApiError> {
+async fn list_specs(
+    state: AppState,
+    headers: HeaderMap,
+    kind: SpecKind,
+) -> Result<Response, ApiError> {
     let media = negotiate(&headers, &["application/json", "text/turtle"])?;
     let kb = state.kb.clone();
     if media == "text/turtle" {
@@ -238,7 +246,11 @@ async fn get_spec(
     Ok(Json(value).into_response())
 }
 
-async fn delete_spec(state: AppState, kind: SpecKind, label: String) -> Result<StatusCode, ApiError> {
+async fn delete_spec(
+    state: AppState,
+    kind: SpecKind,
+    label: String,
+) -> Result<StatusCode, ApiError> {
     let kb = state.kb.clone();
     blocking(move || Ok(kb.remove_spec(kind, &label)?)).await?;
     Ok(StatusCode::NO_CONTENT)
@@ -250,14 +262,21 @@ async fn delete_spec(state: AppState, kind: SpecKind, label: String) -> Result<S
     request_body(content = String, content_type = "text/turtle", description = "transformation specs"),
     responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
               (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
-pub async fn post_transformations(State(s): State<AppState>, h: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+pub async fn post_transformations(
+    State(s): State<AppState>,
+    h: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
     post_specs(s, h, body, SpecKind::Transformation).await
 }
 
 /// The transformation specs, sorted by label (`Accept: text/turtle` gives them as Turtle).
 #[utoipa::path(get, path = "/transformations", tag = "specs",
     responses((status = 200, body = [TransformationJson]), (status = 406, body = ErrorBody)))]
-pub async fn list_transformations(State(s): State<AppState>, h: HeaderMap) -> Result<Response, ApiError> {
+pub async fn list_transformations(
+    State(s): State<AppState>,
+    h: HeaderMap,
+) -> Result<Response, ApiError> {
     list_specs(s, h, SpecKind::Transformation).await
 }
 
@@ -265,7 +284,11 @@ pub async fn list_transformations(State(s): State<AppState>, h: HeaderMap) -> Re
 #[utoipa::path(get, path = "/transformations/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
     responses((status = 200, body = TransformationJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
-pub async fn get_transformation(State(s): State<AppState>, h: HeaderMap, Path(label): Path<String>) -> Result<Response, ApiError> {
+pub async fn get_transformation(
+    State(s): State<AppState>,
+    h: HeaderMap,
+    Path(label): Path<String>,
+) -> Result<Response, ApiError> {
     get_spec(s, h, SpecKind::Transformation, label).await
 }
 
@@ -273,7 +296,10 @@ pub async fn get_transformation(State(s): State<AppState>, h: HeaderMap, Path(la
 #[utoipa::path(delete, path = "/transformations/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
     responses((status = 204), (status = 404, body = ErrorBody)))]
-pub async fn delete_transformation(State(s): State<AppState>, Path(label): Path<String>) -> Result<StatusCode, ApiError> {
+pub async fn delete_transformation(
+    State(s): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<StatusCode, ApiError> {
     delete_spec(s, SpecKind::Transformation, label).await
 }
 
@@ -282,7 +308,11 @@ pub async fn delete_transformation(State(s): State<AppState>, Path(label): Path<
     request_body(content = String, content_type = "text/turtle", description = "target specs"),
     responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
               (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
-pub async fn post_targets(State(s): State<AppState>, h: HeaderMap, body: Bytes) -> Result<Response, ApiError> {
+pub async fn post_targets(
+    State(s): State<AppState>,
+    h: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
     post_specs(s, h, body, SpecKind::Target).await
 }
 
@@ -297,7 +327,11 @@ pub async fn list_targets(State(s): State<AppState>, h: HeaderMap) -> Result<Res
 #[utoipa::path(get, path = "/targets/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
     responses((status = 200, body = TargetJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
-pub async fn get_target(State(s): State<AppState>, h: HeaderMap, Path(label): Path<String>) -> Result<Response, ApiError> {
+pub async fn get_target(
+    State(s): State<AppState>,
+    h: HeaderMap,
+    Path(label): Path<String>,
+) -> Result<Response, ApiError> {
     get_spec(s, h, SpecKind::Target, label).await
 }
 
@@ -305,6 +339,9 @@ pub async fn get_target(State(s): State<AppState>, h: HeaderMap, Path(label): Pa
 #[utoipa::path(delete, path = "/targets/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
     responses((status = 204), (status = 404, body = ErrorBody)))]
-pub async fn delete_target(State(s): State<AppState>, Path(label): Path<String>) -> Result<StatusCode, ApiError> {
+pub async fn delete_target(
+    State(s): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<StatusCode, ApiError> {
     delete_spec(s, SpecKind::Target, label).await
 }

@@ -241,7 +241,10 @@ fn extract(
         };
         if !labels_seen.insert((*kind, label.clone())) {
             violations.push(Violation::new(
-                format!("labels are unique: the document has two {} specs with this label", kind.name()),
+                format!(
+                    "labels are unique: the document has two {} specs with this label",
+                    kind.name()
+                ),
                 label.clone(),
             ));
             continue;
@@ -408,6 +411,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
 
     fn build(mut self) -> (Option<ExtractedSpec>, Vec<Violation>) {
         let owned = owned_nodes(self.index, self.roots, &self.root);
+        let owned_set: HashSet<&Node> = owned.iter().collect();
         let root = self.root.clone();
         let base = self.base.clone();
         let root_iri = self.name_node(&root, || base.clone());
@@ -435,7 +439,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                 let object = match &t.object {
                     Term::BlankNode(b) => {
                         let n: Node = b.clone().into();
-                        if owned.contains(&n) {
+                        if owned_set.contains(&n) {
                             Term::from(self.name_node(&n, || format!("{base}/node/{}", b.as_str())))
                         } else {
                             t.object.clone()
@@ -466,6 +470,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
 
     /// Statements rewritten by normalisation rather than copied.
     fn skip_copy(&self, node: &Node, t: &Triple) -> bool {
+        if t.predicate == dkros::HAS_INDEX {
+            // Positions are written by normalisation (the document order).
+            return true;
+        }
         if *node == self.root {
             return [dkros::HAS_PORT, dyknow::HAS_IN_PORT, dyknow::HAS_OUT_PORT]
                 .contains(&t.predicate.as_ref());
@@ -473,13 +481,21 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         false
     }
 
+    /// The recorded position of a port or tag (`dkros:hasIndex`), if any.
+    fn position(&self, node: &Node) -> Option<u64> {
+        let (values, _) = self.index.literals(node, &[dkros::HAS_INDEX]);
+        values.first().and_then(|l| l.value().parse().ok())
+    }
+
     fn tags(&mut self, owner: &Node, owner_iri: &NamedNode) -> Vec<Tag> {
-        let tag_nodes: Vec<Term> = self
+        let mut tag_nodes: Vec<Term> = self
             .index
             .objects(owner, dyknow::HAS_TAG)
             .into_iter()
             .cloned()
             .collect();
+        // A stored spec records the document order of its tags (`dkros:hasIndex`).
+        tag_nodes.sort_by_key(|t| term_node(t).and_then(|n| self.position(&n)));
         if tag_nodes.len() > MAX_TAGS {
             self.violation(format!("at most {MAX_TAGS} tags per port or target"), owner);
             return Vec::new();
@@ -499,7 +515,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             let (values, value_not_literal) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
             let descriptions = self.index.objects(&node, dyknow::HAS_TAG_DESCRIPTION);
             if value_not_literal || values.len() > 1 {
-                self.violation("a Tag has at most 1 dyknow:hasValue, a literal (functional)", &node);
+                self.violation(
+                    "a Tag has at most 1 dyknow:hasValue, a literal (functional)",
+                    &node,
+                );
             }
             let description = match descriptions.as_slice() {
                 [] => None,
@@ -521,6 +540,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             }
             self.emit(owner_iri, dyknow::HAS_TAG, iri.clone());
             self.emit(&iri, rdf::TYPE, dyknow::TAG);
+            self.emit(&iri, dkros::HAS_INDEX, index_literal(tags.len()));
             tags.push(Tag { value, description });
         }
         tags
@@ -548,9 +568,14 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             }
         }
         if links.len() > MAX_PORTS {
-            self.violation(format!("a transformation has at most {MAX_PORTS} ports"), &root);
+            self.violation(
+                format!("a transformation has at most {MAX_PORTS} ports"),
+                &root,
+            );
             return None;
         }
+        // A stored spec records the document order of its ports (`dkros:hasIndex`).
+        links.sort_by_key(|(n, _)| self.position(n));
         let mut ports: Vec<(Node, Port)> = Vec::new();
         let mut port_names: HashSet<String> = HashSet::new();
         for (node, stated) in links {
@@ -565,10 +590,17 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             };
             self.names.insert(
                 node.clone(),
-                format!("{}/port {}", self.label, name.as_deref().unwrap_or("(unnamed)")),
+                format!(
+                    "{}/port {}",
+                    self.label,
+                    name.as_deref().unwrap_or("(unnamed)")
+                ),
             );
             let Some(name) = name else {
-                self.violation("a Port has exactly 1 name (dyknow:hasName), a literal", &node);
+                self.violation(
+                    "a Port has exactly 1 name (dyknow:hasName), a literal",
+                    &node,
+                );
                 continue;
             };
             let direction = match (stated, is_in, is_out) {
@@ -607,6 +639,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             };
             self.emit(root_iri, link, iri.clone());
             self.emit(&iri, rdf::TYPE, class);
+            self.emit(&iri, dkros::HAS_INDEX, index_literal(ports.len()));
             let tags = self.tags(&node, &iri);
             if tags.is_empty() && self.index.objects(&node, dyknow::HAS_TAG).is_empty() {
                 self.violation("a Port has some Tag (dyknow:hasTag)", &node);
@@ -631,10 +664,16 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             .map(|(_, p)| p.clone())
             .collect();
         if self.index.has_type(&root, dyknow::SOURCE) && !inputs.is_empty() {
-            self.violation("Source has exactly 0 InPort (hasInPort exactly 0 InPort)", &root);
+            self.violation(
+                "Source has exactly 0 InPort (hasInPort exactly 0 InPort)",
+                &root,
+            );
         }
         if self.index.has_type(&root, dyknow::SINK) && !outputs.is_empty() {
-            self.violation("Sink has exactly 0 OutPort (hasOutPort exactly 0 OutPort)", &root);
+            self.violation(
+                "Sink has exactly 0 OutPort (hasOutPort exactly 0 OutPort)",
+                &root,
+            );
         }
         let (labour, upkeep) = self.costs(&root, root_iri);
         let (sources, _) = self.index.literals(&root, &[dkros::HAS_SOURCE]);
@@ -665,7 +704,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             .collect();
         for term in models {
             let Some(node) = term_node(&term) else {
-                self.violation("dyknow:hasCostModel links to a CostModel node, not a literal", root);
+                self.violation(
+                    "dyknow:hasCostModel links to a CostModel node, not a literal",
+                    root,
+                );
                 continue;
             };
             let is_labour = self.index.has_type(&node, dyknow::LABOUR_COST_MODEL);
@@ -686,21 +728,26 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             self.names
                 .insert(node.clone(), format!("{}/{which} cost", self.label));
             if slot.is_some() {
-                self.violation(format!("a transformation has at most 1 {which} cost model"), &node);
+                self.violation(
+                    format!("a transformation has at most 1 {which} cost model"),
+                    &node,
+                );
                 continue;
             }
             let (values, not_literal) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
             match (values.as_slice(), not_literal) {
-                ([v], false) => match cost_value(v) {
-                    Some(x) => *slot = Some(x),
-                    None => {
-                        self.violation(
+                ([v], false) => {
+                    match cost_value(v) {
+                        Some(x) => *slot = Some(x),
+                        None => {
+                            self.violation(
                             format!("a {which} cost is a non-negative number (dyknow:hasValue), not {v}"),
                             &node,
                         );
-                        *slot = Some(DEFAULT_COST);
+                            *slot = Some(DEFAULT_COST);
+                        }
                     }
-                },
+                }
                 _ => {
                     self.violation(
                         format!("a {which} cost model has exactly 1 dyknow:hasValue, a non-negative number"),
@@ -735,7 +782,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                 }
             }
         }
-        (labour.unwrap_or(DEFAULT_COST), upkeep.unwrap_or(DEFAULT_COST))
+        (
+            labour.unwrap_or(DEFAULT_COST),
+            upkeep.unwrap_or(DEFAULT_COST),
+        )
     }
 
     fn target(&mut self, root_iri: &NamedNode) -> Option<TargetSpec> {
@@ -769,7 +819,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                         ),
                     }
                 }
-                None => self.violation("dyknow:hasChannel links to a Channel node, not a literal", &root),
+                None => self.violation(
+                    "dyknow:hasChannel links to a Channel node, not a literal",
+                    &root,
+                ),
             },
             _ => self.violation("a Target has exactly 1 Channel (dyknow:hasChannel)", &root),
         }
@@ -784,6 +837,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             tags,
         })
     }
+}
+
+fn index_literal(position: usize) -> Literal {
+    Literal::new_typed_literal(position.to_string(), xsd::NON_NEGATIVE_INTEGER)
 }
 
 fn encode_id(node: &Node) -> String {
@@ -825,7 +882,6 @@ pub(crate) fn spec_from_graph(triples: &[Triple], kind: SpecKind) -> Option<Spec
     doc.specs.into_iter().next().map(|s| s.spec)
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -844,11 +900,15 @@ mod tests {
     }
 
     fn typed(value: &str, datatype: &str) -> Literal {
-        Literal::new_typed_literal(value, NamedNode::new_unchecked(format!("{}{datatype}", xsd::NAMESPACE)))
+        Literal::new_typed_literal(
+            value,
+            NamedNode::new_unchecked(format!("{}{datatype}", xsd::NAMESPACE)),
+        )
     }
 
     fn is_blank_free(t: &Triple) -> bool {
-        !matches!(t.subject, NamedOrBlankNode::BlankNode(_)) && !matches!(t.object, Term::BlankNode(_))
+        !matches!(t.subject, NamedOrBlankNode::BlankNode(_))
+            && !matches!(t.object, Term::BlankNode(_))
     }
 
     #[test]
@@ -872,14 +932,24 @@ mod tests {
             ("true", "boolean", None),
             ("1", "dateTime", None),
         ] {
-            assert_eq!(cost_value(&typed(value, datatype)), expected, "{value:?}^^xsd:{datatype}");
+            assert_eq!(
+                cost_value(&typed(value, datatype)),
+                expected,
+                "{value:?}^^xsd:{datatype}"
+            );
         }
         // Negative zero is not below zero.
         assert_eq!(cost_value(&typed("-0", "decimal")), Some(0.0));
         assert_eq!(cost_value(&Literal::new_simple_literal("1.0")), None);
-        assert_eq!(cost_value(&Literal::new_language_tagged_literal_unchecked("1.0", "en")), None);
         assert_eq!(
-            cost_value(&Literal::new_typed_literal("1.0", NamedNode::new_unchecked("http://example.org/double"))),
+            cost_value(&Literal::new_language_tagged_literal_unchecked("1.0", "en")),
+            None
+        );
+        assert_eq!(
+            cost_value(&Literal::new_typed_literal(
+                "1.0",
+                NamedNode::new_unchecked("http://example.org/double")
+            )),
             None,
             "only XSD datatypes"
         );
@@ -888,7 +958,12 @@ mod tests {
     #[test]
     fn the_default_spec_classes_are_the_ontology_classes() {
         let classes = SpecClasses::default();
-        for c in [dyknow::TRANSFORMATION, dyknow::SOURCE, dyknow::SINK, dkros::ROS_TRANSFORMATION] {
+        for c in [
+            dyknow::TRANSFORMATION,
+            dyknow::SOURCE,
+            dyknow::SINK,
+            dkros::ROS_TRANSFORMATION,
+        ] {
             assert!(classes.transformation.contains(&c.into_owned()), "{c}");
             assert!(!classes.target.contains(&c.into_owned()), "{c}");
         }
@@ -908,34 +983,61 @@ ex:A dyknow:similarTo ex:B .
    dyknow:hasOutPort [ dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "T" ] ] .
 "#);
         let extracted = extract_specs(&triples, &SpecClasses::default(), None).expect("valid");
-        let kinds: Vec<(SpecKind, &str)> =
-            extracted.specs.iter().map(|s| (s.spec.kind(), s.spec.label())).collect();
-        assert_eq!(kinds, [(SpecKind::Target, "q"), (SpecKind::Transformation, "t")]);
+        let kinds: Vec<(SpecKind, &str)> = extracted
+            .specs
+            .iter()
+            .map(|s| (s.spec.kind(), s.spec.label()))
+            .collect();
+        assert_eq!(
+            kinds,
+            [(SpecKind::Target, "q"), (SpecKind::Transformation, "t")]
+        );
         assert_eq!(extracted.rest.len(), 1);
         assert_eq!(extracted.rest[0].predicate, dyknow::SIMILAR_TO);
         for spec in &extracted.specs {
             assert_eq!(spec.given_iri, None);
             assert_eq!(spec.graph, spec_graph(spec.spec.kind(), spec.spec.label()));
-            assert!(spec.triples.iter().all(is_blank_free), "{:#?}", spec.triples);
+            assert!(
+                spec.triples.iter().all(is_blank_free),
+                "{:#?}",
+                spec.triples
+            );
             let base = spec_resource(spec.spec.kind(), spec.spec.label());
             assert!(
-                spec.triples.iter().all(|t| t.subject.to_string().starts_with(&format!("<{base}"))
-                    || t.subject.to_string().starts_with("<urn:dyknow:channel:")),
+                spec.triples
+                    .iter()
+                    .all(|t| t.subject.to_string().starts_with(&format!("<{base}"))
+                        || t.subject.to_string().starts_with("<urn:dyknow:channel:")),
                 "every minted IRI is under the spec's resource: {:#?}",
                 spec.triples
             );
         }
         // The channel is named by its name, so targets naming one channel share it.
         let target = &extracted.specs[0];
-        assert!(target.triples.iter().any(|t| t.predicate == dyknow::HAS_CHANNEL
-            && t.object == Term::from(NamedNode::new_unchecked("urn:dyknow:channel:%2Fc"))));
+        assert!(
+            target
+                .triples
+                .iter()
+                .any(|t| t.predicate == dyknow::HAS_CHANNEL
+                    && t.object == Term::from(NamedNode::new_unchecked("urn:dyknow:channel:%2Fc")))
+        );
 
         // The endpoints take one kind, and no vocabulary.
-        let err = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
-            .expect_err("a target and vocabulary");
-        assert!(err.0.iter().any(|v| v.constraint.contains("accepts transformation specs only")));
-        assert!(err.0.iter().any(|v| v.constraint.contains("every statement belongs to a spec")
-            && v.subject == "http://example.org/ex#A"));
+        let err = extract_specs(
+            &triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .expect_err("a target and vocabulary");
+        assert!(
+            err.0
+                .iter()
+                .any(|v| v.constraint.contains("accepts transformation specs only"))
+        );
+        assert!(err.0.iter().any(
+            |v| v.constraint.contains("every statement belongs to a spec")
+                && v.subject == "http://example.org/ex#A"
+        ));
     }
 
     #[test]
@@ -951,20 +1053,41 @@ ex:elsewhere rdfs:label "not owned" .
         let extracted = extract_specs(&triples, &SpecClasses::default(), None).expect("valid");
         assert_eq!(extracted.specs.len(), 1);
         let spec = &extracted.specs[0];
-        let Spec::Transformation(t) = &spec.spec else { panic!("a transformation") };
+        let Spec::Transformation(t) = &spec.spec else {
+            panic!("a transformation")
+        };
         assert_eq!(t.outputs.len(), 1);
         assert_eq!(t.outputs[0].name, "o");
         let port = NamedNode::new_unchecked("http://example.org/ex#port");
         assert!(
-            spec.triples.iter().any(|t| t.predicate == dyknow::HAS_OUT_PORT && t.object == Term::from(port.clone())),
+            spec.triples.iter().any(
+                |t| t.predicate == dyknow::HAS_OUT_PORT && t.object == Term::from(port.clone())
+            ),
             "a port given by IRI keeps its IRI"
         );
-        assert!(spec.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("owned, as a blank node"))));
-        assert!(spec.triples.iter().any(|t| t.predicate == rdfs::LABEL.into_owned()
-            && t.object == Term::from(Literal::new_simple_literal("t"))));
-        assert!(!spec.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("not owned"))));
+        assert!(
+            spec.triples
+                .iter()
+                .any(|t| t.object
+                    == Term::from(Literal::new_simple_literal("owned, as a blank node")))
+        );
+        assert!(
+            spec.triples
+                .iter()
+                .any(|t| t.predicate == rdfs::LABEL.into_owned()
+                    && t.object == Term::from(Literal::new_simple_literal("t")))
+        );
+        assert!(
+            !spec
+                .triples
+                .iter()
+                .any(|t| t.object == Term::from(Literal::new_simple_literal("not owned")))
+        );
         assert_eq!(extracted.rest.len(), 1, "{:#?}", extracted.rest);
-        assert_eq!(extracted.rest[0].subject.to_string(), "<http://example.org/ex#elsewhere>");
+        assert_eq!(
+            extracted.rest[0].subject.to_string(),
+            "<http://example.org/ex#elsewhere>"
+        );
     }
 
     #[test]
@@ -975,14 +1098,20 @@ _:a a dyknow:Transformation ; rdfs:label "a" ; ex:next _:b ;
 _:b a dyknow:Transformation ; rdfs:label "b" ;
    dyknow:hasOutPort [ dyknow:hasName "o" ; dyknow:hasTag [ dyknow:hasValue "U" ] ] .
 "#);
-        let extracted = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
-            .expect("valid");
+        let extracted = extract_specs(
+            &triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .expect("valid");
         assert_eq!(extracted.specs.len(), 2);
         let a = &extracted.specs[0];
         assert_eq!(a.spec.label(), "a");
         assert!(
-            !a.triples.iter().any(|t| t.object == Term::from(Literal::new_simple_literal("b"))
-                || t.object == Term::from(Literal::new_simple_literal("U"))),
+            !a.triples
+                .iter()
+                .any(|t| t.object == Term::from(Literal::new_simple_literal("b"))
+                    || t.object == Term::from(Literal::new_simple_literal("U"))),
             "b's statements are b's: {:#?}",
             a.triples
         );
@@ -999,14 +1128,42 @@ _:b a dyknow:Transformation ; rdfs:label "b" ;
    dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue -1 ] .
 [] a dyknow:Transformation .
 "#);
-        let err = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
-            .expect_err("invalid");
-        let found: Vec<(&str, &str)> =
-            err.0.iter().map(|v| (v.constraint.as_str(), v.subject.as_str())).collect();
-        assert!(found.iter().any(|(c, s)| c.starts_with("a Port has some Tag") && *s == "a/port o"), "{found:#?}");
-        assert!(found.iter().any(|(c, s)| c.starts_with("Source has exactly 0 InPort") && *s == "b"), "{found:#?}");
-        assert!(found.iter().any(|(c, s)| c.contains("upkeep cost is a non-negative number") && *s == "b/upkeep cost"), "{found:#?}");
-        assert!(found.iter().any(|(c, s)| c.contains("exactly 1 rdfs:label") && *s == "a blank node"), "{found:#?}");
+        let err = extract_specs(
+            &triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .expect_err("invalid");
+        let found: Vec<(&str, &str)> = err
+            .0
+            .iter()
+            .map(|v| (v.constraint.as_str(), v.subject.as_str()))
+            .collect();
+        assert!(
+            found
+                .iter()
+                .any(|(c, s)| c.starts_with("a Port has some Tag") && *s == "a/port o"),
+            "{found:#?}"
+        );
+        assert!(
+            found
+                .iter()
+                .any(|(c, s)| c.starts_with("Source has exactly 0 InPort") && *s == "b"),
+            "{found:#?}"
+        );
+        assert!(
+            found
+                .iter()
+                .any(|(c, s)| c.contains("upkeep cost is a non-negative number")
+                    && *s == "b/upkeep cost"),
+            "{found:#?}"
+        );
+        assert!(
+            found
+                .iter()
+                .any(|(c, s)| c.contains("exactly 1 rdfs:label") && *s == "a blank node"),
+            "{found:#?}"
+        );
         assert_eq!(found.len(), 4, "{found:#?}");
     }
 
@@ -1020,25 +1177,58 @@ _:b a dyknow:Transformation ; rdfs:label "b" ;
    dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName "undist" ; dyknow:hasTag [ dyknow:hasTagDescription ex:B ] ] ;
    dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue 0.5 ] .
 "#);
-        let extracted = extract_specs(&triples, &SpecClasses::default(), Some(SpecKind::Transformation))
-            .expect("valid");
+        let extracted = extract_specs(
+            &triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .expect("valid");
         let spec = &extracted.specs[0];
-        let Spec::Transformation(t) = &spec.spec else { panic!("a transformation") };
+        let Spec::Transformation(t) = &spec.spec else {
+            panic!("a transformation")
+        };
         assert_eq!((t.labour, t.upkeep), (DEFAULT_COST, 0.5));
         assert_eq!(t.inputs[0].name, "raw");
-        assert_eq!(t.outputs[0].tags, [Tag { value: None, description: Some("http://example.org/ex#B".into()) }]);
+        assert_eq!(
+            t.outputs[0].tags,
+            [Tag {
+                value: None,
+                description: Some("http://example.org/ex#B".into())
+            }]
+        );
         // The normal form: hasPortName becomes hasName, hasPort becomes hasIn/OutPort, the
         // missing labour estimate is written.
-        assert!(!spec.triples.iter().any(|t| t.predicate == dyknow::HAS_PORT_NAME || t.predicate == dkros::HAS_PORT));
-        assert!(spec.triples.iter().any(|t| t.predicate == rdf::TYPE && t.object == Term::from(dyknow::LABOUR_COST_MODEL)));
-        assert_eq!(spec_from_graph(&spec.triples, SpecKind::Transformation), Some(spec.spec.clone()));
+        assert!(
+            !spec
+                .triples
+                .iter()
+                .any(|t| t.predicate == dyknow::HAS_PORT_NAME || t.predicate == dkros::HAS_PORT)
+        );
+        assert!(
+            spec.triples
+                .iter()
+                .any(|t| t.predicate == rdf::TYPE
+                    && t.object == Term::from(dyknow::LABOUR_COST_MODEL))
+        );
+        assert_eq!(
+            spec_from_graph(&spec.triples, SpecKind::Transformation),
+            Some(spec.spec.clone())
+        );
         assert_eq!(spec_from_graph(&spec.triples, SpecKind::Target), None);
         assert_eq!(spec_from_graph(&[], SpecKind::Transformation), None);
         // Normalising is idempotent.
-        let again = extract_specs(&spec.triples, &SpecClasses::default(), Some(SpecKind::Transformation))
-            .expect("the normal form is valid");
+        let again = extract_specs(
+            &spec.triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .expect("the normal form is valid");
         let mut first: Vec<String> = spec.triples.iter().map(ToString::to_string).collect();
-        let mut second: Vec<String> = again.specs[0].triples.iter().map(ToString::to_string).collect();
+        let mut second: Vec<String> = again.specs[0]
+            .triples
+            .iter()
+            .map(ToString::to_string)
+            .collect();
         first.sort();
         second.sort();
         assert_eq!(first, second);

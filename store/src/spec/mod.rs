@@ -3,9 +3,8 @@
 mod extract;
 mod model;
 
-pub use extract::{
-    DEFAULT_COST, ExtractedDocument, ExtractedSpec, MAX_PORTS, MAX_TAGS, SpecClasses,
-    extract_specs,
-};
 pub(crate) use extract::spec_from_graph;
+pub use extract::{
+    DEFAULT_COST, ExtractedDocument, ExtractedSpec, MAX_PORTS, MAX_TAGS, SpecClasses, extract_specs,
+};
 pub use model::{Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec};
