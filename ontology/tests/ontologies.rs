@@ -10,6 +10,7 @@ use dyknow_ontology::{
 use horned_owl::model::{AnnotatedComponent, ArcStr, Component};
 use oxrdfio::RdfFormat;
 
+#[expect(clippy::unwrap_used, reason = "test helper")]
 fn components(ttl: &str) -> HashSet<AnnotatedComponent<ArcStr>> {
     rdf_owl_components(ttl.as_bytes(), RdfFormat::Turtle).unwrap()
 }
