@@ -4,22 +4,20 @@
 //! not at all, and concurrent writers never interleave (Oxigraph 0.5 does not detect all
 //! write-write conflicts, so the service serialises them).
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, RwLock};
 
 use dyknow_ontology::BUILTIN_ONTOLOGIES;
 use dyknow_ontology::vocab::{dyknow, owl, rdf, rdfs};
-use oxigraph::model::{
-    GraphNameRef, NamedNode, NamedNodeRef, NamedOrBlankNodeRef, QuadRef, Term, Triple,
-};
+use oxigraph::model::{GraphNameRef, NamedNode, NamedNodeRef, NamedOrBlankNodeRef, Term, Triple};
 use oxigraph::sparql::{QueryResults, SparqlEvaluator};
 use oxigraph::store::{StorageError, Store};
 use serde::Serialize;
 
 use crate::error::{IngestError, SpecValidationError, StoreOpenError, Violation};
 use crate::graphs::{extension_graph, fnv1a, is_extension_graph, spec_graph, spec_of_graph};
-use crate::rdf_input::{InputFormat, parse_triples};
+use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{ExtractedSpec, Spec, SpecClasses, SpecKind, extract_specs, spec_from_graph};
 
 /// The knowledge base. Cheap to share behind an `Arc`; all methods take `&self`.
@@ -69,6 +67,9 @@ pub struct LoadReport {
     /// The extension graph written for the remaining triples, if any.
     pub extension: Option<String>,
 }
+
+/// From this many new triples on, a write is one SST ingestion rather than a write batch.
+const BULK_LOAD_THRESHOLD: usize = 50_000;
 
 /// Counts for monitoring.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -215,10 +216,26 @@ impl KnowledgeBase {
         let doc = extract_specs(&triples, &self.classes(), Some(kind))?;
         let _guard = self.lock();
         self.check_identities(&doc.specs)?;
-        let mut transaction = self.store.start_transaction()?;
-        let report = write_specs(&mut transaction, &doc.specs)?;
-        transaction.commit()?;
-        Ok(report)
+        let graphs: Vec<(&NamedNode, &[Triple])> = doc
+            .specs
+            .iter()
+            .map(|s| (&s.graph, s.triples.as_slice()))
+            .collect();
+        let replaced = self.write_graphs(&graphs)?;
+        Ok(PostReport {
+            labels: doc
+                .specs
+                .iter()
+                .map(|s| s.spec.label().to_owned())
+                .collect(),
+            replaced: doc
+                .specs
+                .iter()
+                .zip(replaced)
+                .filter(|(_, r)| *r)
+                .map(|(s, _)| s.spec.label().to_owned())
+                .collect(),
+        })
     }
 
     /// Loads a document holding any mix of transformation specs, target specs and vocabulary
@@ -232,30 +249,72 @@ impl KnowledgeBase {
         let doc = extract_specs(&triples, &self.classes(), None)?;
         let _guard = self.lock();
         self.check_identities(&doc.specs)?;
-        let mut transaction = self.store.start_transaction()?;
-        let (tfs, tgs): (Vec<ExtractedSpec>, Vec<ExtractedSpec>) = doc
+        let extension = (!doc.rest.is_empty())
+            .then(|| (extension_graph(fnv1a(body)), fresh_blank_nodes(&doc.rest)));
+        let mut graphs: Vec<(&NamedNode, &[Triple])> = doc
             .specs
-            .into_iter()
-            .partition(|s| s.spec.kind() == SpecKind::Transformation);
-        let mut report = LoadReport {
-            transformations: write_specs(&mut transaction, &tfs)?,
-            targets: write_specs(&mut transaction, &tgs)?,
-            extension: None,
-        };
-        if !doc.rest.is_empty() {
-            let graph = extension_graph(fnv1a(body));
-            transaction.clear_graph(&graph)?;
-            for t in &doc.rest {
-                transaction.insert(t.as_ref().in_graph(&graph));
-            }
-            report.extension = Some(graph.into_string());
+            .iter()
+            .map(|s| (&s.graph, s.triples.as_slice()))
+            .collect();
+        if let Some((graph, triples)) = &extension {
+            graphs.push((graph, triples.as_slice()));
         }
-        transaction.commit()?;
+        let replaced = self.write_graphs(&graphs)?;
+        let mut report = LoadReport {
+            extension: extension.as_ref().map(|(g, _)| g.as_str().to_owned()),
+            ..LoadReport::default()
+        };
+        for (spec, replaced) in doc.specs.iter().zip(replaced) {
+            let part = match spec.spec.kind() {
+                SpecKind::Transformation => &mut report.transformations,
+                SpecKind::Target => &mut report.targets,
+            };
+            part.labels.push(spec.spec.label().to_owned());
+            if replaced {
+                part.replaced.push(spec.spec.label().to_owned());
+            }
+        }
         drop(_guard);
         if report.extension.is_some() {
             self.refresh_classes()?;
         }
         Ok(report)
+    }
+
+    /// Replaces each named graph by the given triples, atomically, and tells which graphs
+    /// existed. The caller holds the write lock. New graphs take the fast paths (a plain write
+    /// batch, or SST ingestion for large batches); replacing needs an indexed transaction.
+    fn write_graphs(&self, graphs: &[(&NamedNode, &[Triple])]) -> Result<Vec<bool>, StorageError> {
+        let replaced = graphs
+            .iter()
+            .map(|(g, _)| self.store.contains_named_graph(*g))
+            .collect::<Result<Vec<bool>, _>>()?;
+        let quads = graphs.iter().flat_map(|(g, triples)| {
+            triples
+                .iter()
+                .map(|t| t.as_ref().in_graph(g.as_ref()).into_owned())
+        });
+        if !replaced.contains(&true) {
+            let size: usize = graphs.iter().map(|(_, t)| t.len()).sum();
+            if size >= BULK_LOAD_THRESHOLD {
+                // One atomic ingestion of sorted SST files.
+                let mut loader = self.store.bulk_loader();
+                loader.load_quads(quads)?;
+                loader.commit()?;
+            } else {
+                self.store.extend(quads)?;
+            }
+        } else {
+            let mut transaction = self.store.start_transaction()?;
+            for (g, _) in graphs {
+                transaction.clear_graph(*g)?;
+            }
+            for quad in quads {
+                transaction.insert(&quad);
+            }
+            transaction.commit()?;
+        }
+        Ok(replaced)
     }
 
     /// A spec given by IRI must not be the resource of another spec already.
@@ -392,7 +451,7 @@ impl KnowledgeBase {
         let replaced = self.store.contains_named_graph(&graph)?;
         let mut transaction = self.store.start_transaction()?;
         transaction.clear_graph(&graph)?;
-        for t in &triples {
+        for t in &fresh_blank_nodes(&triples) {
             transaction.insert(t.as_ref().in_graph(&graph));
         }
         transaction.commit()?;
@@ -525,33 +584,6 @@ impl KnowledgeBase {
         }
         Ok(())
     }
-}
-
-fn write_specs(
-    transaction: &mut oxigraph::store::Transaction<'_>,
-    specs: &[ExtractedSpec],
-) -> Result<PostReport, StorageError> {
-    let mut report = PostReport::default();
-    let mut seen = HashSet::new();
-    for spec in specs {
-        if !seen.insert(spec.graph.clone()) {
-            continue;
-        }
-        if transaction.contains_named_graph(&spec.graph)? {
-            report.replaced.push(spec.spec.label().to_owned());
-            transaction.clear_graph(&spec.graph)?;
-        }
-        for t in &spec.triples {
-            transaction.insert(QuadRef::new(
-                &t.subject,
-                &t.predicate,
-                &t.object,
-                &spec.graph,
-            ));
-        }
-        report.labels.push(spec.spec.label().to_owned());
-    }
-    Ok(report)
 }
 
 #[cfg(test)]
@@ -742,7 +774,7 @@ mod tests {
     }
 
     #[test]
-    fn write_specs_reports_replacements() {
+    fn write_graphs_reports_replacements_and_replaces() {
         let kb = kb();
         let body = ttl(
             "[] a dyknow:Transformation ; rdfs:label \"a\" ;
@@ -752,30 +784,17 @@ mod tests {
         let specs = extract_specs(&triples, &kb.classes(), None)
             .expect("valid")
             .specs;
-        let mut transaction = kb.store.start_transaction().expect("transaction");
-        let report = write_specs(&mut transaction, &specs).expect("write");
-        assert_eq!(
-            report,
-            PostReport {
-                labels: vec!["a".into()],
-                replaced: vec![]
-            }
-        );
-        let report = write_specs(&mut transaction, &specs).expect("write");
-        assert_eq!(
-            report,
-            PostReport {
-                labels: vec!["a".into()],
-                replaced: vec!["a".into()]
-            }
-        );
-        transaction.commit().expect("commit");
+        let graphs: Vec<(&NamedNode, &[Triple])> = specs
+            .iter()
+            .map(|s| (&s.graph, s.triples.as_slice()))
+            .collect();
+        assert_eq!(kb.write_graphs(&graphs).expect("write"), [false]);
+        assert_eq!(kb.write_graphs(&graphs).expect("write"), [true]);
         let graph = spec_graph(SpecKind::Transformation, "a");
         assert_eq!(
             kb.graph_triples(graph.as_ref()).expect("storage").len(),
             specs[0].triples.len()
         );
-        assert_eq!(kb.statistics().expect("storage").transformations, 1);
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! Parsing request bodies (Turtle, N-Triples, JSON-LD) into triples.
 
 use oxigraph::io::{RdfFormat, RdfParser};
-use oxigraph::model::{GraphName, Triple};
+use std::collections::HashMap;
+
+use oxigraph::model::{BlankNode, GraphName, NamedOrBlankNode, Term, Triple};
 
 use crate::error::{SpecParseError, SyntaxErrorDetail};
 
@@ -49,7 +51,8 @@ impl InputFormat {
     }
 }
 
-/// Parses `body` into triples. Blank nodes are renamed so that two documents never share one.
+/// Parses `body` into triples, keeping the document's blank node labels (specs replace their
+/// blank nodes by IRIs; vocabulary goes through [`fresh_blank_nodes`] before it is stored).
 /// Quads in named graphs are refused: specs are graphs of their own.
 pub fn parse_triples(body: &[u8], format: InputFormat) -> Result<Vec<Triple>, SpecParseError> {
     let parser = RdfParser::from_format(format.rdf_format()).rename_blank_nodes();
@@ -75,4 +78,25 @@ fn syntax(line: u64, column: u64, message: String) -> SpecParseError {
         column,
         message,
     })
+}
+
+/// Gives every blank node of `triples` a new, store-wide unique label, so that two documents
+/// never share a blank node once stored.
+pub(crate) fn fresh_blank_nodes(triples: &[Triple]) -> Vec<Triple> {
+    let mut fresh: HashMap<&BlankNode, BlankNode> = HashMap::new();
+    let mut rename = |b| fresh.entry(b).or_default().clone();
+    triples
+        .iter()
+        .map(|t| {
+            let subject = match &t.subject {
+                NamedOrBlankNode::BlankNode(b) => NamedOrBlankNode::from(rename(b)),
+                other => other.clone(),
+            };
+            let object = match &t.object {
+                Term::BlankNode(b) => Term::from(rename(b)),
+                other => other.clone(),
+            };
+            Triple::new(subject, t.predicate.clone(), object)
+        })
+        .collect()
 }

@@ -48,13 +48,21 @@ impl ParsedQuery {
     /// Parses `query`. Updates are recognised and refused; syntax errors carry line and column.
     pub fn parse(query: &str) -> Result<Self, SparqlQueryError> {
         let cancel = CancellationToken::new();
-        let evaluator = SparqlEvaluator::new().with_cancellation_token(cancel.clone());
-        match evaluator.parse_query(query) {
-            Ok(mut prepared) => {
+        // One parse: the form is read from the algebra, which is then handed to the evaluator.
+        match spargebra::SparqlParser::new().parse_query(query) {
+            Ok(algebra) => {
+                let form = match algebra {
+                    spargebra::Query::Construct { .. } | spargebra::Query::Describe { .. } => {
+                        QueryForm::Graph
+                    }
+                    _ => QueryForm::Solutions,
+                };
+                let mut prepared = SparqlEvaluator::new()
+                    .with_cancellation_token(cancel.clone())
+                    .for_query(algebra);
                 if prepared.dataset().is_default_dataset() {
                     prepared.dataset_mut().set_default_graph_as_union();
                 }
-                let form = query_form(query);
                 Ok(Self {
                     prepared,
                     form,
@@ -84,16 +92,6 @@ impl ParsedQuery {
     /// The token that cancels the query's evaluation (e.g. when its time is up).
     pub fn cancellation_token(&self) -> CancellationToken {
         self.cancel.clone()
-    }
-}
-
-/// The form of a query that parses.
-fn query_form(query: &str) -> QueryForm {
-    match spargebra::SparqlParser::new().parse_query(query) {
-        Ok(spargebra::Query::Construct { .. } | spargebra::Query::Describe { .. }) => {
-            QueryForm::Graph
-        }
-        _ => QueryForm::Solutions,
     }
 }
 
@@ -213,19 +211,20 @@ mod tests {
 
     #[test]
     fn forms_are_recognised() {
+        let form = |q: &str| ParsedQuery::parse(q).map(|p| p.form()).ok();
         assert_eq!(
-            query_form("SELECT * WHERE { ?s ?p ?o }"),
-            QueryForm::Solutions
+            form("SELECT * WHERE { ?s ?p ?o }"),
+            Some(QueryForm::Solutions)
         );
-        assert_eq!(query_form("ask { ?s ?p ?o }"), QueryForm::Solutions);
+        assert_eq!(form("ask { ?s ?p ?o }"), Some(QueryForm::Solutions));
         assert_eq!(
-            query_form("PREFIX construct: <http://e/> CONSTRUCT { ?s ?p ?o } WHERE { ?s ?p ?o }"),
-            QueryForm::Graph
+            form("PREFIX construct: <http://e/> CONSTRUCT { ?s ?p ?o } WHERE { ?s ?p ?o }"),
+            Some(QueryForm::Graph)
         );
-        assert_eq!(query_form("DESCRIBE <http://e/>"), QueryForm::Graph);
+        assert_eq!(form("DESCRIBE <http://e/>"), Some(QueryForm::Graph));
         assert_eq!(
-            query_form("SELECT ?describe WHERE { ?describe ?p ?o }"),
-            QueryForm::Solutions
+            form("SELECT ?describe WHERE { ?describe ?p ?o }"),
+            Some(QueryForm::Solutions)
         );
     }
 

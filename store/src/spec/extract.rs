@@ -3,7 +3,7 @@
 //! structural constraints of the ontology (seed Appendix A; DyKnow-ROS Ch. 5.3.1) before anything
 //! is written.
 
-use std::collections::{HashMap, HashSet};
+use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 
 use dyknow_ontology::vocab::{dkros, dyknow, rdf, rdfs, xsd};
 use oxigraph::model::{Literal, NamedNode, NamedNodeRef, NamedOrBlankNode, Term, Triple};
@@ -99,7 +99,7 @@ struct Index<'a> {
 
 impl<'a> Index<'a> {
     fn new(triples: &'a [Triple]) -> Self {
-        let mut by_subject: HashMap<&Node, Vec<&Triple>> = HashMap::new();
+        let mut by_subject: HashMap<&Node, Vec<&Triple>> = HashMap::default();
         for t in triples {
             by_subject.entry(&t.subject).or_default().push(t);
         }
@@ -176,7 +176,7 @@ fn extract(
 
     // Roots, in document order.
     let mut roots: Vec<(Node, SpecKind)> = Vec::new();
-    let mut seen_roots = HashSet::new();
+    let mut seen_roots = HashSet::default();
     for t in triples {
         if t.predicate != rdf::TYPE {
             continue;
@@ -196,18 +196,32 @@ fn extract(
         } else if roots.iter().any(|(r, k)| *r == t.subject && *k != kind) {
             violations.push(Violation::new(
                 "Transformation DisjointWith Target",
-                describe(&t.subject, &HashMap::new()),
+                describe(&t.subject, &HashMap::default()),
             ));
         }
     }
     let root_set: HashSet<&Node> = roots.iter().map(|(r, _)| r).collect();
 
-    let mut claimed: HashSet<&Node> = HashSet::new();
-    let mut specs = Vec::new();
-    let mut labels_seen: HashSet<(SpecKind, String)> = HashSet::new();
+    // Blank roots are named after their label, also where another spec points at them.
+    let mut root_iris: HashMap<Node, NamedNode> = HashMap::default();
     for (root, kind) in &roots {
-        for node in owned_nodes(&index, &root_set, root) {
-            if let Some((k, _)) = index.by_subject.get_key_value(&node) {
+        let (labels, not_literal) = index.literals(root, &[rdfs::LABEL]);
+        if let (NamedOrBlankNode::BlankNode(_), [label], false) =
+            (root, labels.as_slice(), not_literal)
+        {
+            root_iris.insert(
+                root.clone(),
+                NamedNode::new_unchecked(spec_resource(*kind, label.value())),
+            );
+        }
+    }
+    let mut claimed: HashSet<&Node> = HashSet::default();
+    let mut specs = Vec::new();
+    let mut labels_seen: HashSet<(SpecKind, String)> = HashSet::default();
+    for (root, kind) in &roots {
+        let owned = owned_nodes(&index, &root_set, root);
+        for node in &owned {
+            if let Some((k, _)) = index.by_subject.get_key_value(node) {
                 claimed.insert(*k);
             }
         }
@@ -221,7 +235,7 @@ fn extract(
                     kind.name(),
                     kind.name()
                 ),
-                describe(root, &HashMap::new()),
+                describe(root, &HashMap::default()),
             ));
             continue;
         }
@@ -234,7 +248,7 @@ fn extract(
                         "{} has exactly 1 rdfs:label (a literal): it identifies the spec",
                         capitalised(kind.name())
                     ),
-                    describe(root, &HashMap::new()),
+                    describe(root, &HashMap::default()),
                 ));
                 continue;
             }
@@ -249,8 +263,8 @@ fn extract(
             ));
             continue;
         }
-        let spec = SpecBuilder::new(&index, &root_set, root.clone(), *kind, label);
-        let (extracted, mut found) = spec.build();
+        let spec = SpecBuilder::new(&index, &root_iris, root.clone(), *kind, label);
+        let (extracted, mut found) = spec.build(owned);
         violations.append(&mut found);
         if let Some(e) = extracted {
             specs.push(e);
@@ -278,7 +292,7 @@ fn extract(
         }
         let mut subjects: Vec<String> = Vec::new();
         for t in &rest {
-            let d = describe(&t.subject, &HashMap::new());
+            let d = describe(&t.subject, &HashMap::default());
             if !subjects.contains(&d) {
                 subjects.push(d);
             }
@@ -334,7 +348,8 @@ fn capitalised(s: &str) -> String {
 /// Builds one spec: walks the nodes it owns, names them, normalises and validates.
 struct SpecBuilder<'a, 'i> {
     index: &'i Index<'a>,
-    roots: &'i HashSet<&'a Node>,
+    /// The IRIs of the blank roots of the document (links between specs).
+    root_iris: &'i HashMap<Node, NamedNode>,
     root: Node,
     kind: SpecKind,
     label: String,
@@ -353,27 +368,27 @@ struct SpecBuilder<'a, 'i> {
 impl<'a, 'i> SpecBuilder<'a, 'i> {
     fn new(
         index: &'i Index<'a>,
-        roots: &'i HashSet<&'a Node>,
+        root_iris: &'i HashMap<Node, NamedNode>,
         root: Node,
         kind: SpecKind,
         label: String,
     ) -> Self {
         let base = spec_resource(kind, &label);
-        let mut names = HashMap::new();
+        let mut names = HashMap::default();
         names.insert(root.clone(), label.clone());
         Self {
             index,
-            roots,
+            root_iris,
             root,
             kind,
             label,
             base,
-            iris: HashMap::new(),
-            minted: HashSet::new(),
+            iris: HashMap::default(),
+            minted: HashSet::default(),
             names,
             violations: Vec::new(),
             out: Vec::new(),
-            out_set: HashSet::new(),
+            out_set: HashSet::default(),
         }
     }
 
@@ -409,8 +424,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         }
     }
 
-    fn build(mut self) -> (Option<ExtractedSpec>, Vec<Violation>) {
-        let owned = owned_nodes(self.index, self.roots, &self.root);
+    fn build(mut self, owned: Vec<Node>) -> (Option<ExtractedSpec>, Vec<Violation>) {
         let owned_set: HashSet<&Node> = owned.iter().collect();
         let root = self.root.clone();
         let base = self.base.clone();
@@ -441,6 +455,8 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                         let n: Node = b.clone().into();
                         if owned_set.contains(&n) {
                             Term::from(self.name_node(&n, || format!("{base}/node/{}", b.as_str())))
+                        } else if let Some(iri) = self.root_iris.get(&n) {
+                            Term::from(iri.clone())
                         } else {
                             t.object.clone()
                         }
@@ -577,7 +593,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         // A stored spec records the document order of its ports (`dkros:hasIndex`).
         links.sort_by_key(|(n, _)| self.position(n));
         let mut ports: Vec<(Node, Port)> = Vec::new();
-        let mut port_names: HashSet<String> = HashSet::new();
+        let mut port_names: HashSet<String> = HashSet::default();
         for (node, stated) in links {
             let is_in = self.index.has_type(&node, dyknow::IN_PORT);
             let is_out = self.index.has_type(&node, dyknow::OUT_PORT);
@@ -1240,9 +1256,11 @@ _:b a dyknow:Transformation ; rdfs:label "b" ;
         assert_eq!(capitalised(""), "");
         let iri: Node = NamedNode::new_unchecked("http://example.org/x").into();
         let blank: Node = oxigraph::model::BlankNode::default().into();
-        assert_eq!(describe(&iri, &HashMap::new()), "http://example.org/x");
-        assert_eq!(describe(&blank, &HashMap::new()), "a blank node");
-        let names = HashMap::from([(blank.clone(), "t/port o".to_owned())]);
+        assert_eq!(describe(&iri, &HashMap::default()), "http://example.org/x");
+        assert_eq!(describe(&blank, &HashMap::default()), "a blank node");
+        let names: HashMap<_, _> = [(blank.clone(), "t/port o".to_owned())]
+            .into_iter()
+            .collect();
         assert_eq!(describe(&blank, &names), "t/port o");
     }
 }
