@@ -20,11 +20,16 @@ struct Histogram {
 }
 
 #[derive(Default)]
+struct RouteStats {
+    /// status → count.
+    requests: BTreeMap<u16, u64>,
+    latency: Histogram,
+}
+
+#[derive(Default)]
 struct Inner {
-    /// (method, route, status) → count.
-    requests: BTreeMap<(String, String, u16), u64>,
-    /// (method, route) → latency histogram.
-    latency: BTreeMap<(String, String), Histogram>,
+    /// `"METHOD route"` → counts and latencies (keys are allocated once per route).
+    routes: BTreeMap<String, RouteStats>,
 }
 
 /// Counts and latencies of requests by route and status.
@@ -40,14 +45,16 @@ impl Metrics {
             .inner
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        *inner
-            .requests
-            .entry((method.to_owned(), route.to_owned(), status))
-            .or_default() += 1;
-        let h = inner
-            .latency
-            .entry((method.to_owned(), route.to_owned()))
-            .or_default();
+        let mut key = [0u8; 128];
+        let key = route_key(&mut key, method, route);
+        if !inner.routes.contains_key(key.as_ref()) {
+            inner.routes.insert(key.to_string(), RouteStats::default());
+        }
+        let Some(stats) = inner.routes.get_mut(key.as_ref()) else {
+            return;
+        };
+        *stats.requests.entry(status).or_default() += 1;
+        let h = &mut stats.latency;
         let secs = elapsed.as_secs_f64();
         for (i, bound) in BUCKETS.iter().enumerate() {
             if secs <= *bound {
@@ -70,19 +77,24 @@ impl Metrics {
             "# HELP dyknow_http_requests_total HTTP requests answered, by route and status."
         );
         let _ = writeln!(out, "# TYPE dyknow_http_requests_total counter");
-        for ((method, route, status), n) in &inner.requests {
-            let _ = writeln!(
-                out,
-                "dyknow_http_requests_total{{method=\"{method}\",route=\"{}\",status=\"{status}\"}} {n}",
-                escape(route)
-            );
+        for (key, stats) in &inner.routes {
+            let (method, route) = key.split_once(' ').unwrap_or((key, ""));
+            for (status, n) in &stats.requests {
+                let _ = writeln!(
+                    out,
+                    "dyknow_http_requests_total{{method=\"{method}\",route=\"{}\",status=\"{status}\"}} {n}",
+                    escape(route)
+                );
+            }
         }
         let _ = writeln!(
             out,
             "# HELP dyknow_http_request_duration_seconds Latency of HTTP requests, by route."
         );
         let _ = writeln!(out, "# TYPE dyknow_http_request_duration_seconds histogram");
-        for ((method, route), h) in &inner.latency {
+        for (key, stats) in &inner.routes {
+            let (method, route) = key.split_once(' ').unwrap_or((key, ""));
+            let h = &stats.latency;
             let labels = format!("method=\"{method}\",route=\"{}\"", escape(route));
             for (bound, count) in BUCKETS.iter().zip(h.counts) {
                 let _ = writeln!(
@@ -129,6 +141,25 @@ impl Metrics {
             let _ = writeln!(out, "{name} {value}");
         }
         out
+    }
+}
+
+/// `"METHOD route"` without allocating for the usual short routes.
+fn route_key<'a>(
+    buffer: &'a mut [u8; 128],
+    method: &str,
+    route: &str,
+) -> std::borrow::Cow<'a, str> {
+    let len = method.len() + 1 + route.len();
+    if len > buffer.len() {
+        return std::borrow::Cow::Owned(format!("{method} {route}"));
+    }
+    buffer[..method.len()].copy_from_slice(method.as_bytes());
+    buffer[method.len()] = b' ';
+    buffer[method.len() + 1..len].copy_from_slice(route.as_bytes());
+    match std::str::from_utf8(&buffer[..len]) {
+        Ok(key) => std::borrow::Cow::Borrowed(key),
+        Err(_) => std::borrow::Cow::Owned(format!("{method} {route}")),
     }
 }
 

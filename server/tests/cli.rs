@@ -71,9 +71,13 @@ impl Drop for Server {
 }
 
 fn agent() -> ureq::Agent {
+    agent_with_timeout(Duration::from_secs(30))
+}
+
+fn agent_with_timeout(timeout: Duration) -> ureq::Agent {
     ureq::Agent::config_builder()
         .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(30)))
+        .timeout_global(Some(timeout))
         .build()
         .into()
 }
@@ -153,7 +157,7 @@ fn kill_9_loses_no_acknowledged_write() {
     let writer = {
         let (acknowledged, stop, url) = (acknowledged.clone(), stop.clone(), server.url.clone());
         std::thread::spawn(move || {
-            let agent = agent_without_retries();
+            let agent = agent_with_timeout(Duration::from_secs(5));
             let mut i = 0;
             while !stop.load(Ordering::Relaxed) {
                 let label = format!("u{i:04}");
@@ -192,14 +196,6 @@ fn kill_9_loses_no_acknowledged_write() {
         after.len(),
         expected.len()
     );
-}
-
-fn agent_without_retries() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(5)))
-        .build()
-        .into()
 }
 
 #[test]

@@ -326,8 +326,11 @@ fn owned_nodes(index: &Index<'_>, roots: &HashSet<&Node>, root: &Node) -> Vec<No
             };
             let follow = match &obj {
                 NamedOrBlankNode::BlankNode(_) => true,
-                NamedOrBlankNode::NamedNode(_) => {
-                    STRUCTURAL.contains(&t.predicate.as_ref()) && !index.about(&obj).is_empty()
+                // IRIs along structural links, and IRIs the service minted for a spec's blank
+                // nodes (so a stored spec posted again owns the same nodes).
+                NamedOrBlankNode::NamedNode(n) => {
+                    (STRUCTURAL.contains(&t.predicate.as_ref()) || is_minted(n.as_str()))
+                        && !index.about(&obj).is_empty()
                 }
             };
             if follow && !roots.contains(&obj) && seen.insert(obj.clone()) {
@@ -336,6 +339,16 @@ fn owned_nodes(index: &Index<'_>, roots: &HashSet<&Node>, root: &Node) -> Vec<No
         }
     }
     order
+}
+
+/// Whether an IRI is one the service mints for the parts of a spec.
+fn is_minted(iri: &str) -> bool {
+    ["urn:dyknow:transformation:", "urn:dyknow:target:"]
+        .iter()
+        .any(|prefix| {
+            iri.strip_prefix(prefix)
+                .is_some_and(|rest| rest.contains('/'))
+        })
 }
 
 fn capitalised(s: &str) -> String {
