@@ -2322,7 +2322,10 @@ fn a_stored_spec_posts_again_as_the_same_spec() {
     again
         .post_specs(&printed, InputFormat::NTriples, SpecKind::Transformation)
         .expect("the stored spec posts again");
-    assert_eq!(again.spec(SpecKind::Transformation, "t").expect("read"), spec);
+    assert_eq!(
+        again.spec(SpecKind::Transformation, "t").expect("read"),
+        spec
+    );
     assert_eq!(
         again
             .graph_triples(spec_graph(SpecKind::Transformation, "t").as_ref())
