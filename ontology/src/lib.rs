@@ -5,9 +5,7 @@ mod owl;
 pub mod vocab;
 
 pub use error::OwlConversionError;
-pub use owl::{
-    OwlDocument, OwlSyntax, owl_component_count, rdf_owl_components, rdf_to_owl, read_owl,
-};
+pub use owl::{OwlDocument, OwlSyntax, rdf_owl_components, rdf_to_owl, read_owl};
 
 /// The DyKnow core ontology (seed, Appendix A) in Turtle.
 pub const DYKNOW_TTL: &str = include_str!("../dyknow.ttl");

@@ -131,8 +131,3 @@ pub fn read_owl(
     };
     Ok(set.into_iter().collect())
 }
-
-/// The number of OWL components of an RDF document (a quick validity probe).
-pub fn owl_component_count(rdf: &[u8], format: RdfFormat) -> Result<usize, OwlConversionError> {
-    Ok(rdf_owl_components(rdf, format)?.len())
-}

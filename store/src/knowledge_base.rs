@@ -181,9 +181,13 @@ impl KnowledgeBase {
                 .parse_query(&query)
                 .map_err(|e| StorageError::Other(Box::new(e)))?;
             prepared.dataset_mut().set_default_graph_as_union();
-            if let Ok(QueryResults::Solutions(solutions)) = prepared.on_store(&self.store).execute()
-            {
-                for solution in solutions.flatten() {
+            let results = prepared
+                .on_store(&self.store)
+                .execute()
+                .map_err(|e| StorageError::Other(Box::new(e)))?;
+            if let QueryResults::Solutions(solutions) = results {
+                for solution in solutions {
+                    let solution = solution.map_err(|e| StorageError::Other(Box::new(e)))?;
                     if let Some(Term::NamedNode(c)) = solution.get("c") {
                         set.insert(c.clone());
                     }

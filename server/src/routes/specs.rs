@@ -224,15 +224,12 @@ async fn get_spec(
     let media = negotiate(&headers, &["application/json", "text/turtle"])?;
     let kb = state.kb.clone();
     let missing = || ApiError::not_found(format!("no {} labelled {label:?}", kind.name()));
-    let graph = dyknow_store::graphs::spec_graph(kind, &label);
-    let triples = {
-        let kb = kb.clone();
-        blocking(move || Ok(kb.graph_triples(graph.as_ref())?)).await?
-    };
-    if triples.is_empty() {
-        return Err(missing());
-    }
     if media == "text/turtle" {
+        let graph = dyknow_store::graphs::spec_graph(kind, &label);
+        let triples = blocking(move || Ok(kb.graph_triples(graph.as_ref())?)).await?;
+        if triples.is_empty() {
+            return Err(missing());
+        }
         let body = serialize(&triples, RdfFormat::Turtle).map_err(ApiError::internal)?;
         return Ok(typed(StatusCode::OK, "text/turtle", body));
     }
