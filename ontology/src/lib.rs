@@ -5,7 +5,10 @@ mod owl;
 pub mod vocab;
 
 pub use error::OwlConversionError;
-pub use owl::{OwlDocument, OwlSyntax, rdf_owl_components, rdf_to_owl, read_owl};
+pub use owl::{
+    OwlDocument, OwlSyntax, prefix_mapping, rdf_owl_components, rdf_owl_components_detailed,
+    rdf_to_owl, read_owl,
+};
 
 /// The DyKnow core ontology (seed, Appendix A) in Turtle.
 pub const DYKNOW_TTL: &str = include_str!("../dyknow.ttl");

@@ -46,7 +46,8 @@ pub struct OwlDocument {
     pub unparsed_triples: usize,
 }
 
-fn prefix_mapping() -> PrefixMapping {
+/// The prefixes the service writes OWL with (`dyknow:`, `dkros:`, `owl:`, `rdf:`, `rdfs:`, `xsd:`, …).
+pub fn prefix_mapping() -> PrefixMapping {
     let mut mapping = PrefixMapping::default();
     for (prefix, namespace) in PREFIXES {
         // The prefixes are constants known to be valid.
@@ -59,6 +60,14 @@ fn parse_rdf(
     rdf: &[u8],
     format: RdfFormat,
 ) -> Result<(ArcComponentMappedOntology, usize), OwlConversionError> {
+    let (ontology, unparsed) = parse_rdf_detailed(rdf, format)?;
+    Ok((ontology, unparsed.len()))
+}
+
+fn parse_rdf_detailed(
+    rdf: &[u8],
+    format: RdfFormat,
+) -> Result<(ArcComponentMappedOntology, Vec<String>), OwlConversionError> {
     let build: Build<ArcStr> = Build::new_arc();
     let mut config: RDFParserConfiguration<ArcStr, Build<ArcStr>> =
         ParserConfiguration::new(build).into();
@@ -71,7 +80,10 @@ fn parse_rdf(
             config,
         )
         .map_err(OwlConversionError::parse)?;
-    let unparsed = incomplete.simple.len() + incomplete.bnode.len() + incomplete.bnode_seq.len();
+    let mut unparsed: Vec<String> = Vec::new();
+    unparsed.extend(incomplete.simple.iter().map(|t| format!("{t:?}")));
+    unparsed.extend(incomplete.bnode.iter().map(|t| format!("{t:?}")));
+    unparsed.extend(incomplete.bnode_seq.iter().map(|t| format!("{t:?}")));
     Ok((ontology.into(), unparsed))
 }
 
@@ -107,6 +119,17 @@ pub fn rdf_owl_components(
     let (ontology, _) = parse_rdf(rdf, format)?;
     let set: SetOntology<ArcStr> = ontology.into();
     Ok(set.into_iter().collect())
+}
+
+/// The OWL components of an RDF document, and a description (horned-owl's debug rendering) of
+/// each group of triples horned-owl could not map to an axiom.
+pub fn rdf_owl_components_detailed(
+    rdf: &[u8],
+    format: RdfFormat,
+) -> Result<(HashSet<AnnotatedComponent<ArcStr>>, Vec<String>), OwlConversionError> {
+    let (ontology, unparsed) = parse_rdf_detailed(rdf, format)?;
+    let set: SetOntology<ArcStr> = ontology.into();
+    Ok((set.into_iter().collect(), unparsed))
 }
 
 /// Reads an OWL document in `syntax` back into its components.

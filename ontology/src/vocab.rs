@@ -145,6 +145,12 @@ pub mod owl {
         ONTOLOGY = "Ontology";
         /// `owl:equivalentClass`.
         EQUIVALENT_CLASS = "equivalentClass";
+        /// `owl:equivalentProperty`.
+        EQUIVALENT_PROPERTY = "equivalentProperty";
+        /// `owl:Thing`.
+        THING = "Thing";
+        /// `owl:TransitiveProperty`.
+        TRANSITIVE_PROPERTY = "TransitiveProperty";
     }
 }
 

@@ -1,0 +1,287 @@
+//! Declarations the RDF leaves implicit. horned-owl maps an axiom to OWL only when it knows what
+//! kind of entity each IRI is; ontology extensions (and the W3C RDF-based test cases) often use
+//! classes and properties without declaring them. Each IRI that is used as a class or a property
+//! and has no declaration gets one: a property is a data property if it is used with a literal
+//! value, an object property otherwise.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+
+use oxrdf::vocab::{rdf, rdfs};
+use oxrdf::{NamedNode, NamedNodeRef, NamedOrBlankNode, Term, Triple};
+
+const OWL: &str = "http://www.w3.org/2002/07/owl#";
+
+fn owl(local: &str) -> NamedNode {
+    NamedNode::new_unchecked(format!("{OWL}{local}"))
+}
+
+fn is_builtin(iri: &str) -> bool {
+    iri.starts_with(OWL)
+        || iri.starts_with(rdf::TYPE.as_str().trim_end_matches("type"))
+        || iri.starts_with("http://www.w3.org/2000/01/rdf-schema#")
+        || iri.starts_with("http://www.w3.org/2001/XMLSchema#")
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Kind {
+    Class,
+    Property,
+}
+
+/// The declarations missing from `triples`.
+pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
+    let mut declared: BTreeSet<&str> = BTreeSet::new();
+    let declaring: BTreeSet<String> = [
+        "Class",
+        "ObjectProperty",
+        "DatatypeProperty",
+        "AnnotationProperty",
+        "NamedIndividual",
+        "Restriction",
+    ]
+    .iter()
+    .map(|l| format!("{OWL}{l}"))
+    .chain([rdfs::DATATYPE.as_str().to_owned()])
+    .collect();
+    for t in triples {
+        if t.predicate == rdf::TYPE
+            && let (NamedOrBlankNode::NamedNode(s), Term::NamedNode(c)) = (&t.subject, &t.object)
+            && declaring.contains(c.as_str())
+        {
+            declared.insert(s.as_str());
+        }
+    }
+    let mut used: BTreeMap<&str, Kind> = BTreeMap::new();
+    let mut literal_valued: BTreeSet<&str> = BTreeSet::new();
+    let class_predicates = [
+        rdfs::SUB_CLASS_OF.as_str(),
+        "http://www.w3.org/2002/07/owl#equivalentClass",
+        "http://www.w3.org/2002/07/owl#disjointWith",
+    ];
+    let property_predicates = [
+        rdfs::SUB_PROPERTY_OF.as_str(),
+        "http://www.w3.org/2002/07/owl#equivalentProperty",
+        "http://www.w3.org/2002/07/owl#inverseOf",
+        "http://www.w3.org/2002/07/owl#propertyDisjointWith",
+    ];
+    let property_classes = [
+        "TransitiveProperty",
+        "SymmetricProperty",
+        "AsymmetricProperty",
+        "IrreflexiveProperty",
+        "ReflexiveProperty",
+        "FunctionalProperty",
+        "InverseFunctionalProperty",
+    ];
+    // Members of rdf:List nodes used as property chains.
+    let mut chain_heads: HashSet<NamedOrBlankNode> = HashSet::new();
+    let mut class_lists: HashSet<NamedOrBlankNode> = HashSet::new();
+    let all_disjoint_classes: HashSet<&NamedOrBlankNode> = triples
+        .iter()
+        .filter(|t| {
+            t.predicate == rdf::TYPE
+                && matches!(&t.object, Term::NamedNode(c) if c.as_str() == format!("{OWL}AllDisjointClasses"))
+        })
+        .map(|t| &t.subject)
+        .collect();
+    let mut firsts: HashMap<&NamedOrBlankNode, &Term> = HashMap::new();
+    let mut rests: HashMap<&NamedOrBlankNode, &Term> = HashMap::new();
+    for t in triples {
+        let p = t.predicate.as_str();
+        let subject = match &t.subject {
+            NamedOrBlankNode::NamedNode(n) => Some(n.as_str()),
+            NamedOrBlankNode::BlankNode(_) => None,
+        };
+        let object = match &t.object {
+            Term::NamedNode(n) => Some(n.as_str()),
+            _ => None,
+        };
+        if t.predicate == rdf::FIRST {
+            firsts.insert(&t.subject, &t.object);
+        } else if t.predicate == rdf::REST {
+            rests.insert(&t.subject, &t.object);
+        }
+        if class_predicates.contains(&p) {
+            for n in [subject, object].into_iter().flatten() {
+                used.entry(n).or_insert(Kind::Class);
+            }
+        } else if property_predicates.contains(&p) {
+            for n in [subject, object].into_iter().flatten() {
+                used.entry(n).or_insert(Kind::Property);
+            }
+        } else if t.predicate == rdfs::DOMAIN || t.predicate == rdfs::RANGE {
+            if let Some(s) = subject {
+                used.entry(s).or_insert(Kind::Property);
+            }
+            if let Some(o) = object
+                && !o.starts_with("http://www.w3.org/2001/XMLSchema#")
+                && o != rdfs::LITERAL.as_str()
+            {
+                used.entry(o).or_insert(Kind::Class);
+            } else if object.is_some() {
+                // A datatype range makes a data property.
+                if let Some(s) = subject {
+                    literal_valued.insert(s);
+                }
+            }
+        } else if p == format!("{OWL}members") {
+            let list: Option<NamedOrBlankNode> = match &t.object {
+                Term::BlankNode(b) => Some(b.clone().into()),
+                Term::NamedNode(n) => Some(n.clone().into()),
+                _ => None,
+            };
+            if let Some(list) = list {
+                if all_disjoint_classes.contains(&t.subject) {
+                    class_lists.insert(list);
+                } else {
+                    chain_heads.insert(list);
+                }
+            }
+        } else if p == format!("{OWL}propertyChainAxiom") {
+            if let Some(s) = subject {
+                used.entry(s).or_insert(Kind::Property);
+            }
+            match &t.object {
+                Term::BlankNode(b) => {
+                    chain_heads.insert(b.clone().into());
+                }
+                Term::NamedNode(n) => {
+                    chain_heads.insert(n.clone().into());
+                }
+                _ => {}
+            }
+        } else if t.predicate == rdf::TYPE {
+            if let Some(c) = object {
+                if let Some(local) = c.strip_prefix(OWL)
+                    && property_classes.contains(&local)
+                {
+                    if let Some(s) = subject {
+                        used.entry(s).or_insert(Kind::Property);
+                    }
+                } else if !is_builtin(c) {
+                    used.entry(c).or_insert(Kind::Class);
+                }
+            }
+        } else if !is_builtin(p) {
+            used.entry(p).or_insert(Kind::Property);
+            if matches!(t.object, Term::Literal(_)) {
+                literal_valued.insert(p);
+            }
+        }
+    }
+    let lists = chain_heads
+        .iter()
+        .map(|h| (h, Kind::Property))
+        .chain(class_lists.iter().map(|h| (h, Kind::Class)));
+    for (head, kind) in lists {
+        let mut node: Option<&NamedOrBlankNode> = firsts.keys().find(|k| **k == head).copied();
+        let mut guard = 0;
+        while let Some(n) = node {
+            guard += 1;
+            if guard > 10_000 {
+                break;
+            }
+            if let Some(Term::NamedNode(member)) = firsts.get(n) {
+                used.entry(member.as_str()).or_insert(kind);
+            }
+            node = match rests.get(n) {
+                Some(Term::BlankNode(b)) => firsts
+                    .keys()
+                    .find(|k| matches!(k, NamedOrBlankNode::BlankNode(x) if x == b))
+                    .copied(),
+                Some(Term::NamedNode(r)) if NamedNodeRef::from(r) != rdf::NIL => firsts
+                    .keys()
+                    .find(|k| matches!(k, NamedOrBlankNode::NamedNode(x) if x == r))
+                    .copied(),
+                _ => None,
+            };
+        }
+    }
+    used.into_iter()
+        .filter(|(iri, _)| !declared.contains(iri) && !is_builtin(iri))
+        .map(|(iri, kind)| {
+            let class = match kind {
+                Kind::Class => owl("Class"),
+                Kind::Property if literal_valued.contains(iri) => owl("DatatypeProperty"),
+                Kind::Property => owl("ObjectProperty"),
+            };
+            Triple::new(NamedNode::new_unchecked(iri), rdf::TYPE, class)
+        })
+        .collect()
+}
+
+/// Rewrites what horned-owl 4.0's RDF reader does not map into what it does:
+/// `owl:AllDisjointClasses` and `owl:AllDisjointProperties` become pairwise `owl:disjointWith` and
+/// `owl:propertyDisjointWith` (the same axioms, OWL 2 Mapping to RDF, Table 16), and an anonymous
+/// ontology header is dropped (it carries no axiom).
+pub(crate) fn rewrite_for_horned_owl(triples: &[Triple]) -> Vec<Triple> {
+    let typed = |t: &Triple, local: &str| {
+        t.predicate == rdf::TYPE
+            && matches!(&t.object, Term::NamedNode(c) if c.as_str().strip_prefix(OWL) == Some(local))
+    };
+    let mut all_disjoint: HashMap<&NamedOrBlankNode, &str> = HashMap::new();
+    for t in triples {
+        if typed(t, "AllDisjointClasses") {
+            all_disjoint.insert(&t.subject, "disjointWith");
+        } else if typed(t, "AllDisjointProperties") {
+            all_disjoint.insert(&t.subject, "propertyDisjointWith");
+        }
+    }
+    let firsts: HashMap<&NamedOrBlankNode, &Term> = triples
+        .iter()
+        .filter(|t| t.predicate == rdf::FIRST)
+        .map(|t| (&t.subject, &t.object))
+        .collect();
+    let rests: HashMap<&NamedOrBlankNode, &Term> = triples
+        .iter()
+        .filter(|t| t.predicate == rdf::REST)
+        .map(|t| (&t.subject, &t.object))
+        .collect();
+    let mut out: Vec<Triple> = Vec::new();
+    let mut consumed: HashSet<&NamedOrBlankNode> = HashSet::new();
+    for t in triples {
+        let Some(relation) = all_disjoint.get(&t.subject) else {
+            continue;
+        };
+        if t.predicate.as_str() != format!("{OWL}members") {
+            continue;
+        }
+        let mut members: Vec<NamedNode> = Vec::new();
+        let mut node: Option<NamedOrBlankNode> = match &t.object {
+            Term::NamedNode(n) => Some(n.clone().into()),
+            Term::BlankNode(b) => Some(b.clone().into()),
+            _ => None,
+        };
+        while let Some(n) = node.take() {
+            if members.len() > 10_000 {
+                break;
+            }
+            if let Some(Term::NamedNode(m)) = firsts.get(&n) {
+                members.push(m.clone());
+            }
+            node = match rests.get(&n) {
+                Some(Term::BlankNode(b)) => Some(b.clone().into()),
+                Some(Term::NamedNode(r)) if NamedNodeRef::from(r) != rdf::NIL => {
+                    Some(r.clone().into())
+                }
+                _ => None,
+            };
+        }
+        for (i, a) in members.iter().enumerate() {
+            for b in &members[i + 1..] {
+                out.push(Triple::new(a.clone(), owl(relation), b.clone()));
+            }
+        }
+        consumed.insert(&t.subject);
+    }
+    out.extend(
+        triples
+            .iter()
+            .filter(|t| !consumed.contains(&t.subject))
+            .filter(|t| {
+                !(matches!(t.subject, NamedOrBlankNode::BlankNode(_)) && typed(t, "Ontology"))
+            })
+            .cloned(),
+    );
+    out
+}

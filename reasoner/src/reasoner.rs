@@ -1,0 +1,592 @@
+//! The engine: semi-naive materialisation, DRed maintenance under deletions, and the
+//! consistency rules.
+
+use std::collections::BTreeSet;
+
+use oxrdf::{Term, Triple};
+use rustc_hash::{FxHashMap, FxHashSet};
+
+use crate::dictionary::{Dictionary, Fact, Id};
+use crate::facts::FactSet;
+use crate::rules::{Link, Rules};
+use crate::tbox::TBox;
+
+/// A violated consistency rule: the rule (OWL 2 RL name), the axiom it checks (OWL functional
+/// syntax) and the nodes involved.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Violation {
+    /// The OWL 2 RL rule, e.g. `cax-dw`.
+    pub rule: &'static str,
+    /// The violated axiom, in OWL functional syntax.
+    pub axiom: String,
+    /// The nodes the violation is about (the subject first).
+    pub nodes: Vec<Term>,
+}
+
+impl std::fmt::Display for Violation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}:", self.rule, self.axiom)?;
+        for n in &self.nodes {
+            write!(f, " {n}")?;
+        }
+        Ok(())
+    }
+}
+
+/// What an update changed in the inferred triples (the materialisation less the explicit
+/// triples), and the violations it introduced.
+#[derive(Debug, Clone, Default)]
+pub struct Update {
+    /// Triples that became inferred.
+    pub inferred_added: Vec<Triple>,
+    /// Triples that are no longer inferred (no longer entailed, or now explicit).
+    pub inferred_removed: Vec<Triple>,
+    /// Violations that involve a triple the update made true.
+    pub violations: Vec<Violation>,
+}
+
+impl Update {
+    /// Whether the update changed no inferred triple.
+    pub fn is_empty(&self) -> bool {
+        self.inferred_added.is_empty() && self.inferred_removed.is_empty()
+    }
+}
+
+/// An incremental OWL 2 RL reasoner over one set of explicit triples (a multiset: the same
+/// triple may be asserted by several graphs).
+#[derive(Debug, Clone)]
+pub struct Reasoner {
+    tbox: TBox,
+    dict: Dictionary,
+    rules: Rules,
+    /// Explicit facts with the number of times they are asserted.
+    explicit: FxHashMap<Fact, u32>,
+    /// The schema closure: facts that hold whatever the data.
+    axiomatic: FxHashSet<Fact>,
+    /// The materialisation: explicit, axiomatic and derived facts.
+    facts: FactSet,
+}
+
+type Violations = BTreeSet<(&'static str, usize, Vec<Id>)>;
+
+impl Reasoner {
+    /// A reasoner for `tbox` with no explicit triples (the schema closure holds already).
+    pub fn new(tbox: TBox) -> Self {
+        let mut dict = Dictionary::default();
+        let rules = Rules::compile(&tbox, &mut dict);
+        let mut reasoner = Self {
+            tbox,
+            dict,
+            rules,
+            explicit: FxHashMap::default(),
+            axiomatic: FxHashSet::default(),
+            facts: FactSet::default(),
+        };
+        let closure: Vec<Fact> = reasoner
+            .tbox
+            .schema_closure()
+            .to_vec()
+            .iter()
+            .map(|t| reasoner.encode(t))
+            .collect();
+        let mut queue = Vec::new();
+        for f in closure {
+            reasoner.axiomatic.insert(f);
+            if reasoner.facts.insert(f) {
+                queue.push(f);
+            }
+        }
+        reasoner.saturate(queue);
+        reasoner
+    }
+
+    /// The compiled schema.
+    pub fn tbox(&self) -> &TBox {
+        &self.tbox
+    }
+
+    /// The number of facts in the materialisation (explicit, schema closure and inferred).
+    pub fn len(&self) -> usize {
+        self.facts.len()
+    }
+
+    /// Whether the materialisation is empty.
+    pub fn is_empty(&self) -> bool {
+        self.facts.len() == 0
+    }
+
+    /// The number of distinct explicit triples.
+    pub fn explicit_len(&self) -> usize {
+        self.explicit.len()
+    }
+
+    fn encode(&mut self, t: &Triple) -> Fact {
+        [
+            self.dict.encode(t.subject.clone()),
+            self.dict.encode(t.predicate.clone()),
+            self.dict.encode(t.object.clone()),
+        ]
+    }
+
+    fn decode(&self, [s, p, o]: Fact) -> Option<Triple> {
+        let subject = match self.dict.decode(s) {
+            Term::NamedNode(n) => oxrdf::NamedOrBlankNode::from(n.clone()),
+            Term::BlankNode(b) => oxrdf::NamedOrBlankNode::from(b.clone()),
+            Term::Literal(_) => return None,
+            #[allow(unreachable_patterns)]
+            _ => return None,
+        };
+        let Term::NamedNode(predicate) = self.dict.decode(p) else {
+            return None;
+        };
+        Some(Triple::new(
+            subject,
+            predicate.clone(),
+            self.dict.decode(o).clone(),
+        ))
+    }
+
+    fn is_explicit(&self, f: &Fact) -> bool {
+        self.explicit.contains_key(f)
+    }
+
+    /// The triples that are entailed and not explicit (the inferred graph), sorted.
+    pub fn inferred(&self) -> Vec<Triple> {
+        let mut out: Vec<Triple> = self
+            .facts
+            .iter()
+            .filter(|f| !self.is_explicit(f))
+            .filter_map(|f| self.decode(*f))
+            .collect();
+        out.sort_by_cached_key(ToString::to_string);
+        out
+    }
+
+    /// Whether the materialisation holds `triple`.
+    pub fn entails(&self, triple: &Triple) -> bool {
+        let enc = |t: Term| self.dict.get(&t);
+        match (
+            enc(triple.subject.clone().into()),
+            enc(triple.predicate.clone().into()),
+            enc(triple.object.clone()),
+        ) {
+            (Some(s), Some(p), Some(o)) => self.facts.contains(&[s, p, o]),
+            _ => false,
+        }
+    }
+
+    /// The objects `o` of the entailed triples `(subject, predicate, o)`.
+    pub fn objects(&self, subject: &Term, predicate: &oxrdf::NamedNode) -> Vec<Term> {
+        let (Some(s), Some(p)) = (
+            self.dict.get(subject),
+            self.dict.get(&Term::from(predicate.clone())),
+        ) else {
+            return Vec::new();
+        };
+        self.facts
+            .objects(p, s)
+            .iter()
+            .map(|o| self.dict.decode(*o).clone())
+            .collect()
+    }
+
+    /// Removes one assertion of each triple of `removed` and adds one of each of `added`, and
+    /// brings the materialisation up to date: DRed for what lost support, semi-naive
+    /// evaluation from the delta for what was added.
+    pub fn update(&mut self, removed: &[Triple], added: &[Triple]) -> Update {
+        // Explicitness before and after, for every touched fact.
+        let mut touched: FxHashMap<Fact, bool> = FxHashMap::default();
+        let removed: Vec<Fact> = removed.iter().map(|t| self.encode(t)).collect();
+        let added: Vec<Fact> = added.iter().map(|t| self.encode(t)).collect();
+        for f in removed.iter().chain(&added) {
+            let before = self.facts.contains(f) && !self.is_explicit(f);
+            touched.entry(*f).or_insert(before);
+        }
+        for f in &removed {
+            if let Some(n) = self.explicit.get_mut(f) {
+                *n -= 1;
+                if *n == 0 {
+                    self.explicit.remove(f);
+                }
+            }
+        }
+        for f in &added {
+            *self.explicit.entry(*f).or_insert(0) += 1;
+        }
+        let gone: Vec<Fact> = touched
+            .keys()
+            .filter(|f| self.facts.contains(f) && !self.is_explicit(f))
+            .copied()
+            .collect();
+        let appeared: Vec<Fact> = touched
+            .keys()
+            .filter(|f| self.is_explicit(f))
+            .copied()
+            .collect();
+
+        let (over_deleted, rederived) = self.delete(&gone);
+        let mut queue = Vec::new();
+        for f in appeared {
+            if self.facts.insert(f) {
+                queue.push(f);
+            }
+        }
+        let mut new_facts = rederived;
+        new_facts.extend(self.saturate(queue));
+
+        // Inferred before: touched facts as recorded; over-deleted facts were inferred (DRed
+        // never deletes an explicit fact) unless they were explicit before; new facts were
+        // absent unless DRed had deleted them.
+        for f in &over_deleted {
+            touched.entry(*f).or_insert(true);
+        }
+        for f in &new_facts {
+            touched.entry(*f).or_insert(false);
+        }
+        let mut update = Update::default();
+        for (f, before) in &touched {
+            let after = self.facts.contains(f) && !self.is_explicit(f);
+            if before != &after
+                && let Some(t) = self.decode(*f)
+            {
+                if after {
+                    update.inferred_added.push(t);
+                } else {
+                    update.inferred_removed.push(t);
+                }
+            }
+        }
+        let mut found = Violations::new();
+        for f in &new_facts {
+            self.check_fact(*f, &mut found);
+        }
+        update.violations = self.violations_of(found);
+        update
+    }
+
+    /// Every violation in the current materialisation.
+    pub fn violations(&self) -> Vec<Violation> {
+        let mut found = Violations::new();
+        for f in self.facts.iter() {
+            self.check_fact(*f, &mut found);
+        }
+        self.violations_of(found)
+    }
+
+    fn violations_of(&self, found: Violations) -> Vec<Violation> {
+        let mut out: Vec<Violation> = found
+            .into_iter()
+            .map(|(rule, axiom, nodes)| {
+                let mut nodes: Vec<Term> =
+                    nodes.iter().map(|n| self.dict.decode(*n).clone()).collect();
+                // Rules whose nodes have no inherent order list them sorted, so the same
+                // violation reads the same whichever fact revealed it.
+                match rule {
+                    "prp-asyp" | "prp-pdw" => nodes.sort_by_cached_key(ToString::to_string),
+                    "prp-fp" => nodes[1..].sort_by_cached_key(ToString::to_string),
+                    _ => {}
+                }
+                Violation {
+                    rule,
+                    axiom: self.rules.axioms[axiom].clone(),
+                    nodes,
+                }
+            })
+            .collect();
+        out.sort_by_cached_key(ToString::to_string);
+        out.dedup();
+        out
+    }
+
+    /// Semi-naive evaluation: every fact in `queue` is in the materialisation already; each
+    /// fact derived is inserted once and joined once with everything present. Returns the
+    /// facts it inserted (not those of `queue`) together with `queue`'s.
+    fn saturate(&mut self, mut queue: Vec<Fact>) -> Vec<Fact> {
+        let mut inserted = queue.clone();
+        let mut heads = Vec::new();
+        while let Some(f) = queue.pop() {
+            self.consequences(f, &mut heads);
+            for h in heads.drain(..) {
+                if self.facts.insert(h) {
+                    inserted.push(h);
+                    queue.push(h);
+                }
+            }
+        }
+        inserted
+    }
+
+    /// DRed: over-deletes everything with a derivation through a `gone` fact, then re-derives
+    /// what still has one. Returns the facts over-deleted and those re-derived.
+    fn delete(&mut self, gone: &[Fact]) -> (Vec<Fact>, Vec<Fact>) {
+        let mut over: FxHashSet<Fact> = FxHashSet::default();
+        let mut queue: Vec<Fact> = gone.to_vec();
+        let mut heads = Vec::new();
+        while let Some(f) = queue.pop() {
+            if !over.insert(f) {
+                continue;
+            }
+            self.consequences(f, &mut heads);
+            for h in heads.drain(..) {
+                if self.facts.contains(&h)
+                    && !over.contains(&h)
+                    && !self.is_explicit(&h)
+                    && !self.axiomatic.contains(&h)
+                {
+                    queue.push(h);
+                }
+            }
+        }
+        for f in &over {
+            self.facts.remove(*f);
+        }
+        let mut seeds = Vec::new();
+        for f in &over {
+            if self.is_explicit(f) || self.axiomatic.contains(f) || self.derivable(*f) {
+                seeds.push(*f);
+            }
+        }
+        let mut queue = Vec::new();
+        for f in seeds {
+            if self.facts.insert(f) {
+                queue.push(f);
+            }
+        }
+        let rederived = self.saturate(queue);
+        (over.into_iter().collect(), rederived)
+    }
+
+    /// Pushes the head of every rule instance with `f` in its body and the rest of the body in
+    /// the materialisation.
+    fn consequences(&self, [s, p, o]: Fact, out: &mut Vec<Fact>) {
+        let r = &self.rules;
+        let facts = &self.facts;
+        let mut emit = |f: Fact| {
+            if !self.dict.is_literal(f[0]) {
+                out.push(f);
+            }
+        };
+        if p == r.rdf_type {
+            // cax-sco, cax-eqc1/2.
+            for d in r.supers.get(&o).into_iter().flatten() {
+                emit([s, p, *d]);
+            }
+            // cls-svf1: the typed node is the filler.
+            for i in r.svf_by_filler.get(&o).into_iter().flatten() {
+                let rule = &r.svf[*i];
+                for x in facts.along(rule.link.prop, !rule.link.inverse, s) {
+                    emit([*x, r.rdf_type, rule.class]);
+                }
+            }
+            return;
+        }
+        // prp-spo1, prp-eqp1/2, prp-inv1/2, prp-symp.
+        for (q, flip) in r.prop_heads.get(&p).into_iter().flatten() {
+            emit(if *flip { [o, *q, s] } else { [s, *q, o] });
+        }
+        // prp-dom, prp-rng.
+        for (c, object_side) in r.domains.get(&p).into_iter().flatten() {
+            emit([if *object_side { o } else { s }, r.rdf_type, *c]);
+        }
+        // prp-trp.
+        if r.transitive.contains(&p) {
+            for w in facts.subjects(p, s) {
+                emit([*w, p, o]);
+            }
+            for z in facts.objects(p, o) {
+                emit([s, p, *z]);
+            }
+        }
+        // prp-spo2.
+        for (ci, pos) in r.chain_by_prop.get(&p).into_iter().flatten() {
+            let chain = &r.chains[*ci];
+            let link = chain.body[*pos];
+            let (u, v) = if link.inverse { (o, s) } else { (s, o) };
+            let mut left: FxHashSet<Id> = FxHashSet::from_iter([u]);
+            for l in chain.body[..*pos].iter().rev() {
+                left = step(
+                    facts,
+                    &left,
+                    Link {
+                        prop: l.prop,
+                        inverse: !l.inverse,
+                    },
+                );
+            }
+            let mut right: FxHashSet<Id> = FxHashSet::from_iter([v]);
+            for l in &chain.body[*pos + 1..] {
+                right = step(facts, &right, *l);
+            }
+            for x in &left {
+                for z in &right {
+                    emit(if chain.head.inverse {
+                        [*z, chain.head.prop, *x]
+                    } else {
+                        [*x, chain.head.prop, *z]
+                    });
+                }
+            }
+        }
+        // cls-svf1/2: the fact is the property link.
+        for i in r.svf_by_prop.get(&p).into_iter().flatten() {
+            let rule = &r.svf[*i];
+            let (x, y) = if rule.link.inverse { (o, s) } else { (s, o) };
+            if rule
+                .filler
+                .is_none_or(|d| facts.contains(&[y, r.rdf_type, d]))
+            {
+                emit([x, r.rdf_type, rule.class]);
+            }
+        }
+    }
+
+    /// Whether some rule derives `f` in one step from the materialisation (re-derivation).
+    fn derivable(&self, [s, p, o]: Fact) -> bool {
+        let r = &self.rules;
+        let facts = &self.facts;
+        if p == r.rdf_type {
+            return r
+                .subs
+                .get(&o)
+                .into_iter()
+                .flatten()
+                .any(|b| facts.contains(&[s, p, *b]))
+                || r.typed_by
+                    .get(&o)
+                    .into_iter()
+                    .flatten()
+                    .any(|(q, object_side)| !facts.along(*q, *object_side, s).is_empty())
+                || r.svf_by_class.get(&o).into_iter().flatten().any(|i| {
+                    let rule = &r.svf[*i];
+                    facts
+                        .along(rule.link.prop, rule.link.inverse, s)
+                        .iter()
+                        .any(|y| {
+                            rule.filler
+                                .is_none_or(|d| facts.contains(&[*y, r.rdf_type, d]))
+                        })
+                });
+        }
+        if r.prop_bodies
+            .get(&p)
+            .into_iter()
+            .flatten()
+            .any(|(q, flip)| facts.contains(&if *flip { [o, *q, s] } else { [s, *q, o] }))
+        {
+            return true;
+        }
+        if r.transitive.contains(&p) {
+            let (out, into) = (facts.objects(p, s), facts.subjects(p, o));
+            let found = if out.len() <= into.len() {
+                out.iter().any(|y| into.contains(y))
+            } else {
+                into.iter().any(|y| out.contains(y))
+            };
+            if found {
+                return true;
+            }
+        }
+        r.chain_by_head.get(&p).into_iter().flatten().any(|ci| {
+            let chain = &r.chains[*ci];
+            let (x, z) = if chain.head.inverse { (o, s) } else { (s, o) };
+            let mut reach: FxHashSet<Id> = FxHashSet::from_iter([x]);
+            for l in &chain.body {
+                reach = step(facts, &reach, *l);
+                if reach.is_empty() {
+                    return false;
+                }
+            }
+            reach.contains(&z)
+        })
+    }
+
+    /// Records the violations `f` takes part in.
+    fn check_fact(&self, [s, p, o]: Fact, found: &mut Violations) {
+        let r = &self.rules;
+        let facts = &self.facts;
+        if p == r.rdf_type {
+            for (d, ax) in r.disjoint_classes.get(&o).into_iter().flatten() {
+                if facts.contains(&[s, p, *d]) {
+                    found.insert(("cax-dw", *ax, vec![s]));
+                }
+            }
+            for i in r.max_zero_by_class.get(&o).into_iter().flatten() {
+                let mz = &r.max_zero[*i];
+                for y in facts.along(mz.link.prop, mz.link.inverse, s) {
+                    if mz.filler.is_none_or(|d| facts.contains(&[*y, p, d])) {
+                        found.insert((max_zero_name(mz.filler), mz.axiom, vec![s, *y]));
+                    }
+                }
+            }
+            for i in r.max_zero_by_filler.get(&o).into_iter().flatten() {
+                let mz = &r.max_zero[*i];
+                for x in facts.along(mz.link.prop, !mz.link.inverse, s) {
+                    if facts.contains(&[*x, p, mz.class]) {
+                        found.insert((max_zero_name(mz.filler), mz.axiom, vec![*x, s]));
+                    }
+                }
+            }
+            return;
+        }
+        for (q, flip, ax) in r.disjoint_props.get(&p).into_iter().flatten() {
+            if facts.contains(&if *flip { [o, *q, s] } else { [s, *q, o] }) {
+                found.insert(("prp-pdw", *ax, vec![s, o]));
+            }
+        }
+        if let Some(ax) = r.irreflexive.get(&p)
+            && s == o
+        {
+            found.insert(("prp-irp", *ax, vec![s]));
+        }
+        if let Some(ax) = r.asymmetric.get(&p)
+            && facts.contains(&[o, p, s])
+        {
+            let pair = if s <= o { vec![s, o] } else { vec![o, s] };
+            found.insert(("prp-asyp", *ax, pair));
+        }
+        for i in r.max_zero_by_prop.get(&p).into_iter().flatten() {
+            let mz = &r.max_zero[*i];
+            let (x, y) = if mz.link.inverse { (o, s) } else { (s, o) };
+            if facts.contains(&[x, r.rdf_type, mz.class])
+                && mz
+                    .filler
+                    .is_none_or(|d| facts.contains(&[y, r.rdf_type, d]))
+            {
+                found.insert((max_zero_name(mz.filler), mz.axiom, vec![x, y]));
+            }
+        }
+        if let Some(ax) = r.functional_data.get(&p)
+            && self.dict.is_literal(o)
+        {
+            let mut values: Vec<Id> = facts
+                .objects(p, s)
+                .iter()
+                .copied()
+                .filter(|v| self.dict.is_literal(*v))
+                .collect();
+            if values.len() > 1 {
+                values.sort_unstable();
+                let mut nodes = vec![s];
+                nodes.extend(values);
+                found.insert(("prp-fp", *ax, nodes));
+            }
+        }
+    }
+}
+
+fn max_zero_name(filler: Option<Id>) -> &'static str {
+    if filler.is_some() {
+        "cls-maxqc1"
+    } else {
+        "cls-maxqc2"
+    }
+}
+
+/// The nodes reached from `from` along one link.
+fn step(facts: &FactSet, from: &FxHashSet<Id>, link: Link) -> FxHashSet<Id> {
+    let mut next = FxHashSet::default();
+    for n in from {
+        next.extend(facts.along(link.prop, link.inverse, *n).iter().copied());
+    }
+    next
+}

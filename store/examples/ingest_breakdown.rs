@@ -1,0 +1,87 @@
+//! In-process breakdown of batch ingestion (the `docs/benchmarks.md` "Where the batch time goes"
+//! table): `cargo run --release --workspace --example ingest_breakdown [specs]`.
+#![expect(clippy::unwrap_used, reason = "a measurement tool")]
+
+use dyknow_store::oxigraph::model::Quad;
+use dyknow_store::oxigraph::store::Store;
+use dyknow_store::spec::{SpecClasses, SpecKind, extract_specs};
+use dyknow_store::{InputFormat, KnowledgeBase, parse_triples};
+use std::time::Instant;
+
+fn spec(i: usize) -> String {
+    format!(
+        "[] a dkros:ROSTransformation ; rdfs:label \"tf-{i:05}\" ; dkros:hasType \"nodelet\" ; \
+         dkros:hasSource \"package/Tf{i}\" ;\n\
+         dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"config\" ; dyknow:hasValue \"/etc/tf/{i}\" ] ;\n\
+         dkros:hasPort [ a dyknow:InPort ; dyknow:hasName \"in\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({})\" ] ] ;\n\
+         dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName \"out\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({i})\" ] ] ;\n\
+         dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] , [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .\n",
+        i.saturating_sub(1)
+    )
+}
+
+fn main() {
+    let n: usize = std::env::args()
+        .nth(1)
+        .map_or(10_000, |s| s.parse().unwrap());
+    let mut body = String::from(
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+         @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n",
+    );
+    for i in 0..n {
+        body.push_str(&spec(i));
+    }
+    println!("{n} specs, {} bytes", body.len());
+    for round in 0..3 {
+        let t = Instant::now();
+        let triples = parse_triples(body.as_bytes(), InputFormat::Turtle).unwrap();
+        let parse = t.elapsed();
+        let t = Instant::now();
+        let doc = extract_specs(
+            &triples,
+            &SpecClasses::default(),
+            Some(SpecKind::Transformation),
+        )
+        .unwrap();
+        let extract = t.elapsed();
+        let quads: Vec<Quad> = doc
+            .specs
+            .iter()
+            .flat_map(|s| {
+                s.triples
+                    .iter()
+                    .map(|t| t.as_ref().in_graph(s.graph.as_ref()).into_owned())
+            })
+            .collect();
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let t = Instant::now();
+        let mut loader = store.bulk_loader();
+        loader.load_quads(quads.iter().cloned()).unwrap();
+        loader.commit().unwrap();
+        let bulk = t.elapsed();
+        drop(store);
+        let mem = Store::new().unwrap();
+        let t = Instant::now();
+        mem.extend(quads.iter().cloned()).unwrap();
+        let mem_extend = t.elapsed();
+        let dir2 = tempfile::tempdir().unwrap();
+        let kb = KnowledgeBase::open(dir2.path()).unwrap();
+        let t = Instant::now();
+        kb.post_specs(
+            body.as_bytes(),
+            InputFormat::Turtle,
+            SpecKind::Transformation,
+        )
+        .unwrap();
+        let post = t.elapsed();
+        println!(
+            "round {round}: parse {parse:?} ({} triples), extract {extract:?} ({} quads), \
+             raw bulk load {bulk:?}, raw in-memory extend {mem_extend:?}, whole on-disk post {post:?} ({:.0} specs/s)",
+            triples.len(),
+            quads.len(),
+            n as f64 / post.as_secs_f64()
+        );
+    }
+}
