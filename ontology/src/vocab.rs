@@ -55,6 +55,10 @@ pub mod dyknow {
         HAS_IN_PORT = "hasInPort";
         /// `dyknow:hasOutPort`.
         HAS_OUT_PORT = "hasOutPort";
+        /// `dyknow:isOutPort`, the inverse of `hasOutPort`.
+        IS_OUT_PORT = "isOutPort";
+        /// `dyknow:isInPort`, the inverse of `hasInPort`.
+        IS_IN_PORT = "isInPort";
         /// `dyknow:hasName`.
         HAS_NAME = "hasName";
         /// `dyknow:hasPortName` (⊑ `hasName`).

@@ -39,7 +39,7 @@ mod rules;
 mod tbox;
 
 pub use error::SchemaError;
-pub use reasoner::{Reasoner, Update, Violation};
+pub use reasoner::{NamedTriples, Reasoner, Update, Violation};
 pub use tbox::TBox;
 
 use oxrdf::Triple;

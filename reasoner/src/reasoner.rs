@@ -65,9 +65,14 @@ pub struct Reasoner {
     axiomatic: FxHashSet<Fact>,
     /// The materialisation: explicit, axiomatic and derived facts.
     facts: FactSet,
+    /// The explicit facts of each named source (graph), for [`Reasoner::set_graphs`].
+    graphs: FxHashMap<String, Vec<Fact>>,
 }
 
 type Violations = BTreeSet<(&'static str, usize, Vec<Id>)>;
+
+/// The triples of a named source (a graph), by name.
+pub type NamedTriples = (String, Vec<Triple>);
 
 impl Reasoner {
     /// A reasoner for `tbox` with no explicit triples (the schema closure holds already).
@@ -81,6 +86,7 @@ impl Reasoner {
             explicit: FxHashMap::default(),
             axiomatic: FxHashSet::default(),
             facts: FactSet::default(),
+            graphs: FxHashMap::default(),
         };
         let closure: Vec<Fact> = reasoner
             .tbox
@@ -194,15 +200,56 @@ impl Reasoner {
     /// brings the materialisation up to date: DRed for what lost support, semi-naive
     /// evaluation from the delta for what was added.
     pub fn update(&mut self, removed: &[Triple], added: &[Triple]) -> Update {
-        // Explicitness before and after, for every touched fact.
-        let mut touched: FxHashMap<Fact, bool> = FxHashMap::default();
         let removed: Vec<Fact> = removed.iter().map(|t| self.encode(t)).collect();
         let added: Vec<Fact> = added.iter().map(|t| self.encode(t)).collect();
-        for f in removed.iter().chain(&added) {
+        self.update_facts(&removed, &added)
+    }
+
+    /// Sets the explicit triples of named sources (graphs): each `(name, triples)` replaces what
+    /// the source held (an empty list removes it), as one update. Returns the update and the
+    /// previous contents, which given back to `set_graphs` undo it. Removing a source removes
+    /// exactly the facts it added, whatever form a store later gives its terms back in.
+    pub fn set_graphs(
+        &mut self,
+        changes: &[(String, Vec<Triple>)],
+    ) -> (Update, Vec<(String, Vec<Triple>)>) {
+        let mut removed = Vec::new();
+        let mut added = Vec::new();
+        let mut previous = Vec::new();
+        for (name, triples) in changes {
+            let old = self.graphs.remove(name).unwrap_or_default();
+            previous.push((
+                name.clone(),
+                old.iter().filter_map(|f| self.decode(*f)).collect(),
+            ));
+            removed.extend(old);
+            let new: Vec<Fact> = triples.iter().map(|t| self.encode(t)).collect();
+            added.extend(new.iter().copied());
+            if !new.is_empty() {
+                self.graphs.insert(name.clone(), new);
+            }
+        }
+        (self.update_facts(&removed, &added), previous)
+    }
+
+    /// The explicit triples of a named source.
+    pub fn graph(&self, name: &str) -> Vec<Triple> {
+        self.graphs
+            .get(name)
+            .into_iter()
+            .flatten()
+            .filter_map(|f| self.decode(*f))
+            .collect()
+    }
+
+    fn update_facts(&mut self, removed: &[Fact], added: &[Fact]) -> Update {
+        // Explicitness before and after, for every touched fact.
+        let mut touched: FxHashMap<Fact, bool> = FxHashMap::default();
+        for f in removed.iter().chain(added) {
             let before = self.facts.contains(f) && !self.is_explicit(f);
             touched.entry(*f).or_insert(before);
         }
-        for f in &removed {
+        for f in removed {
             if let Some(n) = self.explicit.get_mut(f) {
                 *n -= 1;
                 if *n == 0 {
@@ -210,7 +257,7 @@ impl Reasoner {
                 }
             }
         }
-        for f in &added {
+        for f in added {
             *self.explicit.entry(*f).or_insert(0) += 1;
         }
         let gone: Vec<Fact> = touched

@@ -47,6 +47,21 @@ pub enum Command {
         #[arg(long)]
         no_inferred: bool,
     },
+    /// Materialises the OWL 2 RL inferences for the given data and prints the inferred triples
+    /// (not the asserted ones) as sorted N-Triples; with --check prints the ontology violations
+    /// instead, one per line, and exits 1 if there is any.
+    Reason {
+        /// Ontology files (Turtle, N-Triples, JSON-LD) to add to the built-in DyKnow and
+        /// DyKnow-ROS ontologies.
+        #[arg(long, value_name = "FILE", num_args = 1..)]
+        ontology: Vec<PathBuf>,
+        /// Print the violations of the consistency rules instead of the inferences.
+        #[arg(long)]
+        check: bool,
+        /// Data files (Turtle, N-Triples, JSON-LD). Their axioms join the schema too.
+        #[arg(required = true, value_name = "FILE")]
+        files: Vec<PathBuf>,
+    },
 }
 
 /// Options of `dyknow serve`.
@@ -103,6 +118,11 @@ pub fn main() -> ExitCode {
             format,
             no_inferred,
         } => export(&data, &format, !no_inferred),
+        Command::Reason {
+            ontology,
+            check,
+            files,
+        } => reason(&ontology, &files, check),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -205,6 +225,77 @@ fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
     ))
 }
 
+/// Reads an RDF file into triples; errors name the file, line and column.
+fn read_triples(path: &Path) -> Result<Vec<dyknow_store::oxigraph::model::Triple>, Failure> {
+    let format = InputFormat::from_path(path).ok_or_else(|| {
+        Failure(
+            2,
+            format!(
+                "{}: unknown file type (use .ttl, .nt or .jsonld)",
+                path.display()
+            ),
+        )
+    })?;
+    let body = std::fs::read(path).map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
+    dyknow_store::parse_triples(&body, format).map_err(|e| {
+        Failure(
+            2,
+            format!(
+                "{}:{}:{}: {}",
+                path.display(),
+                e.0.line,
+                e.0.column,
+                e.0.message
+            ),
+        )
+    })
+}
+
+/// `dyknow reason`: the schema is the built-in ontologies, the `--ontology` files and the
+/// axioms of the data files; the data is every triple of the given files.
+fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Failure> {
+    use std::io::Write;
+    let mut data = Vec::new();
+    for path in ontology.iter().chain(files) {
+        data.extend(read_triples(path)?);
+    }
+    let mut schema = dyknow_reasoner::builtin_ontology_triples();
+    schema.extend(data.iter().cloned());
+    let tbox = dyknow_reasoner::TBox::from_triples(&schema)?;
+    for axiom in tbox.unsupported_axioms() {
+        eprintln!("dyknow: unsupported axiom (ignored): {axiom}");
+    }
+    let mut reasoner = dyknow_reasoner::Reasoner::new(tbox);
+    reasoner.update(&[], &data);
+    let mut out = std::io::stdout().lock();
+    if check {
+        let violations = reasoner.violations();
+        for v in &violations {
+            writeln!(out, "{v}")?;
+        }
+        out.flush()?;
+        return if violations.is_empty() {
+            Ok(())
+        } else {
+            Err(Failure(
+                1,
+                format!("{} ontology violation(s)", violations.len()),
+            ))
+        };
+    }
+    let mut lines: Vec<String> = reasoner
+        .inferred()
+        .iter()
+        .map(|t| format!("{t} ."))
+        .collect();
+    lines.sort();
+    for line in lines {
+        writeln!(out, "{line}")?;
+    }
+    out.flush()?;
+    Ok(())
+}
+
 fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
     let kb = open_store(data)?;
     for file in rdf_files(files)? {
@@ -270,6 +361,10 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     } else {
         open_store(&args.data)?
     };
+    // Axioms the reasoner does not support are named at start-up, never dropped silently.
+    for axiom in kb.unsupported_axioms() {
+        tracing::warn!("reasoner: unsupported axiom (no rule applies it): {axiom}");
+    }
     for file in rdf_files(&args.specs)? {
         tracing::info!("{}", load_file(&kb, &file)?);
     }

@@ -1564,3 +1564,110 @@ async fn sparql_service_query_is_a_client_error_not_500() {
     );
     answer.expect_error(answer.status.as_u16());
 }
+
+// ---------------------------------------------------------------------------------------------
+// Reasoning (OWL 2 RL materialisation and consistency)
+// ---------------------------------------------------------------------------------------------
+
+const PREFIXES_TTL: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+@prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .
+@prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+@prefix ex: <http://example.org/env#> .
+";
+
+async fn ask(api: &Api, query: &str) -> bool {
+    let answer = api.get(&format!("/sparql?query={}", encode(query))).await;
+    answer.expect(200).json()["boolean"].as_bool().unwrap()
+}
+
+#[tokio::test]
+async fn sparql_and_getmodel_see_inferred_triples() {
+    let api = api_with_undistort().await;
+    // prp-inv: the port points back to its transformation.
+    let q = format!(
+        "ASK {{ <{UNDISTORT_IRI}/port/undist> <http://www.dyknow.eu/ontology/dyknow#isOutPort> <{UNDISTORT_IRI}> }}"
+    );
+    assert!(ask(&api, &q).await);
+    // GetModel includes it, and leaves it out with ?inferred=false.
+    let all = api.get("/model?format=ntriples").await;
+    let line = format!(
+        "<{UNDISTORT_IRI}/port/undist> <http://www.dyknow.eu/ontology/dyknow#isOutPort> <{UNDISTORT_IRI}> ."
+    );
+    let all = String::from_utf8(all.expect(200).body.to_vec()).unwrap();
+    assert!(all.contains(&line), "{all}");
+    let asserted = api.get("/model?format=ntriples&inferred=false").await;
+    let asserted = String::from_utf8(asserted.expect(200).body.to_vec()).unwrap();
+    assert!(!asserted.contains(&line));
+    // Removing the spec removes what it entailed.
+    api.delete("/transformations/Undistort%28cam1%29")
+        .await
+        .expect(204);
+    assert!(!ask(&api, &q).await);
+}
+
+#[tokio::test]
+async fn depends_on_is_maintained_through_extensions() {
+    let api = Api::new();
+    let env = format!(
+        "{PREFIXES_TTL}
+        ex:cu2 dyknow:hasSubscription ex:s2 . ex:s2 dyknow:fromCU ex:cu1 .
+        ex:cu3 dyknow:hasSubscription ex:s3 . ex:s3 dyknow:fromCU ex:cu2 ."
+    );
+    let answer = api.post_turtle("/ontology", env).await;
+    answer.expect(201);
+    let graph = answer.json()["graph"].as_str().unwrap().to_owned();
+    let q = "ASK { <http://example.org/env#cu3> <http://www.dyknow.eu/ontology/dyknow#dependsOn> <http://example.org/env#cu1> }";
+    assert!(ask(&api, q).await);
+    api.delete(&format!("/ontology?graph={}", encode(&graph)))
+        .await
+        .expect(204);
+    assert!(!ask(&api, q).await);
+}
+
+#[tokio::test]
+async fn ontology_violations_are_422_and_nothing_is_written() {
+    let api = Api::new();
+    // A subscription from and to the same CU (prp-pdw: fromCU disjoint with toCU, the inverse of
+    // hasSubscription).
+    let details = expect_422(
+        &api,
+        "/ontology",
+        format!("{PREFIXES_TTL} ex:cu1 dyknow:hasSubscription ex:s . ex:s dyknow:fromCU ex:cu1 ."),
+        "prp-pdw",
+    )
+    .await;
+    let d = &details[0];
+    assert!(d["constraint"].as_str().unwrap().contains("fromCU"), "{d}");
+    assert!(
+        d["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|n| n == "http://example.org/env#cu1"),
+        "{d}"
+    );
+    // A port that is both in and out (the spec validator names it before the reasoner would).
+    expect_422(
+        &api,
+        "/transformations",
+        format!(
+            "{PREFIXES_TTL} [] a dyknow:Transformation ; rdfs:label \"both\" ;
+             dyknow:hasOutPort [ a dyknow:InPort ; dyknow:hasName \"p\" ;
+                                 dyknow:hasTag [ dyknow:hasValue \"X\" ] ] ."
+        ),
+        "InPort DisjointWith OutPort",
+    )
+    .await;
+    // An extension that makes a stored spec inconsistent is refused too: Undistort has an in
+    // port, so declaring its class a sub-class of Source violates Source's cardinality.
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
+    expect_422(
+        &api,
+        "/ontology",
+        format!("{PREFIXES_TTL} dkros:ROSTransformation rdfs:subClassOf dyknow:Source ."),
+        "cls-maxqc1",
+    )
+    .await;
+}

@@ -381,3 +381,97 @@ fn token_protects_mutations_of_a_real_server() {
     );
     assert_eq!(get(&agent, &url).0, 200);
 }
+
+fn environment(file: &str) -> String {
+    format!(
+        "{}/../specs/environments/{file}",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+#[test]
+fn reason_prints_the_inferred_triples_sorted() {
+    let out = Command::new(BIN)
+        .args(["reason", &environment("ch6-piff-cus.ttl")])
+        .output()
+        .expect("run dyknow reason");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8(out.stdout).expect("UTF-8");
+    let lines: Vec<&str> = stdout.lines().collect();
+    let mut sorted = lines.clone();
+    sorted.sort_unstable();
+    assert_eq!(lines, sorted, "sorted N-Triples");
+    let depends = "<http://www.dyknow.eu/ontology/dyknow#dependsOn>";
+    assert!(
+        lines.contains(
+            &format!("<urn:dyknow:example:piff:cu7> {depends} <urn:dyknow:example:piff:cu1> .")
+                .as_str()
+        )
+    );
+    // Seven CUs, 17 upstream pairs (eq. 6.4), nothing else.
+    assert_eq!(lines.iter().filter(|l| l.contains(depends)).count(), 17);
+    // Asserted triples are not printed.
+    assert!(
+        !stdout
+            .contains("<urn:dyknow:example:piff:s3> <http://www.dyknow.eu/ontology/dyknow#fromCU>")
+    );
+}
+
+#[test]
+fn reason_check_reports_violations_and_exits_1() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("bad.ttl");
+    std::fs::write(
+        &path,
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+         @prefix ex: <http://example.org/bad#> .
+         ex:src a dyknow:Source ; dyknow:hasInPort ex:in .
+         ex:in a dyknow:InPort .
+         ex:t a dyknow:Transformation ; dyknow:hasOutPort ex:both .
+         ex:both a dyknow:InPort , dyknow:OutPort .
+         ex:cu a dyknow:ComputationUnit ; dyknow:hasSubscription ex:s .
+         ex:s dyknow:fromCU ex:cu .",
+    )
+    .expect("write");
+    let out = Command::new(BIN)
+        .args(["reason", "--check"])
+        .arg(&path)
+        .output()
+        .expect("run dyknow reason --check");
+    assert_eq!(out.status.code(), Some(1));
+    let stdout = String::from_utf8(out.stdout).expect("UTF-8");
+    for (rule, node) in [
+        ("cls-maxqc1", "bad#src"),
+        ("cax-dw", "bad#both"),
+        ("prp-pdw", "bad#cu"),
+    ] {
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.starts_with(rule) && l.contains(node)),
+            "no {rule} line about {node}: {stdout}"
+        );
+    }
+    // A consistent file passes the check.
+    let ok = Command::new(BIN)
+        .args(["reason", "--check", &environment("ch6-piff-cus.ttl")])
+        .output()
+        .expect("run");
+    assert!(ok.status.success());
+    assert!(ok.stdout.is_empty());
+    // Bad input is exit 2 with file, line and column.
+    let broken = dir.path().join("broken.ttl");
+    std::fs::write(&broken, "@prefix ex: <http://example.org/> .\nex:a ex:b ;;").expect("write");
+    let out = Command::new(BIN)
+        .args(["reason"])
+        .arg(&broken)
+        .output()
+        .expect("run");
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("broken.ttl:2:"), "{stderr}");
+}

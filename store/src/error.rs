@@ -25,6 +25,10 @@ pub struct Violation {
     pub constraint: String,
     /// The offending node: a label, an IRI or a description of a blank node.
     pub subject: String,
+    /// Every node a violated ontology axiom involves (the subject first); empty for structural
+    /// constraints.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub nodes: Vec<String>,
 }
 
 impl Violation {
@@ -32,6 +36,7 @@ impl Violation {
         Self {
             constraint: constraint.into(),
             subject: subject.into(),
+            nodes: Vec::new(),
         }
     }
 }

@@ -3,6 +3,11 @@
 //! Every write goes through one lock and one Oxigraph transaction: a request is applied whole or
 //! not at all, and concurrent writers never interleave (Oxigraph 0.5 does not detect all
 //! write-write conflicts, so the service serialises them).
+//!
+//! The lock guards the [`Reasoner`] too: each write first updates the materialisation
+//! (incrementally; from scratch when an ontology extension changes the schema), refuses the
+//! request if it violates a consistency rule, and writes the change of the inferred graph in the
+//! same Oxigraph write as the explicit change.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -15,7 +20,10 @@ use oxigraph::sparql::{QueryResults, SparqlEvaluator};
 use oxigraph::store::{StorageError, Store};
 use serde::Serialize;
 
+use dyknow_reasoner::{Reasoner, TBox};
+
 use crate::error::{IngestError, SpecValidationError, StoreOpenError, Violation};
+use crate::export::INFERRED_GRAPH;
 use crate::graphs::{extension_graph, fnv1a, is_extension_graph, spec_graph, spec_of_graph};
 use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{ExtractedSpec, Spec, SpecClasses, SpecKind, extract_specs, spec_from_graph};
@@ -24,7 +32,8 @@ use crate::spec::{ExtractedSpec, Spec, SpecClasses, SpecKind, extract_specs, spe
 pub struct KnowledgeBase {
     store: Store,
     location: Option<PathBuf>,
-    write_lock: Mutex<()>,
+    /// The write lock; it owns the reasoner, whose materialisation matches the store.
+    write_lock: Mutex<Reasoner>,
     classes: RwLock<SpecClasses>,
 }
 
@@ -68,6 +77,9 @@ pub struct LoadReport {
     pub extension: Option<String>,
 }
 
+/// Triples by the name of the graph that holds them.
+type NamedSources = Vec<(String, Vec<Triple>)>;
+
 /// From this many new triples on, a write is one SST ingestion rather than a write batch.
 const BULK_LOAD_THRESHOLD: usize = 50_000;
 
@@ -104,10 +116,12 @@ impl KnowledgeBase {
         let kb = Self {
             store,
             location: Some(path.to_path_buf()),
-            write_lock: Mutex::new(()),
+            write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
         };
         kb.refresh_classes()?;
+        let reasoner = kb.materialise(&[], &[])?;
+        *kb.lock() = reasoner;
         Ok(kb)
     }
 
@@ -120,11 +134,12 @@ impl KnowledgeBase {
         let kb = Self {
             store,
             location,
-            write_lock: Mutex::new(()),
+            write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
         };
         kb.install_builtin_ontologies()?;
         kb.refresh_classes()?;
+        kb.install_materialisation()?;
         Ok(kb)
     }
 
@@ -138,7 +153,7 @@ impl KnowledgeBase {
         self.location.as_deref()
     }
 
-    fn lock(&self) -> MutexGuard<'_, ()> {
+    fn lock(&self) -> MutexGuard<'_, Reasoner> {
         // A panic while holding the lock cannot leave a half-written transaction (it is dropped,
         // i.e. rolled back), so the poison flag carries no information.
         self.write_lock
@@ -218,14 +233,14 @@ impl KnowledgeBase {
     ) -> Result<PostReport, IngestError> {
         let triples = parse_triples(body, format)?;
         let doc = extract_specs(&triples, &self.classes(), Some(kind))?;
-        let _guard = self.lock();
+        let mut reasoner = self.lock();
         self.check_identities(&doc.specs)?;
         let graphs: Vec<(&NamedNode, &[Triple])> = doc
             .specs
             .iter()
             .map(|s| (&s.graph, s.triples.as_slice()))
             .collect();
-        let replaced = self.write_graphs(&graphs)?;
+        let replaced = self.commit(&mut reasoner, &graphs, &[])?;
         Ok(PostReport {
             labels: doc
                 .specs
@@ -251,7 +266,7 @@ impl KnowledgeBase {
     ) -> Result<LoadReport, IngestError> {
         let triples = parse_triples(body, format)?;
         let doc = extract_specs(&triples, &self.classes(), None)?;
-        let _guard = self.lock();
+        let mut reasoner = self.lock();
         self.check_identities(&doc.specs)?;
         let extension = (!doc.rest.is_empty())
             .then(|| (extension_graph(fnv1a(body)), fresh_blank_nodes(&doc.rest)));
@@ -263,7 +278,7 @@ impl KnowledgeBase {
         if let Some((graph, triples)) = &extension {
             graphs.push((graph, triples.as_slice()));
         }
-        let replaced = self.write_graphs(&graphs)?;
+        let replaced = self.commit(&mut reasoner, &graphs, &[])?;
         let mut report = LoadReport {
             extension: extension.as_ref().map(|(g, _)| g.as_str().to_owned()),
             ..LoadReport::default()
@@ -278,28 +293,111 @@ impl KnowledgeBase {
                 part.replaced.push(spec.spec.label().to_owned());
             }
         }
-        drop(_guard);
+        drop(reasoner);
         if report.extension.is_some() {
             self.refresh_classes()?;
         }
         Ok(report)
     }
 
-    /// Replaces each named graph by the given triples, atomically, and tells which graphs
-    /// existed. The caller holds the write lock. New graphs take the fast paths (a plain write
-    /// batch, or SST ingestion for large batches); replacing needs an indexed transaction.
-    fn write_graphs(&self, graphs: &[(&NamedNode, &[Triple])]) -> Result<Vec<bool>, StorageError> {
-        let replaced = graphs
+    /// Replaces each graph of `writes` by its triples and removes the graphs of `removes`,
+    /// atomically, with the matching change of the inferred graph; tells which graphs of
+    /// `writes` existed. The caller holds the write lock (`reasoner`).
+    ///
+    /// The materialisation is updated incrementally, or recomputed when an ontology extension
+    /// changes the schema. A request that violates a consistency rule the store did not violate
+    /// already is refused (422) and nothing is written; the reasoner is left as it was.
+    fn commit(
+        &self,
+        reasoner: &mut Reasoner,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+    ) -> Result<Vec<bool>, IngestError> {
+        let replaced = writes
             .iter()
             .map(|(g, _)| self.store.contains_named_graph(*g))
             .collect::<Result<Vec<bool>, _>>()?;
-        let quads = graphs.iter().flat_map(|(g, triples)| {
-            triples
+        let schema_change = writes
+            .iter()
+            .map(|(g, _)| *g)
+            .chain(removes.iter().copied())
+            .any(|g| is_extension_graph(g.as_str()));
+        if schema_change {
+            let next = self.materialise(writes, removes)?;
+            let before: std::collections::HashSet<String> = reasoner
+                .violations()
                 .iter()
-                .map(|t| t.as_ref().in_graph(g.as_ref()).into_owned())
-        });
-        if !replaced.contains(&true) {
-            let size: usize = graphs.iter().map(|(_, t)| t.len()).sum();
+                .map(ToString::to_string)
+                .collect();
+            let introduced: Vec<dyknow_reasoner::Violation> = next
+                .violations()
+                .into_iter()
+                .filter(|v| !before.contains(&v.to_string()))
+                .collect();
+            if !introduced.is_empty() {
+                return Err(inconsistency(&introduced));
+            }
+            let old_inferred: std::collections::HashSet<Triple> =
+                reasoner.inferred().into_iter().collect();
+            let new_inferred: std::collections::HashSet<Triple> =
+                next.inferred().into_iter().collect();
+            let added: Vec<Triple> = new_inferred.difference(&old_inferred).cloned().collect();
+            let removed: Vec<Triple> = old_inferred.difference(&new_inferred).cloned().collect();
+            self.write(writes, removes, &replaced, &added, &removed)?;
+            *reasoner = next;
+            return Ok(replaced);
+        }
+
+        let changes: Vec<(String, Vec<Triple>)> = writes
+            .iter()
+            .map(|(g, t)| (g.as_str().to_owned(), t.to_vec()))
+            .chain(removes.iter().map(|g| (g.as_str().to_owned(), Vec::new())))
+            .collect();
+        let (update, previous) = reasoner.set_graphs(&changes);
+        if !update.violations.is_empty() {
+            reasoner.set_graphs(&previous);
+            return Err(inconsistency(&update.violations));
+        }
+        if let Err(e) = self.write(
+            writes,
+            removes,
+            &replaced,
+            &update.inferred_added,
+            &update.inferred_removed,
+        ) {
+            reasoner.set_graphs(&previous);
+            return Err(e.into());
+        }
+        Ok(replaced)
+    }
+
+    /// One atomic write: new graphs take the fast paths (a plain write batch, or SST ingestion
+    /// for large batches); replacing or removing graphs, or removing inferred triples, needs an
+    /// indexed transaction.
+    fn write(
+        &self,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+        replaced: &[bool],
+        inferred_added: &[Triple],
+        inferred_removed: &[Triple],
+    ) -> Result<(), StorageError> {
+        let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
+        let quads = writes
+            .iter()
+            .flat_map(|(g, triples)| {
+                triples
+                    .iter()
+                    .map(|t| t.as_ref().in_graph(g.as_ref()).into_owned())
+            })
+            .chain(
+                inferred_added
+                    .iter()
+                    .map(|t| t.as_ref().in_graph(inferred).into_owned()),
+            );
+        if !replaced.contains(&true) && removes.is_empty() && inferred_removed.is_empty() {
+            let size: usize =
+                writes.iter().map(|(_, t)| t.len()).sum::<usize>() + inferred_added.len();
             if size >= BULK_LOAD_THRESHOLD {
                 // One atomic ingestion of sorted SST files.
                 let mut loader = self.store.bulk_loader();
@@ -308,17 +406,121 @@ impl KnowledgeBase {
             } else {
                 self.store.extend(quads)?;
             }
-        } else {
-            let mut transaction = self.store.start_transaction()?;
-            for (g, _) in graphs {
+            return Ok(());
+        }
+        let mut transaction = self.store.start_transaction()?;
+        for g in removes {
+            transaction.remove_named_graph(*g)?;
+        }
+        for ((g, _), existed) in writes.iter().zip(replaced) {
+            if *existed {
                 transaction.clear_graph(*g)?;
             }
-            for quad in quads {
-                transaction.insert(&quad);
+        }
+        for t in inferred_removed {
+            transaction.remove(t.as_ref().in_graph(inferred));
+        }
+        for quad in quads {
+            transaction.insert(&quad);
+        }
+        transaction.commit()
+    }
+
+    /// The triples of the graphs that hold the schema (built-in ontologies and extensions) and
+    /// of those that hold data (specs and extensions), as they will be once `writes` and
+    /// `removes` are applied.
+    fn schema_and_data(
+        &self,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+    ) -> Result<(Vec<Triple>, NamedSources), StorageError> {
+        let mut schema = Vec::new();
+        let mut data = Vec::new();
+        for graph in self.store.named_graphs() {
+            let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph? else {
+                continue;
+            };
+            if writes.iter().any(|(w, _)| **w == g) || removes.iter().any(|r| **r == g) {
+                continue;
+            }
+            let builtin = BUILTIN_ONTOLOGIES.iter().any(|(iri, _)| *iri == g.as_str());
+            let extension = is_extension_graph(g.as_str());
+            let spec = spec_of_graph(g.as_str()).is_some();
+            if !(builtin || extension || spec) {
+                continue;
+            }
+            let triples = self.graph_triples(g.as_ref())?;
+            if builtin || extension {
+                schema.extend(triples.iter().cloned());
+            }
+            if extension || spec {
+                data.push((g.into_string(), triples));
+            }
+        }
+        for (g, triples) in writes {
+            if is_extension_graph(g.as_str()) {
+                schema.extend(triples.iter().cloned());
+            }
+            data.push((g.as_str().to_owned(), triples.to_vec()));
+        }
+        Ok((schema, data))
+    }
+
+    /// A reasoner materialising the store as it will be once `writes` and `removes` are
+    /// applied, from scratch.
+    fn materialise(
+        &self,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+    ) -> Result<Reasoner, IngestError> {
+        let (schema, data) = self.schema_and_data(writes, removes)?;
+        let tbox = TBox::from_triples(&schema).map_err(|e| {
+            IngestError::Invalid(SpecValidationError(vec![Violation::new(
+                e.to_string(),
+                "the ontology",
+            )]))
+        })?;
+        let mut reasoner = Reasoner::new(tbox);
+        reasoner.set_graphs(&data);
+        Ok(reasoner)
+    }
+
+    /// At start-up: materialises the store from scratch and makes the inferred graph match
+    /// (it differs after an upgrade of the built-in ontologies or of the reasoner).
+    fn install_materialisation(&self) -> Result<(), StoreOpenError> {
+        let reasoner = self.materialise(&[], &[]).map_err(|e| match e {
+            IngestError::Storage(e) => StoreOpenError::Storage(e),
+            other => StoreOpenError::Ontology(other.to_string()),
+        })?;
+        let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
+        let stored: std::collections::HashSet<Triple> =
+            self.graph_triples(inferred)?.into_iter().collect();
+        let wanted: std::collections::HashSet<Triple> = reasoner.inferred().into_iter().collect();
+        let mut guard = self.lock();
+        if stored != wanted {
+            let mut transaction = self.store.start_transaction()?;
+            for t in stored.difference(&wanted) {
+                transaction.remove(t.as_ref().in_graph(inferred));
+            }
+            for t in wanted.difference(&stored) {
+                transaction.insert(t.as_ref().in_graph(inferred));
             }
             transaction.commit()?;
         }
-        Ok(replaced)
+        *guard = reasoner;
+        Ok(())
+    }
+
+    /// The axioms of the schema the reasoner does not support (OWL functional syntax), sorted:
+    /// the service logs them at start-up.
+    pub fn unsupported_axioms(&self) -> Vec<String> {
+        self.lock().tbox().unsupported_axioms().to_vec()
+    }
+
+    /// Every consistency rule the stored environment violates (normally none: writes that
+    /// would violate one are refused).
+    pub fn violations(&self) -> Vec<dyknow_reasoner::Violation> {
+        self.lock().violations()
     }
 
     /// A spec given by IRI must not be the resource of another spec already.
@@ -360,16 +562,14 @@ impl KnowledgeBase {
     /// RemoveTransformation / RemoveTarget.
     pub fn remove_spec(&self, kind: SpecKind, label: &str) -> Result<(), IngestError> {
         let graph = spec_graph(kind, label);
-        let _guard = self.lock();
+        let mut reasoner = self.lock();
         if !self.store.contains_named_graph(&graph)? {
             return Err(IngestError::NotFound(format!(
                 "no {} labelled {label:?}",
                 kind.name()
             )));
         }
-        let mut transaction = self.store.start_transaction()?;
-        transaction.remove_named_graph(&graph)?;
-        transaction.commit()?;
+        self.commit(&mut reasoner, &[], &[&graph])?;
         Ok(())
     }
 
@@ -451,15 +651,10 @@ impl KnowledgeBase {
             .into());
         }
         let graph = extension_graph(fnv1a(body));
-        let guard = self.lock();
-        let replaced = self.store.contains_named_graph(&graph)?;
-        let mut transaction = self.store.start_transaction()?;
-        transaction.clear_graph(&graph)?;
-        for t in &fresh_blank_nodes(&triples) {
-            transaction.insert(t.as_ref().in_graph(&graph));
-        }
-        transaction.commit()?;
-        drop(guard);
+        let mut reasoner = self.lock();
+        let triples = fresh_blank_nodes(&triples);
+        let replaced = self.commit(&mut reasoner, &[(&graph, &triples)], &[])?[0];
+        drop(reasoner);
         self.refresh_classes()?;
         Ok(ExtensionReport {
             graph: graph.into_string(),
@@ -505,17 +700,15 @@ impl KnowledgeBase {
             )));
         }
         let graph = NamedNode::new_unchecked(graph);
-        let guard = self.lock();
+        let mut reasoner = self.lock();
         if !self.store.contains_named_graph(&graph)? {
             return Err(IngestError::NotFound(format!(
                 "no ontology extension <{}>",
                 graph.as_str()
             )));
         }
-        let mut transaction = self.store.start_transaction()?;
-        transaction.remove_named_graph(&graph)?;
-        transaction.commit()?;
-        drop(guard);
+        self.commit(&mut reasoner, &[], &[&graph])?;
+        drop(reasoner);
         self.refresh_classes()?;
         Ok(())
     }
@@ -590,6 +783,31 @@ impl KnowledgeBase {
     }
 }
 
+/// The 422 answer for violated consistency rules: one detail per violation, naming the rule and
+/// the axiom, with the first node as subject and every node involved.
+fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
+    IngestError::Invalid(SpecValidationError(
+        violations
+            .iter()
+            .map(|v| {
+                let nodes: Vec<String> = v
+                    .nodes
+                    .iter()
+                    .map(|n| match n {
+                        Term::NamedNode(n) => n.as_str().to_owned(),
+                        other => other.to_string(),
+                    })
+                    .collect();
+                Violation {
+                    constraint: format!("{} ({})", v.axiom, v.rule),
+                    subject: nodes.first().cloned().unwrap_or_default(),
+                    nodes,
+                }
+            })
+            .collect(),
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -631,7 +849,20 @@ mod tests {
             (0, 0, 0)
         );
         assert!(stats.quads > 100, "{stats:?}");
-        assert_eq!(kb.store().named_graphs().count(), BUILTIN_ONTOLOGIES.len());
+        // The built-in ontologies, and the inferred graph with their schema closure (e.g. scm-rng1:
+        // the range of hasInPort is InPort, so it is Port too).
+        assert_eq!(
+            kb.store().named_graphs().count(),
+            BUILTIN_ONTOLOGIES.len() + 1
+        );
+        let inferred = kb
+            .graph_triples(NamedNodeRef::new_unchecked(INFERRED_GRAPH))
+            .expect("storage");
+        assert!(inferred.contains(&Triple::new(
+            dyknow::HAS_IN_PORT,
+            oxigraph::model::vocab::rdfs::RANGE,
+            dyknow::PORT
+        )));
         kb.flush().expect("a no-op in memory");
         // Re-installing the ontologies (as on every open) does not duplicate them.
         let before = kb.store().len().expect("storage");
@@ -792,12 +1023,34 @@ mod tests {
             .iter()
             .map(|s| (&s.graph, s.triples.as_slice()))
             .collect();
-        assert_eq!(kb.write_graphs(&graphs).expect("write"), [false]);
-        assert_eq!(kb.write_graphs(&graphs).expect("write"), [true]);
+        let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
+        let mut reasoner = kb.lock();
+        assert_eq!(
+            kb.commit(&mut reasoner, &graphs, &[]).expect("write"),
+            [false]
+        );
+        let first = kb.graph_triples(inferred).expect("storage");
+        assert_eq!(
+            kb.commit(&mut reasoner, &graphs, &[]).expect("write"),
+            [true]
+        );
         let graph = spec_graph(SpecKind::Transformation, "a");
         assert_eq!(
             kb.graph_triples(graph.as_ref()).expect("storage").len(),
             specs[0].triples.len()
+        );
+        // The inferred graph holds what the spec entails (the port's inverse link) once.
+        let port = NamedNode::new_unchecked("urn:dyknow:transformation:a/port/o");
+        let resource = NamedNode::new_unchecked("urn:dyknow:transformation:a");
+        let is_out_port = Triple::new(port, dyknow::IS_OUT_PORT, resource);
+        assert!(first.contains(&is_out_port), "{first:?}");
+        assert_eq!(kb.graph_triples(inferred).expect("storage"), first);
+        // Removing the graph removes its inferences.
+        kb.commit(&mut reasoner, &[], &[&graph]).expect("remove");
+        assert!(
+            !kb.graph_triples(inferred)
+                .expect("storage")
+                .contains(&is_out_port)
         );
     }
 

@@ -244,3 +244,45 @@ fn read_only_opening_of_a_missing_store_fails() {
     let dir = tempfile::tempdir().expect("temporary directory");
     assert!(open_ro(&dir.path().join("absent")).is_err());
 }
+
+/// The inferred graph survives a restart unchanged, and a store whose inferred graph was lost or
+/// is stale (an older release) is corrected at open.
+#[test]
+fn the_inferred_graph_survives_a_restart_and_is_repaired_at_open() {
+    use dyknow_store::INFERRED_GRAPH;
+    use dyknow_store::oxigraph::model::NamedNodeRef;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
+    let expected = {
+        let kb = open_rw(dir.path()).expect("open");
+        kb.post_specs(
+            LISTING_5_3.as_bytes(),
+            InputFormat::Turtle,
+            SpecKind::Transformation,
+        )
+        .expect("post");
+        let triples: BTreeSet<String> = kb
+            .graph_triples(inferred)
+            .expect("storage")
+            .iter()
+            .map(ToString::to_string)
+            .collect();
+        assert!(
+            triples.iter().any(|t| t.contains("dyknow#isOutPort")),
+            "{triples:?}"
+        );
+        // Damage the inferred graph behind the knowledge base's back.
+        kb.store().clear_graph(inferred).expect("clear");
+        kb.flush().expect("flush");
+        triples
+    };
+    let kb = open_rw(dir.path()).expect("reopen");
+    let repaired: BTreeSet<String> = kb
+        .graph_triples(inferred)
+        .expect("storage")
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    assert_eq!(repaired, expected);
+    assert!(kb.violations().is_empty());
+}

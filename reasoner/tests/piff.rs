@@ -1,0 +1,119 @@
+//! Seed Chapter 6: Piff's seven-CU pipeline (`specs/environments/ch6-piff-cus.ttl`). Every CU
+//! `dependsOn` exactly the CUs upstream of it; removing the segmenter removes exactly the
+//! `dependsOn` triples that ran through it.
+#![expect(clippy::expect_used, reason = "tests")]
+
+use std::collections::BTreeSet;
+
+use dyknow_reasoner::{Reasoner, TBox, builtin_ontology_triples};
+use oxrdf::{NamedNode, NamedOrBlankNode, Term, Triple};
+
+const DEPENDS_ON: &str = "http://www.dyknow.eu/ontology/dyknow#dependsOn";
+
+fn cu(i: u32) -> String {
+    format!("urn:dyknow:example:piff:cu{i}")
+}
+
+fn environment() -> Vec<Triple> {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../specs/environments/ch6-piff-cus.ttl"
+    );
+    let data = std::fs::read(path).expect("the Piff environment");
+    oxttl::TurtleParser::new()
+        .for_slice(&data)
+        .map(|t| t.expect("valid Turtle"))
+        .collect()
+}
+
+fn depends_on(reasoner: &Reasoner) -> BTreeSet<(String, String)> {
+    let predicate = NamedNode::new_unchecked(DEPENDS_ON);
+    (1..=7)
+        .flat_map(|i| {
+            reasoner
+                .objects(
+                    &Term::NamedNode(NamedNode::new_unchecked(cu(i))),
+                    &predicate,
+                )
+                .into_iter()
+                .map(move |o| (cu(i), o.to_string().trim_matches(['<', '>']).to_owned()))
+        })
+        .collect()
+}
+
+fn expected(upstream: &[(u32, &[u32])]) -> BTreeSet<(String, String)> {
+    upstream
+        .iter()
+        .flat_map(|(c, ups)| ups.iter().map(move |u| (cu(*c), cu(*u))))
+        .collect()
+}
+
+#[test]
+fn every_cu_depends_on_exactly_its_upstream_cus() {
+    let mut reasoner = Reasoner::new(TBox::from_triples(&builtin_ontology_triples()).unwrap());
+    let env = environment();
+    let update = reasoner.update(&[], &env);
+    assert!(update.violations.is_empty(), "{:?}", update.violations);
+    assert_eq!(
+        depends_on(&reasoner),
+        expected(&[
+            (1, &[]),
+            (2, &[]),
+            (3, &[2]),
+            (4, &[3, 2]),
+            (5, &[4, 3, 2]),
+            (6, &[5, 4, 3, 2, 1]),
+            (7, &[6, 5, 4, 3, 2, 1]),
+        ])
+    );
+
+    // Remove the segmenter (cu4): its own triples and the subscription of cu5 from it.
+    let segmenter = [
+        cu(4),
+        "urn:dyknow:example:piff:s4".into(),
+        "urn:dyknow:example:piff:s5hull".into(),
+    ];
+    let removed: Vec<Triple> = env
+        .iter()
+        .filter(|t| {
+            let s = match &t.subject {
+                NamedOrBlankNode::NamedNode(n) => n.as_str(),
+                NamedOrBlankNode::BlankNode(_) => "",
+            };
+            let o = match &t.object {
+                Term::NamedNode(n) => n.as_str(),
+                _ => "",
+            };
+            segmenter.iter().any(|x| x == s || x == o)
+        })
+        .cloned()
+        .collect();
+    let before = depends_on(&reasoner);
+    let update = reasoner.update(&removed, &[]);
+    let after = depends_on(&reasoner);
+    let gone: BTreeSet<(String, String)> = before.difference(&after).cloned().collect();
+    // Exactly the dependencies that ran through cu4: cu4's own, and those on cu4.
+    assert_eq!(
+        gone,
+        expected(&[(4, &[3, 2]), (5, &[4]), (6, &[4]), (7, &[4])])
+    );
+    assert!(after.is_subset(&before));
+    let reported: BTreeSet<(String, String)> = update
+        .inferred_removed
+        .iter()
+        .filter(|t| t.predicate.as_str() == DEPENDS_ON)
+        .map(|t| {
+            (
+                t.subject.to_string().trim_matches(['<', '>']).to_owned(),
+                t.object.to_string().trim_matches(['<', '>']).to_owned(),
+            )
+        })
+        .collect();
+    assert_eq!(reported, gone);
+    assert!(
+        update
+            .inferred_added
+            .iter()
+            .all(|t| t.predicate.as_str() != DEPENDS_ON)
+    );
+}
