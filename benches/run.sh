@@ -1,13 +1,23 @@
 #!/usr/bin/env bash
 # Runs DyKnow's benchmarks with their peers side by side (docs/benchmarks.md).
+#   benches/run.sh             both benchmarks
+#   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`
+#   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/dyknow/target}"
 venv=benches/.venv
-if [ ! -x "$venv/bin/oxigraph" ]; then
-  python3 -m venv "$venv"
-  "$venv/bin/pip" install -q oxigraph==0.5.13
+if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python" -c 'import owlrl, reasonable' 2>/dev/null; then
+  [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+  "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4
 fi
 export OXIGRAPH_BIN="$PWD/$venv/bin/oxigraph"
-cargo bench --locked -p dyknow-server --bench knowledge_service "$@"
+export PEER_PYTHON="$PWD/$venv/bin/python"
+which="${1:-all}"
+if [ "$which" = all ] || [ "$which" = knowledge ]; then
+  cargo bench --locked --workspace --bench knowledge_service
+fi
+if [ "$which" = all ] || [ "$which" = reasoning ]; then
+  cargo bench --locked --workspace --bench reasoning
+fi

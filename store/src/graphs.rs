@@ -28,6 +28,9 @@ pub const TRANSFORMATION_GRAPH_PREFIX: &str = "urn:dyknow:graph:transformation:"
 pub const TARGET_GRAPH_PREFIX: &str = "urn:dyknow:graph:target:";
 /// Prefix of the graphs holding ontology extensions.
 pub const EXTENSION_GRAPH_PREFIX: &str = "urn:dyknow:graph:extension:";
+/// Prefix of the graphs holding parts of the running environment (computation units, their
+/// subscriptions and publications), one graph per part.
+pub const ENVIRONMENT_GRAPH_PREFIX: &str = "urn:dyknow:graph:environment:";
 
 /// Percent-encodes a label or name for use in an IRI.
 pub fn encode(label: &str) -> String {
@@ -87,6 +90,16 @@ pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
         hash = hash.wrapping_mul(0x0100_0000_01b3);
     }
     hash
+}
+
+/// The graph of the environment part named `name` (e.g. a computation unit).
+pub fn environment_graph(name: &str) -> NamedNode {
+    NamedNode::new_unchecked(format!("{ENVIRONMENT_GRAPH_PREFIX}{}", encode(name)))
+}
+
+/// Whether `graph` holds a part of the running environment.
+pub fn is_environment_graph(graph: &str) -> bool {
+    graph.starts_with(ENVIRONMENT_GRAPH_PREFIX)
 }
 
 #[cfg(test)]

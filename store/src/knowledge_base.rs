@@ -24,7 +24,10 @@ use dyknow_reasoner::{Reasoner, TBox};
 
 use crate::error::{IngestError, SpecValidationError, StoreOpenError, Violation};
 use crate::export::INFERRED_GRAPH;
-use crate::graphs::{extension_graph, fnv1a, is_extension_graph, spec_graph, spec_of_graph};
+use crate::graphs::{
+    environment_graph, extension_graph, fnv1a, is_environment_graph, is_extension_graph,
+    spec_graph, spec_of_graph,
+};
 use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{ExtractedSpec, Spec, SpecClasses, SpecKind, extract_specs, spec_from_graph};
 
@@ -120,7 +123,7 @@ impl KnowledgeBase {
             classes: RwLock::new(SpecClasses::default()),
         };
         kb.refresh_classes()?;
-        let reasoner = kb.materialise(&[], &[])?;
+        let reasoner = kb.materialise_at_open()?;
         *kb.lock() = reasoner;
         Ok(kb)
     }
@@ -445,7 +448,7 @@ impl KnowledgeBase {
             }
             let builtin = BUILTIN_ONTOLOGIES.iter().any(|(iri, _)| *iri == g.as_str());
             let extension = is_extension_graph(g.as_str());
-            let spec = spec_of_graph(g.as_str()).is_some();
+            let spec = spec_of_graph(g.as_str()).is_some() || is_environment_graph(g.as_str());
             if !(builtin || extension || spec) {
                 continue;
             }
@@ -485,13 +488,17 @@ impl KnowledgeBase {
         Ok(reasoner)
     }
 
+    fn materialise_at_open(&self) -> Result<Reasoner, StoreOpenError> {
+        self.materialise(&[], &[]).map_err(|e| match e {
+            IngestError::Storage(e) => StoreOpenError::Storage(e),
+            other => StoreOpenError::Ontology(other.to_string()),
+        })
+    }
+
     /// At start-up: materialises the store from scratch and makes the inferred graph match
     /// (it differs after an upgrade of the built-in ontologies or of the reasoner).
     fn install_materialisation(&self) -> Result<(), StoreOpenError> {
-        let reasoner = self.materialise(&[], &[]).map_err(|e| match e {
-            IngestError::Storage(e) => StoreOpenError::Storage(e),
-            other => StoreOpenError::Ontology(other.to_string()),
-        })?;
+        let reasoner = self.materialise_at_open()?;
         let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
         let stored: std::collections::HashSet<Triple> =
             self.graph_triples(inferred)?.into_iter().collect();
@@ -508,6 +515,32 @@ impl KnowledgeBase {
             transaction.commit()?;
         }
         *guard = reasoner;
+        Ok(())
+    }
+
+    /// Sets parts of the running environment (computation units with their subscriptions and
+    /// publications; the reconfiguration engine and executors write them): each `(name,
+    /// triples)` replaces the graph of that part, an empty list removes it. One atomic write,
+    /// reasoned incrementally like a spec; a change that violates the ontology is refused (422)
+    /// and nothing is written.
+    pub fn set_environment(&self, parts: &[(String, Vec<Triple>)]) -> Result<(), IngestError> {
+        let graphs: Vec<(NamedNode, &[Triple])> = parts
+            .iter()
+            .map(|(name, triples)| (environment_graph(name), triples.as_slice()))
+            .collect();
+        let mut reasoner = self.lock();
+        let mut removes = Vec::new();
+        for (g, triples) in &graphs {
+            if triples.is_empty() && self.store.contains_named_graph(g)? {
+                removes.push(g);
+            }
+        }
+        let writes: Vec<(&NamedNode, &[Triple])> = graphs
+            .iter()
+            .filter(|(_, t)| !t.is_empty())
+            .map(|(g, t)| (g, *t))
+            .collect();
+        self.commit(&mut reasoner, &writes, &removes)?;
         Ok(())
     }
 
