@@ -207,7 +207,7 @@ fn main() {
         let (mut o, mut r) = ("not run".to_owned(), "not run".to_owned());
         let (mut ro, mut rr) = ("".to_owned(), "".to_owned());
         if peers && let Some(py) = &python {
-            let file = dir.path().join("env.nt");
+            let file = dir.path().join("env.ttl"); // N-Triples is Turtle; reasonable reads .ttl only
             write_ntriples(&file, env);
             o = peer(py, script, "owlrl", &file, peer_timeout);
             r = peer(py, script, "reasonable", &file, peer_timeout);
