@@ -9,11 +9,7 @@
 //! on-disk store (median of several runs, each on a different CU, the store restored between
 //! runs and not timed). The peers (`owlrl`, `reasonable`, PyPI) materialise the same graphs in
 //! the same run, as N-Triples files with the DyKnow ontology.
-#![expect(
-    clippy::expect_used,
-    clippy::unwrap_used,
-    reason = "a benchmark binary"
-)]
+#![expect(clippy::unwrap_used, reason = "a benchmark binary")]
 
 use std::io::Write;
 use std::process::Command;
