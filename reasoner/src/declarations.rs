@@ -28,6 +28,57 @@ enum Kind {
     Property,
 }
 
+/// The `rdf:first`/`rdf:rest` structure of a set of triples, to read RDF lists.
+struct RdfLists<'a> {
+    firsts: HashMap<&'a NamedOrBlankNode, &'a Term>,
+    rests: HashMap<&'a NamedOrBlankNode, &'a Term>,
+}
+
+impl<'a> RdfLists<'a> {
+    fn new(triples: &'a [Triple]) -> Self {
+        let mut lists = Self {
+            firsts: HashMap::new(),
+            rests: HashMap::new(),
+        };
+        for t in triples {
+            if t.predicate == rdf::FIRST {
+                lists.firsts.insert(&t.subject, &t.object);
+            } else if t.predicate == rdf::REST {
+                lists.rests.insert(&t.subject, &t.object);
+            }
+        }
+        lists
+    }
+
+    /// The IRI members of the list starting at `head` (at most 10,000: a cyclic list ends).
+    fn members(&self, head: &Term) -> Vec<NamedNode> {
+        let mut members = Vec::new();
+        let mut node: Option<NamedOrBlankNode> = match head {
+            Term::NamedNode(n) if NamedNodeRef::from(n) != rdf::NIL => Some(n.clone().into()),
+            Term::BlankNode(b) => Some(b.clone().into()),
+            _ => None,
+        };
+        let mut steps = 0;
+        while let Some(n) = node.take() {
+            steps += 1;
+            if steps > 10_000 {
+                break;
+            }
+            if let Some(Term::NamedNode(m)) = self.firsts.get(&n) {
+                members.push(m.clone());
+            }
+            node = match self.rests.get(&n) {
+                Some(Term::BlankNode(b)) => Some(b.clone().into()),
+                Some(Term::NamedNode(r)) if NamedNodeRef::from(r) != rdf::NIL => {
+                    Some(r.clone().into())
+                }
+                _ => None,
+            };
+        }
+        members
+    }
+}
+
 /// The declarations missing from `triples`.
 pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
     let mut declared: BTreeSet<&str> = BTreeSet::new();
@@ -73,9 +124,11 @@ pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
         "FunctionalProperty",
         "InverseFunctionalProperty",
     ];
-    // Members of rdf:List nodes used as property chains.
-    let mut chain_heads: HashSet<NamedOrBlankNode> = HashSet::new();
-    let mut class_lists: HashSet<NamedOrBlankNode> = HashSet::new();
+    // Heads of the RDF lists whose members are properties (chains, disjoint properties) or
+    // classes (disjoint classes).
+    let lists = RdfLists::new(triples);
+    let mut property_lists: Vec<&Term> = Vec::new();
+    let mut class_lists: Vec<&Term> = Vec::new();
     let all_disjoint_classes: HashSet<&NamedOrBlankNode> = triples
         .iter()
         .filter(|t| {
@@ -84,8 +137,6 @@ pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
         })
         .map(|t| &t.subject)
         .collect();
-    let mut firsts: HashMap<&NamedOrBlankNode, &Term> = HashMap::new();
-    let mut rests: HashMap<&NamedOrBlankNode, &Term> = HashMap::new();
     for t in triples {
         let p = t.predicate.as_str();
         let subject = match &t.subject {
@@ -96,11 +147,6 @@ pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
             Term::NamedNode(n) => Some(n.as_str()),
             _ => None,
         };
-        if t.predicate == rdf::FIRST {
-            firsts.insert(&t.subject, &t.object);
-        } else if t.predicate == rdf::REST {
-            rests.insert(&t.subject, &t.object);
-        }
         if class_predicates.contains(&p) {
             for n in [subject, object].into_iter().flatten() {
                 used.entry(n).or_insert(Kind::Class);
@@ -125,31 +171,16 @@ pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
                 }
             }
         } else if p == format!("{OWL}members") {
-            let list: Option<NamedOrBlankNode> = match &t.object {
-                Term::BlankNode(b) => Some(b.clone().into()),
-                Term::NamedNode(n) => Some(n.clone().into()),
-                _ => None,
-            };
-            if let Some(list) = list {
-                if all_disjoint_classes.contains(&t.subject) {
-                    class_lists.insert(list);
-                } else {
-                    chain_heads.insert(list);
-                }
+            if all_disjoint_classes.contains(&t.subject) {
+                class_lists.push(&t.object);
+            } else {
+                property_lists.push(&t.object);
             }
         } else if p == format!("{OWL}propertyChainAxiom") {
             if let Some(s) = subject {
                 used.entry(s).or_insert(Kind::Property);
             }
-            match &t.object {
-                Term::BlankNode(b) => {
-                    chain_heads.insert(b.clone().into());
-                }
-                Term::NamedNode(n) => {
-                    chain_heads.insert(n.clone().into());
-                }
-                _ => {}
-            }
+            property_lists.push(&t.object);
         } else if t.predicate == rdf::TYPE {
             if let Some(c) = object {
                 if let Some(local) = c.strip_prefix(OWL)
@@ -169,33 +200,14 @@ pub(crate) fn missing_declarations(triples: &[Triple]) -> Vec<Triple> {
             }
         }
     }
-    let lists = chain_heads
+    let members: Vec<(NamedNode, Kind)> = property_lists
         .iter()
         .map(|h| (h, Kind::Property))
-        .chain(class_lists.iter().map(|h| (h, Kind::Class)));
-    for (head, kind) in lists {
-        let mut node: Option<&NamedOrBlankNode> = firsts.keys().find(|k| **k == head).copied();
-        let mut guard = 0;
-        while let Some(n) = node {
-            guard += 1;
-            if guard > 10_000 {
-                break;
-            }
-            if let Some(Term::NamedNode(member)) = firsts.get(n) {
-                used.entry(member.as_str()).or_insert(kind);
-            }
-            node = match rests.get(n) {
-                Some(Term::BlankNode(b)) => firsts
-                    .keys()
-                    .find(|k| matches!(k, NamedOrBlankNode::BlankNode(x) if x == b))
-                    .copied(),
-                Some(Term::NamedNode(r)) if NamedNodeRef::from(r) != rdf::NIL => firsts
-                    .keys()
-                    .find(|k| matches!(k, NamedOrBlankNode::NamedNode(x) if x == r))
-                    .copied(),
-                _ => None,
-            };
-        }
+        .chain(class_lists.iter().map(|h| (h, Kind::Class)))
+        .flat_map(|(h, kind)| lists.members(h).into_iter().map(move |m| (m, kind)))
+        .collect();
+    for (member, kind) in &members {
+        used.entry(member.as_str()).or_insert(*kind);
     }
     used.into_iter()
         .filter(|(iri, _)| !declared.contains(iri) && !is_builtin(iri))
@@ -227,16 +239,7 @@ pub(crate) fn rewrite_for_horned_owl(triples: &[Triple]) -> Vec<Triple> {
             all_disjoint.insert(&t.subject, "propertyDisjointWith");
         }
     }
-    let firsts: HashMap<&NamedOrBlankNode, &Term> = triples
-        .iter()
-        .filter(|t| t.predicate == rdf::FIRST)
-        .map(|t| (&t.subject, &t.object))
-        .collect();
-    let rests: HashMap<&NamedOrBlankNode, &Term> = triples
-        .iter()
-        .filter(|t| t.predicate == rdf::REST)
-        .map(|t| (&t.subject, &t.object))
-        .collect();
+    let lists = RdfLists::new(triples);
     let mut out: Vec<Triple> = Vec::new();
     let mut consumed: HashSet<&NamedOrBlankNode> = HashSet::new();
     for t in triples {
@@ -246,27 +249,7 @@ pub(crate) fn rewrite_for_horned_owl(triples: &[Triple]) -> Vec<Triple> {
         if t.predicate.as_str() != format!("{OWL}members") {
             continue;
         }
-        let mut members: Vec<NamedNode> = Vec::new();
-        let mut node: Option<NamedOrBlankNode> = match &t.object {
-            Term::NamedNode(n) => Some(n.clone().into()),
-            Term::BlankNode(b) => Some(b.clone().into()),
-            _ => None,
-        };
-        while let Some(n) = node.take() {
-            if members.len() > 10_000 {
-                break;
-            }
-            if let Some(Term::NamedNode(m)) = firsts.get(&n) {
-                members.push(m.clone());
-            }
-            node = match rests.get(&n) {
-                Some(Term::BlankNode(b)) => Some(b.clone().into()),
-                Some(Term::NamedNode(r)) if NamedNodeRef::from(r) != rdf::NIL => {
-                    Some(r.clone().into())
-                }
-                _ => None,
-            };
-        }
+        let members = lists.members(&t.object);
         for (i, a) in members.iter().enumerate() {
             for b in &members[i + 1..] {
                 out.push(Triple::new(a.clone(), owl(relation), b.clone()));

@@ -211,14 +211,8 @@ impl TBox {
                 true
             }
             Component::InverseObjectProperties(ax) => {
-                let p = Prop {
-                    iri: iri_node(&ax.0.0),
-                    inverse: false,
-                };
-                let q = Prop {
-                    iri: iri_node(&ax.1.0),
-                    inverse: false,
-                };
+                let p = named_prop(&ax.0.0);
+                let q = named_prop(&ax.1.0);
                 self.sub_prop.insert((p.clone(), q.flipped()));
                 self.sub_prop.insert((q, p.flipped()));
                 true
@@ -248,44 +242,21 @@ impl TBox {
             },
             Component::DataPropertyDomain(ax) => match named_class(&ax.ce) {
                 Some(c) => {
-                    self.domain.insert((
-                        Prop {
-                            iri: iri_node(&ax.dp.0),
-                            inverse: false,
-                        },
-                        c,
-                    ));
+                    self.domain.insert((named_prop(&ax.dp.0), c));
                     true
                 }
                 None => is_thing(&ax.ce),
             },
             Component::SubDataPropertyOf(ax) => {
-                self.sub_prop.insert((
-                    Prop {
-                        iri: iri_node(&ax.sub.0),
-                        inverse: false,
-                    },
-                    Prop {
-                        iri: iri_node(&ax.sup.0),
-                        inverse: false,
-                    },
-                ));
+                self.sub_prop
+                    .insert((named_prop(&ax.sub.0), named_prop(&ax.sup.0)));
                 true
             }
             Component::EquivalentDataProperties(ax) => {
                 for a in &ax.0 {
                     for b in &ax.0 {
                         if a != b {
-                            self.sub_prop.insert((
-                                Prop {
-                                    iri: iri_node(&a.0),
-                                    inverse: false,
-                                },
-                                Prop {
-                                    iri: iri_node(&b.0),
-                                    inverse: false,
-                                },
-                            ));
+                            self.sub_prop.insert((named_prop(&a.0), named_prop(&b.0)));
                         }
                     }
                 }
@@ -302,17 +273,8 @@ impl TBox {
             Component::DisjointDataProperties(ax) => {
                 for (i, a) in ax.0.iter().enumerate() {
                     for b in &ax.0[i + 1..] {
-                        self.disjoint_props.push((
-                            Prop {
-                                iri: iri_node(&a.0),
-                                inverse: false,
-                            },
-                            Prop {
-                                iri: iri_node(&b.0),
-                                inverse: false,
-                            },
-                            name(),
-                        ));
+                        self.disjoint_props
+                            .push((named_prop(&a.0), named_prop(&b.0), name()));
                     }
                 }
                 true
@@ -503,12 +465,16 @@ fn iri_node(iri: &horned_owl::model::IRI<ArcStr>) -> NamedNode {
     NamedNode::new_unchecked(iri.as_ref())
 }
 
+fn named_prop(iri: &horned_owl::model::IRI<ArcStr>) -> Prop {
+    Prop {
+        iri: iri_node(iri),
+        inverse: false,
+    }
+}
+
 fn prop(ope: &ObjectPropertyExpression<ArcStr>) -> Prop {
     match ope {
-        ObjectPropertyExpression::ObjectProperty(p) => Prop {
-            iri: iri_node(&p.0),
-            inverse: false,
-        },
+        ObjectPropertyExpression::ObjectProperty(p) => named_prop(&p.0),
         ObjectPropertyExpression::InverseObjectProperty(p) => Prop {
             iri: iri_node(&p.0),
             inverse: true,

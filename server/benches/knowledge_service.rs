@@ -85,22 +85,9 @@ fn agent() -> ureq::Agent {
         .into()
 }
 
-const PREFIXES: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
-@prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
-@prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n";
-
-/// One transformation in the style of Listing 5.3: a parameter, one in and one out port.
-fn spec(i: usize) -> String {
-    format!(
-        "[] a dkros:ROSTransformation ; rdfs:label \"tf-{i:05}\" ; dkros:hasType \"nodelet\" ; \
-         dkros:hasSource \"package/Tf{i}\" ;\n\
-         dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"config\" ; dyknow:hasValue \"/etc/tf/{i}\" ] ;\n\
-         dkros:hasPort [ a dyknow:InPort ; dyknow:hasName \"in\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({})\" ] ] ;\n\
-         dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName \"out\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({i})\" ] ] ;\n\
-         dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] , [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .\n",
-        i.saturating_sub(1)
-    )
-}
+#[path = "../../benches/bench_specs.rs"]
+mod bench_specs;
+use bench_specs::{PREFIXES, spec};
 
 fn post(agent: &ureq::Agent, url: &str, content_type: &str, body: &[u8]) -> u16 {
     let mut r = agent

@@ -163,16 +163,7 @@ fn rdf_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>, Failure> {
 
 /// Loads one file; errors name the file, and the line and column of syntax errors.
 fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
-    let format = InputFormat::from_path(path).ok_or_else(|| {
-        Failure(
-            2,
-            format!(
-                "{}: unknown file type (use .ttl, .nt or .jsonld)",
-                path.display()
-            ),
-        )
-    })?;
-    let body = std::fs::read(path).map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
+    let (format, body) = read_input(path)?;
     match kb.load_document(&body, format) {
         Ok(report) => Ok(format!(
             "{}: {} transformation(s), {} target(s){}",
@@ -184,16 +175,7 @@ fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
                 .map(|g| format!(", ontology extension <{g}>"))
                 .unwrap_or_default()
         )),
-        Err(IngestError::Parse(e)) => Err(Failure(
-            2,
-            format!(
-                "{}:{}:{}: {}",
-                path.display(),
-                e.0.line,
-                e.0.column,
-                e.0.message
-            ),
-        )),
+        Err(IngestError::Parse(e)) => Err(syntax_failure(path, &e)),
         Err(IngestError::Invalid(v)) => Err(Failure(
             2,
             format!(
@@ -225,8 +207,8 @@ fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
     ))
 }
 
-/// Reads an RDF file into triples; errors name the file, line and column.
-fn read_triples(path: &Path) -> Result<Vec<dyknow_store::oxigraph::model::Triple>, Failure> {
+/// Reads an RDF file, its format told by its extension.
+fn read_input(path: &Path) -> Result<(InputFormat, Vec<u8>), Failure> {
     let format = InputFormat::from_path(path).ok_or_else(|| {
         Failure(
             2,
@@ -237,18 +219,27 @@ fn read_triples(path: &Path) -> Result<Vec<dyknow_store::oxigraph::model::Triple
         )
     })?;
     let body = std::fs::read(path).map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
-    dyknow_store::parse_triples(&body, format).map_err(|e| {
-        Failure(
-            2,
-            format!(
-                "{}:{}:{}: {}",
-                path.display(),
-                e.0.line,
-                e.0.column,
-                e.0.message
-            ),
-        )
-    })
+    Ok((format, body))
+}
+
+/// A syntax error as `file:line:column: message`.
+fn syntax_failure(path: &Path, e: &dyknow_store::SpecParseError) -> Failure {
+    Failure(
+        2,
+        format!(
+            "{}:{}:{}: {}",
+            path.display(),
+            e.0.line,
+            e.0.column,
+            e.0.message
+        ),
+    )
+}
+
+/// Reads an RDF file into triples; errors name the file, line and column.
+fn read_triples(path: &Path) -> Result<Vec<dyknow_store::oxigraph::model::Triple>, Failure> {
+    let (format, body) = read_input(path)?;
+    dyknow_store::parse_triples(&body, format).map_err(|e| syntax_failure(path, &e))
 }
 
 /// `dyknow reason`: the schema is the built-in ontologies, the `--ontology` files and the

@@ -8,27 +8,15 @@ use dyknow_store::spec::{SpecClasses, SpecKind, extract_specs};
 use dyknow_store::{InputFormat, KnowledgeBase, parse_triples};
 use std::time::Instant;
 
-fn spec(i: usize) -> String {
-    format!(
-        "[] a dkros:ROSTransformation ; rdfs:label \"tf-{i:05}\" ; dkros:hasType \"nodelet\" ; \
-         dkros:hasSource \"package/Tf{i}\" ;\n\
-         dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"config\" ; dyknow:hasValue \"/etc/tf/{i}\" ] ;\n\
-         dkros:hasPort [ a dyknow:InPort ; dyknow:hasName \"in\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({})\" ] ] ;\n\
-         dkros:hasPort [ a dyknow:OutPort ; dyknow:hasName \"out\" ; dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"stream({i})\" ] ] ;\n\
-         dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] , [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .\n",
-        i.saturating_sub(1)
-    )
-}
+#[path = "../../benches/bench_specs.rs"]
+mod bench_specs;
+use bench_specs::{PREFIXES, spec};
 
 fn main() {
     let n: usize = std::env::args()
         .nth(1)
         .map_or(10_000, |s| s.parse().unwrap());
-    let mut body = String::from(
-        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
-         @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
-         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n",
-    );
+    let mut body = String::from(PREFIXES);
     for i in 0..n {
         body.push_str(&spec(i));
     }
