@@ -65,11 +65,23 @@ pub struct Reasoner {
     axiomatic: FxHashSet<Fact>,
     /// The materialisation: explicit, axiomatic and derived facts.
     facts: FactSet,
+    /// The *base* facts of transitive properties: explicit, axiomatic, or derived by a rule
+    /// other than prp-trp. Every fact of a transitive property is in the transitive closure of
+    /// its base facts, which the engine derives left-linearly (see [`Event`]).
+    base: FactSet,
     /// The explicit facts of each named source (graph), for [`Reasoner::set_graphs`].
     graphs: FxHashMap<String, Vec<Fact>>,
 }
 
 type Violations = BTreeSet<(&'static str, usize, Vec<Id>)>;
+
+/// What the semi-naive loop and DRed's over-deletion propagate: a fact entering (or leaving)
+/// the materialisation, or a fact of a transitive property entering (or leaving) its base.
+#[derive(Debug, Clone, Copy)]
+enum Event {
+    Fact(Fact),
+    Base(Fact),
+}
 
 /// The triples of a named source (a graph), by name.
 pub type NamedTriples = (String, Vec<Triple>);
@@ -86,6 +98,7 @@ impl Reasoner {
             explicit: FxHashMap::default(),
             axiomatic: FxHashSet::default(),
             facts: FactSet::default(),
+            base: FactSet::default(),
             graphs: FxHashMap::default(),
         };
         let closure: Vec<Fact> = reasoner
@@ -98,9 +111,7 @@ impl Reasoner {
         let mut queue = Vec::new();
         for f in closure {
             reasoner.axiomatic.insert(f);
-            if reasoner.facts.insert(f) {
-                queue.push(f);
-            }
+            reasoner.assert_fact(f, &mut queue);
         }
         reasoner.saturate(queue);
         reasoner
@@ -274,9 +285,7 @@ impl Reasoner {
         let (over_deleted, rederived) = self.delete(&gone);
         let mut queue = Vec::new();
         for f in appeared {
-            if self.facts.insert(f) {
-                queue.push(f);
-            }
+            self.assert_fact(f, &mut queue);
         }
         let mut new_facts = rederived;
         new_facts.extend(self.saturate(queue));
@@ -345,58 +354,150 @@ impl Reasoner {
         out
     }
 
-    /// Semi-naive evaluation: every fact in `queue` is in the materialisation already; each
-    /// fact derived is inserted once and joined once with everything present. Returns the
-    /// facts it inserted (not those of `queue`) together with `queue`'s.
-    fn saturate(&mut self, mut queue: Vec<Fact>) -> Vec<Fact> {
-        let mut inserted = queue.clone();
+    /// Puts a fact that holds by itself or by a rule other than prp-trp (explicit, axiomatic,
+    /// or a rule head) into the materialisation, and into the base facts when its property is
+    /// transitive, queueing what changed.
+    fn assert_fact(&mut self, f: Fact, queue: &mut Vec<Event>) {
+        if self.rules.transitive.contains(&f[1]) && self.base.insert(f) {
+            queue.push(Event::Base(f));
+        }
+        if self.facts.insert(f) {
+            queue.push(Event::Fact(f));
+        }
+    }
+
+    /// Semi-naive evaluation: every event of `queue` is in the materialisation already; each
+    /// fact derived is inserted once and joined once with everything present. prp-trp is
+    /// evaluated left-linearly, `T(x, z) ← B(x, y) ∧ T(y, z)` with `B` the base facts and `T`
+    /// all facts of the property, so each fact of the closure is derived once per base edge
+    /// into its subject (a chain of n nodes costs O(n²), where the symmetric rule costs O(n³)).
+    /// Returns every fact inserted, those of `queue` included.
+    fn saturate(&mut self, mut queue: Vec<Event>) -> Vec<Fact> {
+        let mut inserted = Vec::new();
         let mut heads = Vec::new();
-        while let Some(f) = queue.pop() {
-            self.consequences(f, &mut heads);
-            for h in heads.drain(..) {
-                if self.facts.insert(h) {
-                    inserted.push(h);
-                    queue.push(h);
+        while let Some(event) = queue.pop() {
+            match event {
+                Event::Fact(f) => {
+                    inserted.push(f);
+                    self.consequences(f, &mut heads);
+                    for h in heads.drain(..) {
+                        self.assert_fact(h, &mut queue);
+                    }
+                    let [s, p, o] = f;
+                    if self.rules.transitive.contains(&p) {
+                        // A new T(s, o) joins every B(x, s).
+                        for x in self.base.subjects(p, s) {
+                            if self.facts.insert([*x, p, o]) {
+                                queue.push(Event::Fact([*x, p, o]));
+                            }
+                        }
+                    }
+                }
+                Event::Base([s, p, o]) => {
+                    // A new B(s, o) joins every T(o, z).
+                    let reached: Vec<Id> = self.facts.objects(p, o).iter().copied().collect();
+                    for z in reached {
+                        if self.facts.insert([s, p, z]) {
+                            queue.push(Event::Fact([s, p, z]));
+                        }
+                    }
                 }
             }
         }
         inserted
     }
 
+    /// Whether DRed may over-delete `f`: explicit and axiomatic facts hold whatever else goes.
+    fn removable(&self, f: &Fact) -> bool {
+        !self.is_explicit(f) && !self.axiomatic.contains(f)
+    }
+
     /// DRed: over-deletes everything with a derivation through a `gone` fact, then re-derives
-    /// what still has one. Returns the facts over-deleted and those re-derived.
+    /// what still has one and saturates from there. Base facts of transitive properties are
+    /// over-deleted and re-derived as a relation of their own, so removing an edge from the
+    /// middle of a chain over-deletes exactly the pairs that ran through it. Returns the facts
+    /// over-deleted and those re-derived.
     fn delete(&mut self, gone: &[Fact]) -> (Vec<Fact>, Vec<Fact>) {
         let mut over: FxHashSet<Fact> = FxHashSet::default();
-        let mut queue: Vec<Fact> = gone.to_vec();
+        let mut over_base: FxHashSet<Fact> = FxHashSet::default();
+        let mut queue: Vec<Event> = gone
+            .iter()
+            .map(|f| {
+                if self.base.contains(f) {
+                    Event::Base(*f)
+                } else {
+                    Event::Fact(*f)
+                }
+            })
+            .collect();
         let mut heads = Vec::new();
-        while let Some(f) = queue.pop() {
-            if !over.insert(f) {
-                continue;
-            }
-            self.consequences(f, &mut heads);
-            for h in heads.drain(..) {
-                if self.facts.contains(&h)
-                    && !over.contains(&h)
-                    && !self.is_explicit(&h)
-                    && !self.axiomatic.contains(&h)
-                {
-                    queue.push(h);
+        while let Some(event) = queue.pop() {
+            match event {
+                Event::Fact(f) => {
+                    if !over.insert(f) {
+                        continue;
+                    }
+                    self.consequences(f, &mut heads);
+                    for h in heads.drain(..) {
+                        if !self.removable(&h) {
+                            continue;
+                        }
+                        if self.base.contains(&h) {
+                            if !over_base.contains(&h) {
+                                queue.push(Event::Base(h));
+                            }
+                        } else if self.facts.contains(&h) && !over.contains(&h) {
+                            queue.push(Event::Fact(h));
+                        }
+                    }
+                    let [s, p, o] = f;
+                    if self.rules.transitive.contains(&p) {
+                        for x in self.base.subjects(p, s) {
+                            let h = [*x, p, o];
+                            if self.facts.contains(&h) && !over.contains(&h) && self.removable(&h)
+                            {
+                                queue.push(Event::Fact(h));
+                            }
+                        }
+                    }
+                }
+                Event::Base(f) => {
+                    if !over_base.insert(f) {
+                        continue;
+                    }
+                    let [s, p, o] = f;
+                    if !over.contains(&f) {
+                        queue.push(Event::Fact(f));
+                    }
+                    for z in self.facts.objects(p, o) {
+                        let h = [s, p, *z];
+                        if self.facts.contains(&h) && !over.contains(&h) && self.removable(&h) {
+                            queue.push(Event::Fact(h));
+                        }
+                    }
                 }
             }
         }
         for f in &over {
             self.facts.remove(*f);
         }
-        let mut seeds = Vec::new();
-        for f in &over {
-            if self.is_explicit(f) || self.axiomatic.contains(f) || self.derivable(*f) {
-                seeds.push(*f);
+        for f in &over_base {
+            self.base.remove(*f);
+        }
+        // Re-derivation: base facts by a rule other than prp-trp, then the rest by any rule.
+        let mut queue = Vec::new();
+        for f in &over_base {
+            if !self.removable(f) || self.derivable(*f) {
+                self.assert_fact(*f, &mut queue);
             }
         }
-        let mut queue = Vec::new();
-        for f in seeds {
-            if self.facts.insert(f) {
-                queue.push(f);
+        for f in &over {
+            if !self.removable(f)
+                || self.base.contains(f)
+                || self.derivable(*f)
+                || self.derivable_by_trp(*f)
+            {
+                self.assert_fact(*f, &mut queue);
             }
         }
         let rederived = self.saturate(queue);
@@ -404,7 +505,8 @@ impl Reasoner {
     }
 
     /// Pushes the head of every rule instance with `f` in its body and the rest of the body in
-    /// the materialisation.
+    /// the materialisation, for every rule but prp-trp (which [`Reasoner::saturate`] and
+    /// [`Reasoner::delete`] evaluate left-linearly).
     fn consequences(&self, [s, p, o]: Fact, out: &mut Vec<Fact>) {
         let r = &self.rules;
         let facts = &self.facts;
@@ -434,15 +536,6 @@ impl Reasoner {
         // prp-dom, prp-rng.
         for (c, object_side) in r.domains.get(&p).into_iter().flatten() {
             emit([if *object_side { o } else { s }, r.rdf_type, *c]);
-        }
-        // prp-trp.
-        if r.transitive.contains(&p) {
-            for w in facts.subjects(p, s) {
-                emit([*w, p, o]);
-            }
-            for z in facts.objects(p, o) {
-                emit([s, p, *z]);
-            }
         }
         // prp-spo2.
         for (ci, pos) in r.chain_by_prop.get(&p).into_iter().flatten() {
@@ -487,7 +580,18 @@ impl Reasoner {
         }
     }
 
-    /// Whether some rule derives `f` in one step from the materialisation (re-derivation).
+    /// Whether prp-trp, left-linear, derives `f` in one step: `B(s, y) ∧ T(y, o)`.
+    fn derivable_by_trp(&self, [s, p, o]: Fact) -> bool {
+        self.rules.transitive.contains(&p)
+            && self
+                .base
+                .objects(p, s)
+                .iter()
+                .any(|y| self.facts.contains(&[*y, p, o]))
+    }
+
+    /// Whether a rule other than prp-trp derives `f` in one step from the materialisation
+    /// (re-derivation).
     fn derivable(&self, [s, p, o]: Fact) -> bool {
         let r = &self.rules;
         let facts = &self.facts;
@@ -521,17 +625,6 @@ impl Reasoner {
             .any(|(q, flip)| facts.contains(&if *flip { [o, *q, s] } else { [s, *q, o] }))
         {
             return true;
-        }
-        if r.transitive.contains(&p) {
-            let (out, into) = (facts.objects(p, s), facts.subjects(p, o));
-            let found = if out.len() <= into.len() {
-                out.iter().any(|y| into.contains(y))
-            } else {
-                into.iter().any(|y| out.contains(y))
-            };
-            if found {
-                return true;
-            }
         }
         r.chain_by_head.get(&p).into_iter().flatten().any(|ci| {
             let chain = &r.chains[*ci];

@@ -21,7 +21,9 @@ fn ex(l: &str) -> NamedNode {
 
 /// The built-in ontologies plus an extension exercising what DyKnow's own ontology does not:
 /// a chain of length 3 with an inverse link, sub-properties, an equivalence cycle of classes,
-/// an existential on the left, a range, an asymmetric property.
+/// an existential on the left, a range, an asymmetric property, and transitive properties fed
+/// by other rules (a symmetric one, sub-properties, an inverse, a chain `w ∘ w ⊑ w`), whose
+/// closures the engine maintains apart from the other rules.
 fn tbox() -> TBox {
     let extension = format!(
         "@prefix ex: <{EX}> . @prefix dyknow: <{DK}> .
@@ -32,6 +34,9 @@ fn tbox() -> TBox {
          ex:A a owl:Class ; rdfs:subClassOf ex:B . ex:B a owl:Class ; rdfs:subClassOf ex:A .
          ex:C a owl:Class ; owl:equivalentClass [ a owl:Restriction ; owl:onProperty ex:q ; owl:someValuesFrom ex:A ] .
          ex:t a owl:ObjectProperty , owl:TransitiveProperty , owl:AsymmetricProperty ; rdfs:domain ex:C .
+         ex:u a owl:ObjectProperty , owl:TransitiveProperty , owl:SymmetricProperty ; owl:inverseOf ex:w .
+         ex:v a owl:ObjectProperty ; rdfs:subPropertyOf ex:t , ex:u .
+         ex:w a owl:ObjectProperty ; owl:propertyChainAxiom ( ex:w ex:w ) .
          "
     );
     let mut triples = builtin_ontology_triples();
@@ -56,6 +61,8 @@ fn pool() -> Vec<Triple> {
         dk("isOutPort"),
         ex("q"),
         ex("t"),
+        ex("v"),
+        ex("w"),
     ];
     let classes = [
         dk("Source"),
@@ -93,7 +100,7 @@ enum Op {
 }
 
 fn batches() -> impl Strategy<Value = Vec<Vec<Op>>> {
-    let n: usize = 6 * (9 * 6 + 6 + 2);
+    let n: usize = 6 * (11 * 6 + 6 + 2);
     let op = prop_oneof![
         3 => (0..n).prop_map(Op::Add),
         2 => (0..n).prop_map(Op::Remove),
@@ -106,7 +113,7 @@ fn violations(r: &Reasoner) -> BTreeSet<String> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
 
     #[test]
     fn incremental_equals_from_scratch(batches in batches()) {
