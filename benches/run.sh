@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Runs DyKnow's benchmarks with their peers side by side (docs/benchmarks.md).
-#   benches/run.sh             both benchmarks
+#   benches/run.sh             every benchmark
 #   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
+#   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,4 +21,8 @@ if [ "$which" = all ] || [ "$which" = knowledge ]; then
 fi
 if [ "$which" = all ] || [ "$which" = reasoning ]; then
   cargo bench --locked --workspace --bench reasoning
+fi
+if [ "$which" = all ] || [ "$which" = engine ]; then
+  cargo bench --locked --workspace --bench explore
+  cargo bench --locked --workspace --bench reconfig_http
 fi

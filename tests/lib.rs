@@ -35,7 +35,8 @@ pub fn service() -> Router {
     app(AppState::new(
         KnowledgeBase::in_memory().expect("in-memory store"),
         ServerConfig::default(),
-    ))
+    )
+    .expect("state"))
 }
 
 /// Sends one request; returns status, content type and body.

@@ -454,8 +454,7 @@ impl Reasoner {
                     if self.rules.transitive.contains(&p) {
                         for x in self.base.subjects(p, s) {
                             let h = [*x, p, o];
-                            if self.facts.contains(&h) && !over.contains(&h) && self.removable(&h)
-                            {
+                            if self.facts.contains(&h) && !over.contains(&h) && self.removable(&h) {
                                 queue.push(Event::Fact(h));
                             }
                         }

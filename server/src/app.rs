@@ -13,7 +13,9 @@ use dyknow_store::KnowledgeBase;
 
 use crate::error::ApiError;
 use crate::metrics::Metrics;
+use crate::reconfig::Reconfigurator;
 use crate::routes;
+use dyknow_engine::EngineError;
 
 /// Settings of a running service.
 #[derive(Debug, Clone)]
@@ -26,6 +28,8 @@ pub struct ServerConfig {
     pub query_timeout: Duration,
     /// The review horizon H (seed Def. 34), in time units; used by the engine.
     pub horizon: f64,
+    /// The length of one time unit (the stable interval lasts H time units).
+    pub time_unit: Duration,
 }
 
 impl Default for ServerConfig {
@@ -35,6 +39,7 @@ impl Default for ServerConfig {
             max_body_bytes: 16 * 1024 * 1024,
             query_timeout: Duration::from_secs(30),
             horizon: 10.0,
+            time_unit: Duration::from_secs(1),
         }
     }
 }
@@ -48,16 +53,31 @@ pub struct AppState {
     pub config: Arc<ServerConfig>,
     /// Request metrics.
     pub metrics: Arc<Metrics>,
+    /// The configuration life-cycle (reviews, change sets, estimators).
+    pub reconfig: Arc<Reconfigurator>,
 }
 
 impl AppState {
-    /// State over a knowledge base with the given settings.
-    pub fn new(kb: KnowledgeBase, config: ServerConfig) -> Self {
-        Self {
-            kb: Arc::new(kb),
+    /// State over a knowledge base with the given settings (reading the recorded change sets
+    /// and learned estimates). The life-cycle loop starts with [`AppState::start_life_cycle`].
+    pub fn new(kb: KnowledgeBase, config: ServerConfig) -> Result<Self, EngineError> {
+        let kb = Arc::new(kb);
+        let reconfig = Arc::new(Reconfigurator::new(
+            kb.clone(),
+            config.horizon,
+            config.time_unit,
+        )?);
+        Ok(Self {
+            kb,
             config: Arc::new(config),
             metrics: Arc::new(Metrics::default()),
-        }
+            reconfig,
+        })
+    }
+
+    /// Spawns the life-cycle loop on the current Tokio runtime.
+    pub fn start_life_cycle(&self) {
+        tokio::spawn(self.reconfig.clone().run());
     }
 }
 
@@ -79,6 +99,7 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::sparql::router())
         .merge(routes::model::router())
         .merge(routes::ops::router())
+        .merge(routes::reconfig::router())
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))

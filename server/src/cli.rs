@@ -62,6 +62,26 @@ pub enum Command {
         #[arg(required = true, value_name = "FILE")]
         files: Vec<PathBuf>,
     },
+    /// Loads specs, ontology extensions and (optionally) an existing environment (computation
+    /// units, e.g. from a model exported by `GET /model`) and prints the change set EXPLORE
+    /// chooses, as change set JSON. Exits 1 if no valid configuration exists (the change set
+    /// then satisfies as many targets as possible and lists the others).
+    Explore {
+        /// The horizon H in time units (seed Def. 34).
+        #[arg(long, value_name = "H", default_value_t = 10.0)]
+        horizon: f64,
+        /// Stop the search after this many milliseconds and print the best change set found
+        /// (the any-time extension; `"optimal": false` unless the search had finished).
+        #[arg(long, value_name = "T")]
+        timeout_ms: Option<u64>,
+        /// A model exported by `GET /model` (or `dyknow export`), to replan a live situation
+        /// offline; read like the FILEs (same as giving it as a FILE).
+        #[arg(long, value_name = "FILE")]
+        environment: Vec<PathBuf>,
+        /// Files (Turtle, N-Triples, JSON-LD).
+        #[arg(required_unless_present = "environment", value_name = "FILE")]
+        files: Vec<PathBuf>,
+    },
 }
 
 /// Options of `dyknow serve`.
@@ -87,6 +107,9 @@ pub struct ServeArgs {
     /// The review horizon H in time units (seed Def. 34), used by the reconfiguration engine.
     #[arg(long, value_name = "H", default_value_t = 10.0)]
     pub horizon: f64,
+    /// The length of one time unit in seconds; the stable interval lasts H time units.
+    #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
+    pub time_unit: f64,
     /// Turtle specs and ontology extensions (files or directories) to load at start-up.
     #[arg(long, value_name = "FILE_OR_DIR", num_args = 1..)]
     pub specs: Vec<PathBuf>,
@@ -123,6 +146,15 @@ pub fn main() -> ExitCode {
             check,
             files,
         } => reason(&ontology, &files, check),
+        Command::Explore {
+            horizon,
+            timeout_ms,
+            environment,
+            mut files,
+        } => {
+            files.extend(environment);
+            explore(horizon, timeout_ms, &files)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -287,6 +319,64 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     Ok(())
 }
 
+/// `dyknow explore`: everything but computation units goes into an in-memory knowledge base
+/// like `dyknow load` would put it; CUs (and their subscriptions, publications and cost
+/// models) become the environment; then one review.
+fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(), Failure> {
+    use dyknow_engine::{Cause, ChangeSet, ExploreOptions, Ids, compile, knowledge};
+    if !(horizon.is_finite() && horizon >= 0.0) {
+        return Err(Failure(
+            2,
+            format!("--horizon {horizon}: not a non-negative number"),
+        ));
+    }
+    let kb = KnowledgeBase::in_memory()?;
+    let mut environment = Vec::new();
+    for path in files {
+        let triples = read_triples(path)?;
+        let (cus, rest) = knowledge::split_environment(triples);
+        environment.extend(cus);
+        if rest.is_empty() {
+            continue;
+        }
+        let body: String = rest.iter().map(|t| format!("{t} .\n")).collect();
+        kb.load_document(body.as_bytes(), InputFormat::NTriples)
+            .map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
+    }
+    if !environment.is_empty() {
+        kb.set_environment(&[("cu:loaded".to_owned(), environment)])?;
+    }
+    let loaded = knowledge::load(&kb)?;
+    let options = ExploreOptions {
+        horizon,
+        timeout: timeout_ms.map(Duration::from_millis),
+        ..ExploreOptions::default()
+    };
+    let exploration = dyknow_engine::explore(&loaded.env, &loaded.candidates, &options);
+    let compiled = compile(
+        &loaded.env,
+        &exploration,
+        &options,
+        &mut Ids::after(&loaded.env),
+    );
+    let mut after = loaded.env.clone();
+    after.apply(&compiled.actions);
+    let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
+    let change_set = ChangeSet::new("cs-1".to_owned(), Cause::Explore, compiled, &delta);
+    println!("{}", serde_json::to_string_pretty(&change_set)?);
+    if change_set.unsatisfied_targets.is_empty() {
+        Ok(())
+    } else {
+        Err(Failure(
+            1,
+            format!(
+                "no valid configuration: unsatisfied targets {}",
+                change_set.unsatisfied_targets.join(", ")
+            ),
+        ))
+    }
+}
+
 fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
     let kb = open_store(data)?;
     for file in rdf_files(files)? {
@@ -341,6 +431,12 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     if !(args.horizon.is_finite() && args.horizon >= 0.0) {
         return Err(Failure(2, "--horizon must be a non-negative number".into()));
     }
+    if !(args.time_unit.is_finite() && args.time_unit > 0.0 && args.time_unit < 1e9) {
+        return Err(Failure(
+            2,
+            "--time-unit must be a positive number of seconds".into(),
+        ));
+    }
     if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {
         return Err(Failure(
             2,
@@ -364,8 +460,9 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         max_body_bytes: args.max_body,
         query_timeout: Duration::from_secs_f64(args.query_timeout),
         horizon: args.horizon,
+        time_unit: Duration::from_secs_f64(args.time_unit),
     };
-    let state = AppState::new(kb, config);
+    let state = AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?;
     let kb = state.kb.clone();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -383,6 +480,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
                 format!("store in {}", args.data.display())
             }
         );
+        state.start_life_cycle();
         axum::serve(listener, app(state))
             .with_graceful_shutdown(shutdown_signal())
             .await?;

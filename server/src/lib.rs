@@ -6,6 +6,7 @@ mod error;
 mod metrics;
 mod negotiate;
 mod openapi;
+pub mod reconfig;
 pub mod routes;
 
 pub use app::{AppState, ServerConfig, app};

@@ -3,7 +3,7 @@
 use utoipa::OpenApi;
 
 use crate::error::ErrorBody;
-use crate::routes::{model, ontology, ops, sparql, specs};
+use crate::routes::{model, ontology, ops, reconfig, sparql, specs};
 
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
@@ -27,6 +27,17 @@ use crate::routes::{model, ontology, ops, sparql, specs};
         sparql::sparql_get,
         sparql::sparql_post,
         model::get_model,
+        reconfig::list_cus,
+        reconfig::get_cu,
+        reconfig::spawn_cu,
+        reconfig::destroy_cu,
+        reconfig::list_change_sets,
+        reconfig::get_change_set,
+        reconfig::change_set_stream,
+        reconfig::post_perturbation,
+        reconfig::post_statistics,
+        reconfig::post_review,
+        reconfig::get_environment,
         ops::health,
         ops::metrics,
         ops::openapi,
@@ -43,6 +54,12 @@ use crate::routes::{model, ontology, ops, sparql, specs};
         model::ModelJson,
         model::ChannelJson,
         ops::Health,
+        reconfig::CuJson,
+        reconfig::SpawnJson,
+        reconfig::PerturbationJson,
+        reconfig::StatisticsJson,
+        reconfig::EnvironmentJson,
+        reconfig::EnvironmentCostJson,
     ))
 )]
 pub struct ApiDoc;

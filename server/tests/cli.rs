@@ -475,3 +475,75 @@ fn reason_check_reports_violations_and_exits_1() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("broken.ttl:2:"), "{stderr}");
 }
+
+/// A live situation replanned offline: `dyknow serve` runs Example 12, tid4's upkeep is
+/// observed as 3.0, the model is exported (`GET /model`), tid2's CU is taken out of the export
+/// (a crash), and `dyknow explore --environment` finds the seed's second change set (43.0).
+#[test]
+fn explore_replans_an_exported_model_offline() {
+    let server = Server::start(&["--in-memory", "--time-unit", "3600"]);
+    let agent = agent();
+    let base = server.url.clone();
+    for (file, path) in [
+        ("example-12-similarity.ttl", "/ontology"),
+        ("example-12.ttl", "/transformations"),
+        ("example-12-targets.ttl", "/targets"),
+    ] {
+        let (status, _) = post(
+            &agent,
+            &format!("{base}{path}"),
+            "text/turtle",
+            &specs(file),
+        );
+        assert_eq!(status, 201);
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let (_, sets) = get(&agent, &format!("{base}/changesets"));
+        if sets.contains("cs-1") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no change set");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (status, _) = post(
+        &agent,
+        &format!("{base}/statistics"),
+        "application/json",
+        r#"{"cu": "cu-2", "upkeep": 3.0}"#,
+    );
+    assert_eq!(status, 202);
+    let (_, model) = get(
+        &agent,
+        &format!("{base}/model?format=ntriples&inferred=false"),
+    );
+    let crashed: String = model
+        .lines()
+        .filter(|l| !l.contains("<urn:dyknow:cu:cu-3"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("model.nt");
+    std::fs::write(&file, crashed).unwrap();
+    let out = Command::new(BIN)
+        .args(["explore", "--environment"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cs: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(cs["cost"]["total"], 43.0);
+    let spawned: Vec<&str> = cs["actions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|a| a["action"] == "spawn")
+        .map(|a| a["transformation"].as_str().unwrap())
+        .collect();
+    assert_eq!(spawned, ["tid3", "tid2", "tid5"]);
+    server.kill9();
+}

@@ -288,8 +288,11 @@ fn main() {
     );
 
     // --- Where the removal time goes --------------------------------------------------------
-    let _ = writeln!(out, "## Where the removal time goes
-");
+    let _ = writeln!(
+        out,
+        "## Where the removal time goes
+"
+    );
     let _ = writeln!(
         out,
         "| environment | inferred triples removed | reasoner alone (in memory, median) | Oxigraph alone: the same write on disk (median) |"

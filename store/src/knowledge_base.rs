@@ -38,6 +38,9 @@ pub struct KnowledgeBase {
     /// The write lock; it owns the reasoner, whose materialisation matches the store.
     write_lock: Mutex<Reasoner>,
     classes: RwLock<SpecClasses>,
+    /// Bumped by every write that touches a graph other than the environment's (specs,
+    /// extensions): lets readers cache what they derive from specs.
+    spec_generation: std::sync::atomic::AtomicU64,
 }
 
 /// What a spec POST did.
@@ -121,6 +124,7 @@ impl KnowledgeBase {
             location: Some(path.to_path_buf()),
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
+            spec_generation: std::sync::atomic::AtomicU64::new(0),
         };
         kb.refresh_classes()?;
         let reasoner = kb.materialise_at_open()?;
@@ -139,6 +143,7 @@ impl KnowledgeBase {
             location,
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
+            spec_generation: std::sync::atomic::AtomicU64::new(0),
         };
         kb.install_builtin_ontologies()?;
         kb.refresh_classes()?;
@@ -311,6 +316,28 @@ impl KnowledgeBase {
     /// changes the schema. A request that violates a consistency rule the store did not violate
     /// already is refused (422) and nothing is written; the reasoner is left as it was.
     fn commit(
+        &self,
+        reasoner: &mut Reasoner,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+    ) -> Result<Vec<bool>, IngestError> {
+        let result = self.commit_inner(reasoner, writes, removes);
+        // A write that may change a spec or the schema invalidates what readers derived from
+        // them. Bumped after the write: a reader that read the old number may cache new data
+        // under it (and reload needlessly once), but never old data under the new number.
+        if writes
+            .iter()
+            .map(|(g, _)| *g)
+            .chain(removes.iter().copied())
+            .any(|g| !is_environment_graph(g.as_str()))
+        {
+            self.spec_generation
+                .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        }
+        result
+    }
+
+    fn commit_inner(
         &self,
         reasoner: &mut Reasoner,
         writes: &[(&NamedNode, &[Triple])],
@@ -493,6 +520,32 @@ impl KnowledgeBase {
             IngestError::Storage(e) => StoreOpenError::Storage(e),
             other => StoreOpenError::Ontology(other.to_string()),
         })
+    }
+
+    /// A number that changes whenever a spec, an extension or an ontology graph is written or
+    /// removed (not for environment graphs): what is derived from specs alone may be cached
+    /// against it.
+    pub fn spec_generation(&self) -> u64 {
+        self.spec_generation
+            .load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Checks the incremental materialisation: the triples of the stored inferred graph that a
+    /// from-scratch materialisation of the stored explicit triples does not entail, and those
+    /// it entails that are missing. Both empty when all is well (a consistency check for
+    /// tests and operators; it reasons over the whole store).
+    pub fn materialisation_drift(&self) -> Result<(Vec<Triple>, Vec<Triple>), IngestError> {
+        let _guard = self.lock();
+        let scratch = self.materialise(&[], &[])?;
+        let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
+        let stored: std::collections::HashSet<Triple> =
+            self.graph_triples(inferred)?.into_iter().collect();
+        let wanted: std::collections::HashSet<Triple> = scratch.inferred().into_iter().collect();
+        let mut extra: Vec<Triple> = stored.difference(&wanted).cloned().collect();
+        let mut missing: Vec<Triple> = wanted.difference(&stored).cloned().collect();
+        extra.sort_by_cached_key(ToString::to_string);
+        missing.sort_by_cached_key(ToString::to_string);
+        Ok((extra, missing))
     }
 
     /// At start-up: materialises the store from scratch and makes the inferred graph match

@@ -116,6 +116,31 @@ fn syntax_detail(message: &str) -> SyntaxErrorDetail {
 }
 
 impl KnowledgeBase {
+    /// Runs a SELECT query over the union of every graph and returns its rows, each the values
+    /// of the projected variables in order (for clients inside the service, e.g. the engine).
+    pub fn select(
+        &self,
+        query: &str,
+    ) -> Result<Vec<Vec<Option<oxigraph::model::Term>>>, SparqlQueryError> {
+        let parsed = ParsedQuery::parse(query)?;
+        let results = parsed
+            .prepared
+            .on_store(self.store())
+            .execute()
+            .map_err(|e| SparqlQueryError::Evaluation(e.to_string()))?;
+        let QueryResults::Solutions(solutions) = results else {
+            return Err(SparqlQueryError::Evaluation(
+                "not a SELECT query".to_owned(),
+            ));
+        };
+        let mut rows = Vec::new();
+        for solution in solutions {
+            let solution = solution.map_err(|e| SparqlQueryError::Evaluation(e.to_string()))?;
+            rows.push(solution.values().to_vec());
+        }
+        Ok(rows)
+    }
+
     /// Runs a parsed query and serialises the whole answer into memory (so that a timeout never
     /// produces a truncated 200 response). The query's cancellation token is checked throughout
     /// evaluation; `timeout` is what a cancellation is reported as.

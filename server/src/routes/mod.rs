@@ -3,5 +3,6 @@
 pub mod model;
 pub mod ontology;
 pub mod ops;
+pub mod reconfig;
 pub mod sparql;
 pub mod specs;

@@ -16,6 +16,7 @@ use utoipa::ToSchema;
 use crate::app::{AppState, blocking, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
+use crate::reconfig::Perturbation;
 
 /// The RDF media types accepted in request bodies.
 pub const RDF_INPUTS: [&str; 3] = [
@@ -177,6 +178,16 @@ async fn post_specs(
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
     let report = blocking(move || Ok(kb.post_specs(&body, format, kind)?)).await?;
+    match kind {
+        SpecKind::Target => {
+            for label in &report.labels {
+                state
+                    .reconfig
+                    .perturbed(Perturbation::TargetAdded(label.clone()));
+            }
+        }
+        SpecKind::Transformation => state.reconfig.perturbed(Perturbation::Registered),
+    }
     Ok((
         StatusCode::CREATED,
         Json(PostedJson {
@@ -249,7 +260,27 @@ async fn delete_spec(
     label: String,
 ) -> Result<StatusCode, ApiError> {
     let kb = state.kb.clone();
-    blocking(move || Ok(kb.remove_spec(kind, &label)?)).await?;
+    let label2 = label.clone();
+    let in_use = blocking(move || {
+        // A transformation is in use when a CU instantiates it (looked up before it goes).
+        let in_use = kind == SpecKind::Transformation
+            && !kb
+                .select(&format!(
+                    "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#>
+                     PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#>
+                     SELECT ?cu WHERE {{ ?cu dyknow:instanceOf ?tf . ?tf rdfs:label {} }} LIMIT 1",
+                    dyknow_store::oxigraph::model::Literal::new_simple_literal(&label2)
+                ))
+                .map_err(ApiError::internal)?
+                .is_empty();
+        kb.remove_spec(kind, &label2)?;
+        Ok(in_use)
+    })
+    .await?;
+    state.reconfig.perturbed(match kind {
+        SpecKind::Target => Perturbation::TargetReleased(label),
+        SpecKind::Transformation => Perturbation::Deregistered { in_use },
+    });
     Ok(StatusCode::NO_CONTENT)
 }
 

@@ -122,8 +122,17 @@ impl Api {
     pub fn with_config(config: ServerConfig) -> Self {
         let kb = KnowledgeBase::in_memory().expect("in-memory knowledge base");
         Self {
-            router: app(AppState::new(kb, config)),
+            router: app(AppState::new(kb, config).expect("state")),
         }
+    }
+
+    /// An app whose configuration life-cycle runs (reviews after perturbations); needs a Tokio
+    /// runtime.
+    pub fn with_life_cycle(config: ServerConfig) -> Self {
+        let kb = KnowledgeBase::in_memory().expect("in-memory knowledge base");
+        let state = AppState::new(kb, config).expect("state");
+        state.start_life_cycle();
+        Self { router: app(state) }
     }
 
     pub fn with_token(token: &str) -> Self {

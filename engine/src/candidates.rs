@@ -1,0 +1,103 @@
+//! The candidate table (the seed's validity matrix, Ch. 4.3): for every in port of every
+//! transformation and for every target, the out ports whose tags satisfy it under the
+//! similarity relation ~. The knowledge base computes it with one SPARQL query
+//! ([`crate::knowledge`]); tests build it from any relation ([`Candidates::from_tags`]).
+
+use rustc_hash::FxHashMap;
+
+use crate::model::{Environment, Qid, Tid};
+
+/// An out port that can satisfy an in port or a target: the port `port` (an index into the
+/// transformation's outputs) of transformation `tid`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Provider {
+    /// The producing transformation.
+    pub tid: Tid,
+    /// The index of its out port.
+    pub port: usize,
+}
+
+/// The candidate table.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Candidates {
+    inputs: FxHashMap<(Tid, usize), Vec<Provider>>,
+    targets: FxHashMap<Qid, Vec<Provider>>,
+}
+
+impl Candidates {
+    /// Records that `provider` satisfies in port `input` of `tid`.
+    pub fn add_input(&mut self, tid: &str, input: usize, provider: Provider) {
+        let list = self.inputs.entry((tid.to_owned(), input)).or_default();
+        if !list.contains(&provider) {
+            list.push(provider);
+            list.sort();
+        }
+    }
+
+    /// Records that `provider` satisfies target `qid`.
+    pub fn add_target(&mut self, qid: &str, provider: Provider) {
+        let list = self.targets.entry(qid.to_owned()).or_default();
+        if !list.contains(&provider) {
+            list.push(provider);
+            list.sort();
+        }
+    }
+
+    /// The providers of in port `input` of `tid`, sorted.
+    pub fn for_input(&self, tid: &str, input: usize) -> &[Provider] {
+        self.inputs
+            .get(&(tid.to_owned(), input))
+            .map_or(&[], Vec::as_slice)
+    }
+
+    /// The providers of target `qid`, sorted.
+    pub fn for_target(&self, qid: &str) -> &[Provider] {
+        self.targets.get(qid).map_or(&[], Vec::as_slice)
+    }
+
+    /// Builds the table from tags: `in_tags(tid, i)`, `out_tags(tid, j)` and `target_tags(qid)`
+    /// give the tags of ports and targets, `similar(i, o)` is the relation `i ~ o`.
+    pub fn from_tags<T>(
+        env: &Environment,
+        in_tags: impl Fn(&str, usize) -> Vec<T>,
+        out_tags: impl Fn(&str, usize) -> Vec<T>,
+        target_tags: impl Fn(&str) -> Vec<T>,
+        similar: impl Fn(&T, &T) -> bool,
+    ) -> Self {
+        let mut table = Self::default();
+        let outs: Vec<(Provider, Vec<T>)> = env
+            .library
+            .values()
+            .flat_map(|t| {
+                (0..t.outputs.len()).map(|j| {
+                    (
+                        Provider {
+                            tid: t.tid.clone(),
+                            port: j,
+                        },
+                        out_tags(&t.tid, j),
+                    )
+                })
+            })
+            .collect();
+        let matches = |wanted: &[T]| -> Vec<Provider> {
+            outs.iter()
+                .filter(|(_, have)| wanted.iter().any(|w| have.iter().any(|h| similar(w, h))))
+                .map(|(p, _)| p.clone())
+                .collect()
+        };
+        for t in env.library.values() {
+            for i in 0..t.inputs.len() {
+                for p in matches(&in_tags(&t.tid, i)) {
+                    table.add_input(&t.tid, i, p);
+                }
+            }
+        }
+        for q in env.targets.keys() {
+            for p in matches(&target_tags(q)) {
+                table.add_target(q, p);
+            }
+        }
+        table
+    }
+}

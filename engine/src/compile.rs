@@ -1,0 +1,262 @@
+//! COMPILE (seed Algorithm 6): the change set that turns the environment into the plan's
+//! computation graph: spawns and connections for new nodes, rewiring of kept CUs, and the
+//! destruction of every CU the plan does not use (unless protected).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use serde::Serialize;
+
+use crate::explore::{Exploration, ExploreOptions, NodeKind, Plan};
+use crate::model::{Action, Channel, Cid, Environment, Qid};
+
+/// The estimated cost of a change set (Def. 34), as change set JSON gives it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct CostSummary {
+    /// labour + horizon × upkeep.
+    pub total: f64,
+    /// The labour of the spawned CUs (Def. 31).
+    pub labour: f64,
+    /// The upkeep of the resulting environment for one time unit (Def. 32).
+    pub upkeep_per_time_unit: f64,
+    /// The horizon H.
+    pub horizon: f64,
+}
+
+/// What COMPILE produces: the actions, their cost, and what the search could not do.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Compiled {
+    /// The actions, in order: per plan node its spawn and connections, then destructions.
+    pub actions: Vec<Action>,
+    /// The estimated cost of the update.
+    pub cost: CostSummary,
+    /// Targets no valid configuration satisfies (the relaxation); empty when valid.
+    pub unsatisfied_targets: Vec<Qid>,
+    /// Whether the search proved this change set optimal (false after an any-time timeout).
+    pub optimal: bool,
+}
+
+/// Fresh identifiers for CUs and channels: `cu-N` and `ch-N`, never used before.
+#[derive(Debug, Clone, Default)]
+pub struct Ids {
+    /// The next CU number.
+    pub next_cu: u64,
+    /// The next channel number.
+    pub next_channel: u64,
+    taken: BTreeSet<String>,
+}
+
+impl Ids {
+    /// Identifiers after every `cu-N` and `ch-N` the environment uses.
+    pub fn after(env: &Environment) -> Self {
+        let mut ids = Self::default();
+        ids.observe(env);
+        ids
+    }
+
+    /// Makes sure no identifier the environment uses is handed out.
+    pub fn observe(&mut self, env: &Environment) {
+        for cu in env.cus.values() {
+            self.taken.insert(cu.cid.clone());
+            for ch in cu.inputs.values().chain(cu.outputs.values()).flatten() {
+                self.taken.insert(ch.clone());
+            }
+        }
+        for t in env.targets.values() {
+            self.taken.insert(t.channel.clone());
+        }
+    }
+
+    fn fresh(&mut self, prefix: &str, counter: fn(&mut Self) -> &mut u64) -> String {
+        loop {
+            let n = {
+                let c = counter(self);
+                *c += 1;
+                *c
+            };
+            let id = format!("{prefix}-{n}");
+            if self.taken.insert(id.clone()) {
+                return id;
+            }
+        }
+    }
+
+    /// Marks `name` as used.
+    pub fn reserve(&mut self, name: &str) {
+        self.taken.insert(name.to_owned());
+    }
+
+    /// A CU name never used.
+    pub fn cu(&mut self) -> Cid {
+        self.fresh("cu", |s| &mut s.next_cu)
+    }
+
+    /// A channel name never used.
+    pub fn channel(&mut self) -> Channel {
+        self.fresh("ch", |s| &mut s.next_channel)
+    }
+}
+
+/// COMPILE(trace, ε) (Algorithm 6), for the best plan of `exploration`. Without a plan (no
+/// valid configuration, relaxation off), nothing changes and every target is unsatisfied.
+pub fn compile(
+    env: &Environment,
+    exploration: &Exploration,
+    options: &ExploreOptions,
+    ids: &mut Ids,
+) -> Compiled {
+    ids.observe(env);
+    let Some(plan) = &exploration.plan else {
+        return Compiled {
+            actions: Vec::new(),
+            cost: summary(env, options.horizon, 0.0),
+            unsatisfied_targets: env.targets.keys().cloned().collect(),
+            optimal: exploration.proven_optimal,
+        };
+    };
+    let mut actions = Vec::new();
+    // Line 3: every CU is to be removed unless the plan keeps it.
+    let mut removal: BTreeSet<&Cid> = env.cus.keys().collect();
+    // Line 5: the CU each node becomes.
+    let mut cid_of: Vec<Cid> = Vec::with_capacity(plan.nodes.len());
+    for node in &plan.nodes {
+        cid_of.push(match &node.kind {
+            NodeKind::Root => Cid::new(),
+            NodeKind::Existing(cid) => {
+                removal.remove(cid); // Lines 7–9.
+                cid.clone()
+            }
+            NodeKind::Spawn => ids.cu(), // Line 13.
+        });
+    }
+    let channels = assign_channels(env, plan, &cid_of, ids);
+    let mut labour = 0.0;
+    for (n, node) in plan.nodes.iter().enumerate().skip(1) {
+        let Some(tf) = env.library.get(&node.tid) else {
+            continue;
+        };
+        let cid = &cid_of[n];
+        let current = env.cus.get(cid);
+        if node.kind == NodeKind::Spawn {
+            // Line 15: spawn.
+            labour += tf.labour;
+            actions.push(Action::Spawn {
+                cu: cid.clone(),
+                transformation: node.tid.clone(),
+            });
+        }
+        // Line 15: connect↑ (a new channel, or the target's).
+        for (j, port) in tf.outputs.iter().enumerate() {
+            let want = channels.get(&(n, j)).cloned();
+            let have = current.and_then(|c| c.outputs.get(port).cloned().flatten());
+            match (want, have) {
+                (Some(w), h) if Some(&w) != h.as_ref() => actions.push(Action::ConnectOut {
+                    cu: cid.clone(),
+                    port: port.clone(),
+                    channel: w,
+                }),
+                (None, Some(h)) if reserved(plan, env, &channels, &h, n, j) => {
+                    actions.push(Action::DisconnectOut {
+                        cu: cid.clone(),
+                        port: port.clone(),
+                    });
+                }
+                _ => {}
+            }
+        }
+        // Lines 15–18: connect↓ to the channel of the provider.
+        for (i, port) in tf.inputs.iter().enumerate() {
+            let Some(link) = node.inputs.get(i).copied().flatten() else {
+                continue;
+            };
+            let Some(channel) = channels.get(&(link.node, link.port)) else {
+                continue;
+            };
+            let have = current.and_then(|c| c.inputs.get(port).cloned().flatten());
+            if have.as_ref() != Some(channel) {
+                actions.push(Action::ConnectIn {
+                    cu: cid.clone(),
+                    port: port.clone(),
+                    channel: channel.clone(),
+                });
+            }
+        }
+    }
+    // Lines 21–23: destroy what the plan does not use; protected CUs stay.
+    for cid in removal {
+        if !env.cus[cid].protected {
+            actions.push(Action::Destroy { cu: cid.clone() });
+        }
+    }
+    let mut after = env.clone();
+    after.apply(&actions);
+    Compiled {
+        actions,
+        cost: summary(&after, options.horizon, labour),
+        unsatisfied_targets: plan.unsatisfied(),
+        optimal: exploration.proven_optimal,
+    }
+}
+
+/// Whether channel `h`, which out port `j` of node `n` publishes on now, is taken by another
+/// out port in the plan (so `n` must stop publishing on it).
+fn reserved(
+    _plan: &Plan,
+    _env: &Environment,
+    channels: &BTreeMap<(usize, usize), Channel>,
+    h: &str,
+    n: usize,
+    j: usize,
+) -> bool {
+    channels.iter().any(|(k, c)| c == h && *k != (n, j))
+}
+
+/// The channel of every out port the plan uses: the target's channel for ports feeding a
+/// target; otherwise the port's current channel when it has one no other port needs, or a
+/// fresh one (Alg. 6 line 11).
+fn assign_channels(
+    env: &Environment,
+    plan: &Plan,
+    cid_of: &[Cid],
+    ids: &mut Ids,
+) -> BTreeMap<(usize, usize), Channel> {
+    let mut channels: BTreeMap<(usize, usize), Channel> = BTreeMap::new();
+    for (q, link) in plan.nodes[0].inputs.iter().enumerate() {
+        if let Some(l) = link {
+            channels.insert(
+                (l.node, l.port),
+                env.targets[&plan.targets[q]].channel.clone(),
+            );
+        }
+    }
+    let taken: BTreeSet<Channel> = channels.values().cloned().collect();
+    let mut used: BTreeSet<(usize, usize)> = BTreeSet::new();
+    for node in plan.nodes.iter().skip(1) {
+        used.extend(node.inputs.iter().flatten().map(|l| (l.node, l.port)));
+    }
+    for (n, j) in used {
+        if channels.contains_key(&(n, j)) {
+            continue;
+        }
+        let node = &plan.nodes[n];
+        let current = env.cus.get(&cid_of[n]).and_then(|cu| {
+            let port = env.library.get(&node.tid)?.outputs.get(j)?;
+            cu.outputs.get(port).cloned().flatten()
+        });
+        let channel = match current {
+            Some(c) if !taken.contains(&c) => c,
+            _ => ids.channel(),
+        };
+        channels.insert((n, j), channel);
+    }
+    channels
+}
+
+fn summary(after: &Environment, horizon: f64, labour: f64) -> CostSummary {
+    let upkeep = after.upkeep();
+    CostSummary {
+        total: labour + horizon * upkeep,
+        labour,
+        upkeep_per_time_unit: upkeep,
+        horizon,
+    }
+}

@@ -1,0 +1,255 @@
+//! Property test: on random environments of at most 9 transformations and 3 targets (with
+//! existing and protected CUs), EXPLORE's cost equals a brute-force optimum over every set of
+//! transformations that admits an acyclic valid configuration, targets left unsatisfied
+//! counted first (the relaxation; one out port publishes on one channel, so targets on distinct
+//! channels need distinct out ports); applying the change set yields an environment whose only
+//! invalidities are the targets reported unsatisfied.
+#![expect(clippy::unwrap_used, reason = "tests")]
+
+use std::collections::BTreeMap;
+
+use dyknow_engine::{
+    Candidates, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, Target,
+    Transformation, compile, explore,
+};
+use proptest::prelude::*;
+
+const H: f64 = 10.0;
+
+#[derive(Debug, Clone)]
+struct Tf {
+    inputs: Vec<u8>,
+    outputs: Vec<u8>,
+    labour: f64,
+    upkeep: f64,
+    existing: u8,
+    protected: bool,
+}
+
+fn tf() -> impl Strategy<Value = Tf> {
+    (
+        prop::collection::vec(0u8..4, 0..3),
+        prop::collection::vec(0u8..4, 1..3),
+        prop::sample::select(vec![0.0, 0.5, 1.0, 2.0, 3.0]),
+        prop::sample::select(vec![0.0, 0.5, 1.0, 2.0]),
+        prop::sample::select(vec![0u8, 0, 0, 1, 2]),
+        prop::bool::weighted(0.1),
+    )
+        .prop_map(
+            |(inputs, outputs, labour, upkeep, existing, protected)| Tf {
+                inputs,
+                outputs,
+                labour,
+                upkeep,
+                existing,
+                protected,
+            },
+        )
+}
+
+fn case() -> impl Strategy<Value = (Vec<Tf>, Vec<u8>)> {
+    (
+        prop::collection::vec(tf(), 1..10),
+        prop::collection::vec(0u8..4, 1..4),
+    )
+}
+
+/// Tags are letters; `i ~ o` when equal, or for the pairs (0, 1) and (2, 3).
+fn similar(i: &u8, o: &u8) -> bool {
+    i == o || (*i, *o) == (0, 1) || (*i, *o) == (2, 3)
+}
+
+fn build(tfs: &[Tf], targets: &[u8]) -> (Environment, Candidates) {
+    let mut env = Environment::default();
+    for (k, t) in tfs.iter().enumerate() {
+        let tid = format!("t{k}");
+        let inputs: Vec<String> = (0..t.inputs.len()).map(|i| format!("i{i}")).collect();
+        let outputs: Vec<String> = (0..t.outputs.len()).map(|j| format!("o{j}")).collect();
+        for c in 0..t.existing {
+            let cid = format!("old-{k}-{c}");
+            env.cus.insert(
+                cid.clone(),
+                ComputationUnit {
+                    cid,
+                    tid: tid.clone(),
+                    inputs: inputs.iter().map(|p| (p.clone(), None)).collect(),
+                    outputs: outputs.iter().map(|p| (p.clone(), None)).collect(),
+                    protected: t.protected && c == 0,
+                },
+            );
+        }
+        env.library.insert(
+            tid.clone(),
+            Transformation {
+                tid,
+                inputs,
+                outputs,
+                labour: t.labour,
+                upkeep: t.upkeep,
+            },
+        );
+    }
+    for (q, _) in targets.iter().enumerate() {
+        env.targets.insert(
+            format!("q{q}"),
+            Target {
+                qid: format!("q{q}"),
+                channel: format!("/target{q}"),
+            },
+        );
+    }
+    let index = |tid: &str| tid[1..].parse::<usize>().unwrap();
+    let candidates = Candidates::from_tags(
+        &env,
+        |tid, i| vec![tfs[index(tid)].inputs[i]],
+        |tid, j| vec![tfs[index(tid)].outputs[j]],
+        |qid| vec![targets[qid[1..].parse::<usize>().unwrap()]],
+        similar,
+    );
+    (env, candidates)
+}
+
+/// The brute-force optimum: (targets unsatisfied, cost), or `None` when protected CUs cannot
+/// be fed whatever is chosen.
+fn brute_force(tfs: &[Tf], targets: &[u8]) -> Option<(u32, f64)> {
+    let n = tfs.len();
+    let protected_upkeep: f64 = tfs
+        .iter()
+        .filter(|t| t.protected && t.existing > 0)
+        .map(|t| H * t.upkeep)
+        .sum();
+    let mut best: Option<(u32, f64)> = None;
+    for set in 0u32..(1 << n) {
+        let chosen = |k: usize| set & (1 << k) != 0;
+        // Protected CUs stay: their transformations are in every configuration.
+        if (0..n).any(|k| tfs[k].protected && tfs[k].existing > 0 && !chosen(k)) {
+            continue;
+        }
+        // Producible nodes: the least fixpoint of "every input has a producible provider".
+        let mut producible = vec![false; n];
+        loop {
+            let mut changed = false;
+            for k in 0..n {
+                if chosen(k) && !producible[k] {
+                    let fed = tfs[k].inputs.iter().all(|i| {
+                        (0..n)
+                            .any(|p| producible[p] && tfs[p].outputs.iter().any(|o| similar(i, o)))
+                    });
+                    if fed {
+                        producible[k] = true;
+                        changed = true;
+                    }
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        if (0..n).any(|k| chosen(k) && !producible[k]) {
+            continue;
+        }
+        // One out port publishes on one channel, and targets have distinct channels: the
+        // satisfied targets are a maximum matching of targets to producible out ports.
+        let ports: Vec<(usize, usize)> = (0..n)
+            .filter(|p| producible[*p])
+            .flat_map(|p| (0..tfs[p].outputs.len()).map(move |j| (p, j)))
+            .collect();
+        let edges: Vec<Vec<usize>> = targets
+            .iter()
+            .map(|q| {
+                (0..ports.len())
+                    .filter(|k| similar(q, &tfs[ports[*k].0].outputs[ports[*k].1]))
+                    .collect()
+            })
+            .collect();
+        let unsatisfied = (targets.len() - matching(&edges, ports.len())) as u32;
+        let cost: f64 = (0..n)
+            .filter(|k| chosen(*k))
+            .map(|k| {
+                let t = &tfs[k];
+                if t.protected && t.existing > 0 {
+                    0.0
+                } else if t.existing > 0 {
+                    H * t.upkeep
+                } else {
+                    t.labour + H * t.upkeep
+                }
+            })
+            .sum::<f64>()
+            + protected_upkeep;
+        let better = match best {
+            None => true,
+            Some((u, c)) => (unsatisfied, cost) < (u, c) && (unsatisfied < u || cost < c - 1e-9),
+        };
+        if better {
+            best = Some((unsatisfied, cost));
+        }
+    }
+    best
+}
+
+/// The size of a maximum matching (Kuhn's augmenting paths) of left nodes to right nodes.
+fn matching(edges: &[Vec<usize>], right: usize) -> usize {
+    fn augment(
+        u: usize,
+        edges: &[Vec<usize>],
+        seen: &mut [bool],
+        owner: &mut [Option<usize>],
+    ) -> bool {
+        for &v in &edges[u] {
+            if !std::mem::replace(&mut seen[v], true)
+                && (owner[v].is_none_or(|w| augment(w, edges, seen, owner)))
+            {
+                owner[v] = Some(u);
+                return true;
+            }
+        }
+        false
+    }
+    let mut owner = vec![None; right];
+    (0..edges.len())
+        .filter(|u| augment(*u, edges, &mut vec![false; right], &mut owner))
+        .count()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 1000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn explore_is_optimal_and_its_change_set_valid((tfs, targets) in case()) {
+        let (env, candidates) = build(&tfs, &targets);
+        let options = ExploreOptions { horizon: H, ..ExploreOptions::default() };
+        let exploration = explore(&env, &candidates, &options);
+        let expected = brute_force(&tfs, &targets);
+        prop_assert!(exploration.proven_optimal);
+        match expected {
+            None => prop_assert!(exploration.plan.is_none()),
+            Some((unsatisfied, cost)) => {
+                let plan = exploration.plan.clone().unwrap();
+                prop_assert_eq!(plan.unsatisfied().len() as u32, unsatisfied);
+                prop_assert!((exploration.cost.value - cost).abs() < 1e-9,
+                    "explore {} brute force {}", exploration.cost.value, cost);
+                let compiled = compile(&env, &exploration, &options, &mut Ids::after(&env));
+                prop_assert!((compiled.cost.total - cost).abs() < 1e-9,
+                    "compiled {} brute force {}", compiled.cost.total, cost);
+                let mut after = env.clone();
+                after.apply(&compiled.actions);
+                let expected_invalid: Vec<Invalidity> = compiled
+                    .unsatisfied_targets
+                    .iter()
+                    .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
+                    .collect();
+                prop_assert_eq!(after.invalidities(&candidates), expected_invalid);
+                // Protected CUs are never destroyed.
+                for cu in env.cus.values().filter(|c| c.protected) {
+                    prop_assert!(after.cus.contains_key(&cu.cid));
+                }
+                // A second review from the result changes nothing.
+                let again = explore(&after, &candidates, &options);
+                let recompiled = compile(&after, &again, &options, &mut Ids::after(&after));
+                prop_assert!(recompiled.actions.is_empty(), "{:?}", recompiled.actions);
+                let _: BTreeMap<(), ()> = BTreeMap::new();
+            }
+        }
+    }
+}

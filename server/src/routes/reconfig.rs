@@ -1,0 +1,526 @@
+//! Reconfiguration (contract `http-api.md`): computation units (Spawn, Destroy), change sets
+//! (+ a Server-Sent Events stream), perturbations, statistics, reviews, the environment.
+
+use std::collections::BTreeMap;
+use std::convert::Infallible;
+
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use dyknow_engine::knowledge::{self, Estimate};
+use dyknow_engine::{ComputationUnit, Ids};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::app::{AppState, blocking, typed};
+use crate::error::ApiError;
+use crate::negotiate::negotiate;
+use crate::reconfig::{Perturbation, Phase};
+
+pub(crate) fn router() -> Router<AppState> {
+    Router::new()
+        .route("/cus", get(list_cus).post(spawn_cu))
+        .route("/cus/{name}", get(get_cu).delete(destroy_cu))
+        .route("/changesets", get(list_change_sets))
+        .route("/changesets/stream", get(change_set_stream))
+        .route("/changesets/{id}", get(get_change_set))
+        .route("/perturbations", post(post_perturbation))
+        .route("/statistics", post(post_statistics))
+        .route("/review", post(post_review))
+        .route("/environment", get(get_environment))
+}
+
+fn engine_error(e: dyknow_engine::EngineError) -> ApiError {
+    match e {
+        dyknow_engine::EngineError::Ingest(i) => i.into(),
+        other => ApiError::internal(other),
+    }
+}
+
+/// A computation unit.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CuJson {
+    /// Its name.
+    pub name: String,
+    /// The label of its transformation.
+    pub transformation: String,
+    /// In port → channel (null when unbound).
+    pub inputs: BTreeMap<String, Option<String>>,
+    /// Out port → channel (null when unbound).
+    pub outputs: BTreeMap<String, Option<String>>,
+    /// Protected CUs are never destroyed by a change set.
+    pub protected: bool,
+    /// The upkeep estimate of one time unit (learned, or the spec's).
+    pub upkeep: f64,
+}
+
+fn cu_json(cu: &ComputationUnit, upkeep: f64) -> CuJson {
+    CuJson {
+        name: cu.cid.clone(),
+        transformation: cu.tid.clone(),
+        inputs: cu.inputs.clone(),
+        outputs: cu.outputs.clone(),
+        protected: cu.protected,
+        upkeep,
+    }
+}
+
+fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
+    let loaded = state.reconfig.load().map_err(engine_error)?;
+    Ok(loaded
+        .env
+        .cus
+        .values()
+        .map(|cu| {
+            cu_json(
+                cu,
+                loaded.env.library.get(&cu.tid).map_or(0.0, |t| t.upkeep),
+            )
+        })
+        .collect())
+}
+
+/// The computation units, sorted by name.
+#[utoipa::path(get, path = "/cus", tag = "reconfiguration", responses((status = 200, body = [CuJson])))]
+pub async fn list_cus(State(state): State<AppState>) -> Result<Json<Vec<CuJson>>, ApiError> {
+    let s = state.clone();
+    Ok(Json(blocking(move || cus(&s)).await?))
+}
+
+/// One computation unit.
+#[utoipa::path(get, path = "/cus/{name}", tag = "reconfiguration",
+    params(("name" = String, Path, description = "the CU's name")),
+    responses((status = 200, body = CuJson), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn get_cu(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+) -> Result<Json<CuJson>, ApiError> {
+    let s = state.clone();
+    let all = blocking(move || cus(&s)).await?;
+    all.into_iter()
+        .find(|c| c.name == name)
+        .map(Json)
+        .ok_or_else(|| ApiError::not_found(format!("no computation unit named {name:?}")))
+}
+
+/// The Spawn call's body.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SpawnJson {
+    /// The transformation to instantiate.
+    pub transformation: String,
+    /// The CU's name (a fresh `cu-N` when absent).
+    pub name: Option<String>,
+    /// Whether change sets may destroy it.
+    #[serde(default)]
+    pub protected: bool,
+}
+
+/// Spawn: a CU of a transformation, ports unbound. Reviews may wire it (or destroy it, unless
+/// protected).
+#[utoipa::path(post, path = "/cus", tag = "reconfiguration", request_body = SpawnJson,
+    responses((status = 201, body = CuJson), (status = 404, body = crate::error::ErrorBody),
+              (status = 409, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
+pub async fn spawn_cu(
+    State(state): State<AppState>,
+    body: Result<Json<SpawnJson>, axum::extract::rejection::JsonRejection>,
+) -> Result<Response, ApiError> {
+    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    let s = state.clone();
+    let cu = blocking(move || {
+        let loaded = s.reconfig.load().map_err(engine_error)?;
+        let Some(tf) = loaded.env.library.get(&body.transformation) else {
+            return Err(ApiError::not_found(format!(
+                "no transformation labelled {:?}",
+                body.transformation
+            )));
+        };
+        let name = match body.name {
+            Some(n) if n.trim().is_empty() => {
+                return Err(ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "a computation unit's name must not be empty",
+                ));
+            }
+            Some(n) if loaded.env.cus.contains_key(&n) => {
+                return Err(ApiError::new(
+                    StatusCode::CONFLICT,
+                    format!("a computation unit named {n:?} exists"),
+                ));
+            }
+            Some(n) => n,
+            None => {
+                let mut ids = Ids::after(&loaded.env);
+                ids.next_cu = s.reconfig.peek_next_cu();
+                ids.cu()
+            }
+        };
+        let cu = ComputationUnit {
+            cid: name.clone(),
+            tid: tf.tid.clone(),
+            inputs: tf.inputs.iter().map(|p| (p.clone(), None)).collect(),
+            outputs: tf.outputs.iter().map(|p| (p.clone(), None)).collect(),
+            protected: body.protected,
+        };
+        let mut after = loaded.env.clone();
+        after.cus.insert(name.clone(), cu.clone());
+        let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
+        knowledge::write(&s.kb, &delta).map_err(engine_error)?;
+        s.reconfig.reserve_cu(&name);
+        Ok(cu_json(&cu, tf.upkeep))
+    })
+    .await?;
+    Ok((StatusCode::CREATED, Json(cu)).into_response())
+}
+
+fn lose_cu(state: &AppState, name: &str, crashed: bool) -> Result<(), ApiError> {
+    let loaded = state.reconfig.load().map_err(engine_error)?;
+    let Some(cu) = loaded.env.cus.get(name) else {
+        return Err(ApiError::not_found(format!(
+            "no computation unit named {name:?}"
+        )));
+    };
+    if cu.protected && !crashed {
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!("computation unit {name:?} is protected"),
+        ));
+    }
+    let mut after = loaded.env.clone();
+    after.cus.remove(name);
+    let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
+    knowledge::write(&state.kb, &delta).map_err(engine_error)?;
+    state.reconfig.perturbed(Perturbation::CuLost {
+        cu: name.to_owned(),
+        transformation: cu.tid.clone(),
+        crashed,
+    });
+    Ok(())
+}
+
+/// Destroy: removes a CU (409 if protected). A perturbation: a review starts at once.
+#[utoipa::path(delete, path = "/cus/{name}", tag = "reconfiguration",
+    params(("name" = String, Path, description = "the CU's name")),
+    responses((status = 204), (status = 404, body = crate::error::ErrorBody), (status = 409, body = crate::error::ErrorBody)))]
+pub async fn destroy_cu(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    let s = state.clone();
+    blocking(move || lose_cu(&s, &name, false)).await?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// `?since=`.
+#[derive(Debug, Deserialize)]
+pub struct Since {
+    since: Option<String>,
+}
+
+/// The change sets, oldest first (`?since=<id>`: those after it).
+#[utoipa::path(get, path = "/changesets", tag = "reconfiguration",
+    params(("since" = Option<String>, Query, description = "only change sets after this id")),
+    responses((status = 200, description = "change set JSON list (see docs/cli.md)")))]
+pub async fn list_change_sets(
+    State(state): State<AppState>,
+    Query(q): Query<Since>,
+) -> Json<Vec<serde_json::Value>> {
+    Json(state.reconfig.change_sets(q.since.as_deref()))
+}
+
+/// One change set; `Accept: application/n-triples` or `text/turtle` gives its RDF delta.
+#[utoipa::path(get, path = "/changesets/{id}", tag = "reconfiguration",
+    params(("id" = String, Path, description = "cs-N")),
+    responses((status = 200, description = "change set JSON, or its delta as RDF"), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn get_change_set(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let media = negotiate(
+        &headers,
+        &["application/json", "application/n-triples", "text/turtle"],
+    )?;
+    let cs = state
+        .reconfig
+        .change_set(&id)
+        .ok_or_else(|| ApiError::not_found(format!("no change set {id:?}")))?;
+    if media == "application/json" {
+        return Ok(Json(cs).into_response());
+    }
+    // The delta as RDF: the inserted triples, and the deleted ones in a comment block (N-Triples
+    // and Turtle have no syntax for removals).
+    let part = |k: &str| {
+        cs.get("delta")
+            .and_then(|d| d.get(k))
+            .and_then(|v| v.as_str())
+            .unwrap_or("")
+            .to_owned()
+    };
+    let deleted: String = part("delete")
+        .lines()
+        .map(|l| format!("# delete: {l}\n"))
+        .collect();
+    Ok(typed(
+        StatusCode::OK,
+        media,
+        format!("{deleted}{}", part("insert")),
+    ))
+}
+
+/// Server-Sent Events: one `changeset` event per new change set.
+#[utoipa::path(get, path = "/changesets/stream", tag = "reconfiguration",
+    responses((status = 200, content_type = "text/event-stream", description = "changeset events")))]
+pub async fn change_set_stream(
+    State(state): State<AppState>,
+) -> Sse<impl futures_core::Stream<Item = Result<Event, Infallible>>> {
+    let mut rx = state.reconfig.subscribe();
+    let stream = async_stream_lite(move |tx| async move {
+        loop {
+            match rx.recv().await {
+                Ok(cs) => {
+                    let event = Event::default().event("changeset").data(cs.to_string());
+                    if tx.send(Ok(event)).await.is_err() {
+                        return;
+                    }
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+            }
+        }
+    });
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+/// A stream fed by a task through a channel.
+fn async_stream_lite<F, Fut>(f: F) -> impl futures_core::Stream<Item = Result<Event, Infallible>>
+where
+    F: FnOnce(tokio::sync::mpsc::Sender<Result<Event, Infallible>>) -> Fut,
+    Fut: std::future::Future<Output = ()> + Send + 'static,
+{
+    let (tx, rx) = tokio::sync::mpsc::channel(16);
+    tokio::spawn(f(tx));
+    tokio_stream_lite::ReceiverStream(rx)
+}
+
+mod tokio_stream_lite {
+    use std::pin::Pin;
+    use std::task::{Context, Poll};
+
+    /// A `Stream` over an mpsc receiver.
+    pub struct ReceiverStream<T>(pub tokio::sync::mpsc::Receiver<T>);
+
+    impl<T> futures_core::Stream for ReceiverStream<T> {
+        type Item = T;
+        fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<T>> {
+            self.0.poll_recv(cx)
+        }
+    }
+}
+
+/// A perturbation report.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PerturbationJson {
+    /// `cu-crashed`.
+    pub kind: String,
+    /// The CU.
+    pub cu: String,
+}
+
+/// A perturbation: `{"kind": "cu-crashed", "cu": "<name>"}` removes the CU from the model and
+/// starts a review at once. 202.
+#[utoipa::path(post, path = "/perturbations", tag = "reconfiguration", request_body = PerturbationJson,
+    responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
+pub async fn post_perturbation(
+    State(state): State<AppState>,
+    body: Result<Json<PerturbationJson>, axum::extract::rejection::JsonRejection>,
+) -> Result<StatusCode, ApiError> {
+    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    if body.kind != "cu-crashed" {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!(
+                "unknown perturbation kind {:?} (known: cu-crashed)",
+                body.kind
+            ),
+        ));
+    }
+    let s = state.clone();
+    blocking(move || lose_cu(&s, &body.cu, true)).await?;
+    Ok(StatusCode::ACCEPTED)
+}
+
+/// Observed costs.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct StatisticsJson {
+    /// A CU whose upkeep was observed.
+    pub cu: Option<String>,
+    /// The upkeep observed for one time unit.
+    pub upkeep: Option<f64>,
+    /// A transformation whose labour was observed.
+    pub transformation: Option<String>,
+    /// The labour observed for one spawn.
+    pub labour: Option<f64>,
+}
+
+/// Statistics: `{"cu", "upkeep"}` or `{"transformation", "labour"}` update the historical
+/// averages per transformation (seed Ch. 5.3.2). Does not start a review. 202.
+#[utoipa::path(post, path = "/statistics", tag = "reconfiguration", request_body = StatisticsJson,
+    responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
+pub async fn post_statistics(
+    State(state): State<AppState>,
+    body: Result<Json<StatisticsJson>, axum::extract::rejection::JsonRejection>,
+) -> Result<StatusCode, ApiError> {
+    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    let cost = |v: f64, what: &str| {
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("{what} must be a finite non-negative number"),
+            ))
+        }
+    };
+    let s = state.clone();
+    blocking(move || {
+        let loaded = s.reconfig.load().map_err(engine_error)?;
+        let (tid, value, upkeep) = match body {
+            StatisticsJson {
+                cu: Some(cu),
+                upkeep: Some(u),
+                transformation: None,
+                labour: None,
+            } => {
+                let u = cost(u, "upkeep")?;
+                let Some(cu) = loaded.env.cus.get(&cu) else {
+                    return Err(ApiError::not_found(format!(
+                        "no computation unit named {cu:?}"
+                    )));
+                };
+                (cu.tid.clone(), u, true)
+            }
+            StatisticsJson {
+                cu: None,
+                upkeep: None,
+                transformation: Some(t),
+                labour: Some(l),
+            } => {
+                let l = cost(l, "labour")?;
+                if !loaded.env.library.contains_key(&t) {
+                    return Err(ApiError::not_found(format!(
+                        "no transformation labelled {t:?}"
+                    )));
+                }
+                (t, l, false)
+            }
+            _ => {
+                return Err(ApiError::bad_request(
+                    "give {\"cu\", \"upkeep\"} or {\"transformation\", \"labour\"}",
+                ));
+            }
+        };
+        s.reconfig
+            .observe(|learned| {
+                let map = if upkeep {
+                    &mut learned.upkeep
+                } else {
+                    &mut learned.labour
+                };
+                let e = map.entry(tid).or_insert(Estimate {
+                    average: 0.0,
+                    count: 0,
+                });
+                *e = e.observe(value);
+            })
+            .map_err(engine_error)
+    })
+    .await?;
+    Ok(StatusCode::ACCEPTED)
+}
+
+/// Starts a review interval now. 202.
+#[utoipa::path(post, path = "/review", tag = "reconfiguration", responses((status = 202)))]
+pub async fn post_review(State(state): State<AppState>) -> StatusCode {
+    state.reconfig.perturbed(Perturbation::ReviewRequested);
+    StatusCode::ACCEPTED
+}
+
+/// The environment's cost.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct EnvironmentCostJson {
+    /// The upkeep of one time unit.
+    pub upkeep_per_time_unit: f64,
+    /// The horizon H.
+    pub horizon: f64,
+}
+
+/// The state of the environment and of the life-cycle.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct EnvironmentJson {
+    /// Whether the environment is valid (Def. 33, plus acyclicity).
+    pub valid: bool,
+    /// The targets no CU satisfies now.
+    pub unsatisfied_targets: Vec<String>,
+    /// Its cost.
+    pub cost: EnvironmentCostJson,
+    /// `stable` or `review`.
+    #[schema(value_type = String)]
+    pub phase: Phase,
+    /// When the next scheduled review starts (RFC 3339).
+    pub next_review_at: String,
+    /// A review is due at once (queued behind a running one, or about to start).
+    pub review_pending: bool,
+    /// Reviews completed since the service started.
+    pub reviews: u64,
+    /// Why the last review failed (its change set was not applied), if it did.
+    pub last_review_error: Option<String>,
+    /// Every reason the environment is invalid.
+    #[schema(value_type = Vec<Object>)]
+    pub invalidities: Vec<dyknow_engine::Invalidity>,
+}
+
+/// The environment: validity, unsatisfied targets, cost, life-cycle phase.
+#[utoipa::path(get, path = "/environment", tag = "reconfiguration", responses((status = 200, body = EnvironmentJson)))]
+pub async fn get_environment(
+    State(state): State<AppState>,
+) -> Result<Json<EnvironmentJson>, ApiError> {
+    // The life-cycle's state first: the environment read after it is at least as new, so a
+    // client that sees a review counted also sees its change set applied.
+    let life = state.reconfig.status();
+    let s = state.clone();
+    let (loaded, horizon) = blocking(move || {
+        Ok((
+            s.reconfig.load().map_err(engine_error)?,
+            s.reconfig.horizon(),
+        ))
+    })
+    .await?;
+    let invalidities = loaded.env.invalidities(&loaded.candidates);
+    let unsatisfied_targets = invalidities
+        .iter()
+        .filter_map(|i| match i {
+            dyknow_engine::Invalidity::UnsatisfiedTarget { target } => Some(target.clone()),
+            _ => None,
+        })
+        .collect();
+    Ok(Json(EnvironmentJson {
+        valid: invalidities.is_empty(),
+        unsatisfied_targets,
+        cost: EnvironmentCostJson {
+            upkeep_per_time_unit: loaded.env.upkeep(),
+            horizon,
+        },
+        phase: life.phase,
+        next_review_at: dyknow_engine::rfc3339(life.next_review_at),
+        review_pending: life.review_pending,
+        reviews: life.reviews,
+        last_review_error: life.last_error,
+        invalidities,
+    }))
+}

@@ -1,0 +1,507 @@
+//! Reconfiguration over HTTP with the life-cycle running: the seed's Example 12, the
+//! Chapter 6 case study, and bad input.
+#![expect(clippy::expect_used, reason = "tests")]
+
+mod common;
+
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+use common::Api;
+use dyknow_server::ServerConfig;
+use serde_json::{Value, json};
+
+fn spec(file: &str) -> String {
+    std::fs::read_to_string(format!(
+        "{}/../specs/turtle/{file}",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .expect("spec file")
+}
+
+/// A service whose scheduled reviews never fire during a test (time unit of an hour): only
+/// perturbations and `POST /review` start reviews.
+fn api() -> Api {
+    Api::with_life_cycle(ServerConfig {
+        time_unit: Duration::from_secs(3600),
+        ..ServerConfig::default()
+    })
+}
+
+async fn environment(api: &Api) -> Value {
+    api.get("/environment").await.expect(200).json()
+}
+
+/// Waits until at least `reviews` reviews are done and none is running or pending.
+async fn settle(api: &Api, reviews: u64) -> Value {
+    for _ in 0..2000 {
+        let env = environment(api).await;
+        if env["reviews"].as_u64().unwrap_or(0) >= reviews
+            && env["phase"] == "stable"
+            && env["review_pending"] == false
+        {
+            return env;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    panic!("no review settled: {}", environment(api).await);
+}
+
+async fn reviews(api: &Api) -> u64 {
+    environment(api).await["reviews"].as_u64().unwrap_or(0)
+}
+
+async fn change_sets(api: &Api) -> Vec<Value> {
+    api.get("/changesets")
+        .await
+        .expect(200)
+        .json()
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+}
+
+async fn cus(api: &Api) -> Vec<Value> {
+    api.get("/cus")
+        .await
+        .expect(200)
+        .json()
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+}
+
+async fn cu_transformations(api: &Api) -> BTreeSet<String> {
+    cus(api)
+        .await
+        .iter()
+        .map(|c| c["transformation"].as_str().unwrap_or("").to_owned())
+        .collect()
+}
+
+/// One field of the actions of one kind, in order (e.g. the transformations spawned).
+fn action_field(cs: &Value, kind: &str, field: &str) -> Vec<String> {
+    cs["actions"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(|a| a["action"] == kind)
+        .map(|a| a[field].as_str().unwrap_or("").to_owned())
+        .collect()
+}
+
+fn spawned(cs: &Value) -> Vec<String> {
+    action_field(cs, "spawn", "transformation")
+}
+
+fn destroyed(cs: &Value) -> Vec<String> {
+    action_field(cs, "destroy", "cu")
+}
+
+async fn cu_of(api: &Api, transformation: &str) -> String {
+    cus(api)
+        .await
+        .iter()
+        .find(|c| c["transformation"] == transformation)
+        .and_then(|c| c["name"].as_str())
+        .unwrap_or_else(|| panic!("no CU of {transformation}"))
+        .to_owned()
+}
+
+/// The `dependsOn` pairs by CU name, from SPARQL.
+async fn depends_on(api: &Api) -> BTreeSet<(String, String)> {
+    let q = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> SELECT ?a ?b WHERE { ?x dyknow:dependsOn ?y . ?x dyknow:hasName ?a . ?y dyknow:hasName ?b }";
+    let answer = api
+        .post("/sparql", "application/sparql-query", q.to_owned())
+        .await
+        .expect(200)
+        .json();
+    answer["results"]["bindings"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|b| {
+            (
+                b["a"]["value"].as_str().unwrap_or("").to_owned(),
+                b["b"]["value"].as_str().unwrap_or("").to_owned(),
+            )
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn example_12_over_http() {
+    let api = api();
+    api.post_turtle("/ontology", spec("example-12-similarity.ttl"))
+        .await
+        .expect(201);
+    api.post_turtle("/transformations", spec("example-12.ttl"))
+        .await
+        .expect(201);
+    let before = reviews(&api).await;
+    api.post_turtle("/targets", spec("example-12-targets.ttl"))
+        .await
+        .expect(201);
+    let env = settle(&api, before + 1).await;
+    assert_eq!(env["valid"], true, "{env}");
+    let sets = change_sets(&api).await;
+    assert_eq!(sets.len(), 1);
+    assert_eq!(sets[0]["cost"]["total"], 33.0);
+    assert_eq!(
+        sets[0]["cause"],
+        json!({"kind": "target-added", "target": "qid1"})
+    );
+    assert_eq!(spawned(&sets[0]), ["tid1", "tid4", "tid2"]);
+    let (c1, c2, c4) = (
+        cu_of(&api, "tid1").await,
+        cu_of(&api, "tid2").await,
+        cu_of(&api, "tid4").await,
+    );
+    assert_eq!(
+        depends_on(&api).await,
+        BTreeSet::from([(c1.clone(), c4.clone()), (c2.clone(), c4.clone())])
+    );
+
+    // tid4's upkeep is observed as 3.0; statistics start no review.
+    let n = reviews(&api).await;
+    api.post(
+        "/statistics",
+        "application/json",
+        json!({"cu": c4, "upkeep": 3.0}).to_string(),
+    )
+    .await
+    .expect(202);
+    assert_eq!(reviews(&api).await, n);
+    // tid2's CU crashes: a review at once.
+    api.post(
+        "/perturbations",
+        "application/json",
+        json!({"kind": "cu-crashed", "cu": c2}).to_string(),
+    )
+    .await
+    .expect(202);
+    settle(&api, n + 1).await;
+    let sets = change_sets(&api).await;
+    assert_eq!(sets.len(), 2);
+    let second = &sets[1];
+    assert_eq!(second["cost"]["total"], 43.0);
+    assert_eq!(second["cause"], json!({"kind": "cu-crashed", "cu": c2}));
+    assert_eq!(spawned(second), ["tid3", "tid2", "tid5"]);
+    assert_eq!(destroyed(second), std::slice::from_ref(&c4));
+    assert_eq!(
+        cu_transformations(&api).await,
+        BTreeSet::from(["tid1", "tid2", "tid3", "tid5"].map(String::from))
+    );
+    assert!(
+        cus(&api).await.iter().any(|c| c["name"] == c1),
+        "tid1's CU is kept"
+    );
+    let (n2, n3, n5) = (
+        cu_of(&api, "tid2").await,
+        cu_of(&api, "tid3").await,
+        cu_of(&api, "tid5").await,
+    );
+    assert_eq!(depends_on(&api).await, BTreeSet::from([(c1, n3), (n2, n5)]));
+    // History: `?since`, one by id, its RDF delta, and SPARQL sees the records.
+    let since = api.get("/changesets?since=cs-1").await.expect(200).json();
+    assert_eq!(since.as_array().map(Vec::len), Some(1));
+    api.get("/changesets/cs-2").await.expect(200);
+    let nt = api
+        .get_accept("/changesets/cs-2", "application/n-triples")
+        .await
+        .expect(200)
+        .text();
+    assert!(nt.contains("# delete: "), "{nt}");
+    api.get("/changesets/cs-9").await.expect(404);
+    let q = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> SELECT (COUNT(?c) AS ?n) WHERE { ?c a dyknow:ChangeSet }";
+    let count = api
+        .post("/sparql", "application/sparql-query", q.to_owned())
+        .await
+        .expect(200)
+        .json();
+    assert_eq!(count["results"]["bindings"][0]["n"]["value"], "2");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn chapter_6_case_study() {
+    let api = api();
+    // 6.2: the target first; nothing can satisfy it.
+    let n = reviews(&api).await;
+    api.post_turtle("/targets", spec("ch6-target.ttl"))
+        .await
+        .expect(201);
+    let env = settle(&api, n + 1).await;
+    assert_eq!(env["unsatisfied_targets"], json!(["target1"]));
+    assert!(change_sets(&api).await.is_empty());
+
+    // 6.3–6.4: Piff registers; the target is unsatisfied, so a review runs at once.
+    let n = reviews(&api).await;
+    api.post_turtle("/transformations", spec("ch6-piff.ttl"))
+        .await
+        .expect(201);
+    let env = settle(&api, n + 1).await;
+    assert_eq!(env["valid"], true, "{env}");
+    let piff: BTreeSet<String> = [
+        "pose(piff)",
+        "bottom_cam(piff)",
+        "subsampler(piff)",
+        "segmenter(piff)",
+        "ball_detector(piff)",
+        "ball_localization(piff)",
+        "circle_monitor(ball)",
+    ]
+    .map(String::from)
+    .into();
+    assert_eq!(cu_transformations(&api).await, piff);
+    assert_eq!(change_sets(&api).await.len(), 1);
+
+    // 6.6: the segmenter crashes; only a new segmenter, wired to the existing subsampler.
+    let segmenter = cu_of(&api, "segmenter(piff)").await;
+    let subsampler = cu_of(&api, "subsampler(piff)").await;
+    let n = reviews(&api).await;
+    api.post(
+        "/perturbations",
+        "application/json",
+        json!({"kind": "cu-crashed", "cu": segmenter}).to_string(),
+    )
+    .await
+    .expect(202);
+    settle(&api, n + 1).await;
+    let sets = change_sets(&api).await;
+    let repair = sets.last().expect("a change set");
+    assert_eq!(spawned(repair), ["segmenter(piff)"]);
+    assert!(destroyed(repair).is_empty());
+    let new_segmenter = cu_of(&api, "segmenter(piff)").await;
+    assert!(
+        depends_on(&api)
+            .await
+            .contains(&(new_segmenter, subsampler))
+    );
+
+    // 6.7: Puff registers: no change, also after a review.
+    let before = change_sets(&api).await.len();
+    api.post_turtle("/transformations", spec("ch6-puff.ttl"))
+        .await
+        .expect(201);
+    let n = reviews(&api).await;
+    api.post("/review", "application/json", "")
+        .await
+        .expect(202);
+    settle(&api, n + 1).await;
+    assert_eq!(change_sets(&api).await.len(), before);
+    assert_eq!(cu_transformations(&api).await, piff);
+
+    // 6.8–6.10: Piff deregisters; Puff's pipeline replaces Piff's.
+    // Deregistering a transformation in use starts a review at once; one no CU uses (after an
+    // earlier review replaced it) waits for the next scheduled review.
+    let n = reviews(&api).await;
+    for label in &piff {
+        let path = format!("/transformations/{}", percent(label));
+        api.delete(&path).await.expect(204);
+    }
+    settle(&api, n + 1).await;
+    let puff: BTreeSet<String> = [
+        "pose(puff)",
+        "bottom_cam(puff)",
+        "subsampler(puff)",
+        "segmenter(puff)",
+        "ball_detector(puff)",
+        "ball_localization(puff)",
+        "circle_monitor(ball,puff)",
+    ]
+    .map(String::from)
+    .into();
+    assert_eq!(cu_transformations(&api).await, puff);
+    assert_eq!(environment(&api).await["valid"], true);
+
+    // 6.11–6.14: the ceiling cameras register (not urgent: nothing at once); at the next
+    // review the ceiling pipeline plus Puff's circle monitor.
+    let before = change_sets(&api).await.len();
+    let n = reviews(&api).await;
+    api.post_turtle("/transformations", spec("ch6-ceiling.ttl"))
+        .await
+        .expect(201);
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(reviews(&api).await, n);
+    assert_eq!(change_sets(&api).await.len(), before);
+    api.post("/review", "application/json", "")
+        .await
+        .expect(202);
+    settle(&api, n + 1).await;
+    let sets = change_sets(&api).await;
+    assert_eq!(sets.len(), before + 1);
+    // Keeping Puff's pipeline costs 70; switching 10 labour + 10 × 2.0 upkeep.
+    let total = sets.last().expect("cs")["cost"]["total"]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    assert!((total - 30.0).abs() < 1e-9, "{total}");
+    let mut ceiling: BTreeSet<String> = (1..=4)
+        .flat_map(|i| {
+            [
+                format!("ceiling_cam(cam_{i})"),
+                format!("undistort(cam_{i})"),
+            ]
+        })
+        .collect();
+    ceiling.insert("stitch(field)".into());
+    ceiling.insert("ball_detector(field)".into());
+    ceiling.insert("circle_monitor(ball,puff)".into());
+    assert_eq!(cu_transformations(&api).await, ceiling);
+
+    // 6.15–6.16: the target is released; every CU is destroyed.
+    let n = reviews(&api).await;
+    api.delete("/targets/target1").await.expect(204);
+    settle(&api, n + 1).await;
+    assert!(cus(&api).await.is_empty());
+    assert!(depends_on(&api).await.is_empty());
+}
+
+fn percent(label: &str) -> String {
+    label
+        .bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' => (b as char).to_string(),
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn bad_input_changes_nothing() {
+    let api = api();
+    api.post_turtle("/transformations", spec("example-12.ttl"))
+        .await
+        .expect(201);
+    let snapshot = api.snapshot().await;
+    api.post(
+        "/perturbations",
+        "application/json",
+        json!({"kind": "cu-crashed", "cu": "nope"}).to_string(),
+    )
+    .await
+    .expect_error(404);
+    api.post(
+        "/statistics",
+        "application/json",
+        json!({"cu": "nope", "upkeep": 1.0}).to_string(),
+    )
+    .await
+    .expect_error(404);
+    api.post(
+        "/statistics",
+        "application/json",
+        json!({"transformation": "nope", "labour": 1.0}).to_string(),
+    )
+    .await
+    .expect_error(404);
+    for bad in ["-1.0", "1e999"] {
+        api.post(
+            "/statistics",
+            "application/json",
+            format!("{{\"transformation\": \"tid1\", \"labour\": {bad}}}"),
+        )
+        .await
+        .expect_error(if bad == "1e999" { 400 } else { 422 });
+    }
+    api.post(
+        "/statistics",
+        "application/json",
+        "{\"transformation\": \"tid1\", \"labour\": NaN}",
+    )
+    .await
+    .expect_error(400);
+    api.post(
+        "/statistics",
+        "application/json",
+        json!({"transformation": "tid1"}).to_string(),
+    )
+    .await
+    .expect_error(400);
+    api.post(
+        "/perturbations",
+        "application/json",
+        json!({"kind": "meteor", "cu": "x"}).to_string(),
+    )
+    .await
+    .expect_error(422);
+    api.post(
+        "/cus",
+        "application/json",
+        json!({"transformation": "nope"}).to_string(),
+    )
+    .await
+    .expect_error(404);
+    api.delete("/cus/nope").await.expect_error(404);
+    assert_eq!(api.snapshot().await, snapshot);
+
+    // Spawn and Destroy; a protected CU cannot be destroyed.
+    let cu = api
+        .post(
+            "/cus",
+            "application/json",
+            json!({"transformation": "tid3", "protected": true}).to_string(),
+        )
+        .await
+        .expect(201)
+        .json();
+    assert_eq!(cu["transformation"], "tid3");
+    assert_eq!(cu["protected"], true);
+    let name = cu["name"].as_str().unwrap_or("").to_owned();
+    api.post(
+        "/cus",
+        "application/json",
+        json!({"transformation": "tid3", "name": name}).to_string(),
+    )
+    .await
+    .expect_error(409);
+    api.delete(&format!("/cus/{name}")).await.expect_error(409);
+    assert_eq!(cus(&api).await.len(), 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn change_sets_are_streamed_as_server_sent_events() {
+    use http_body_util::BodyExt;
+    use tower::ServiceExt;
+    let api = api();
+    let request = axum::http::Request::get("/changesets/stream")
+        .body(axum::body::Body::empty())
+        .expect("request");
+    let response = api.router.clone().oneshot(request).await.expect("response");
+    assert_eq!(response.status(), 200);
+    assert!(
+        response
+            .headers()
+            .get("content-type")
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|v| v.starts_with("text/event-stream"))
+    );
+    let mut body = response.into_body();
+    api.post_turtle("/ontology", spec("example-12-similarity.ttl"))
+        .await
+        .expect(201);
+    api.post_turtle("/transformations", spec("example-12.ttl"))
+        .await
+        .expect(201);
+    api.post_turtle("/targets", spec("example-12-targets.ttl"))
+        .await
+        .expect(201);
+    let mut text = String::new();
+    while !text.contains("\n\n") {
+        let frame = tokio::time::timeout(Duration::from_secs(30), body.frame())
+            .await
+            .expect("an event within 30 s")
+            .expect("the stream stays open")
+            .expect("a frame");
+        if let Ok(data) = frame.into_data() {
+            text.push_str(&String::from_utf8_lossy(&data));
+        }
+    }
+    assert!(text.contains("event: changeset\ndata: "), "{text}");
+    let data = text
+        .lines()
+        .find_map(|l| l.strip_prefix("data: "))
+        .expect("data");
+    let cs: Value = serde_json::from_str(data).expect("change set JSON");
+    assert_eq!(cs["id"], "cs-1");
+    assert_eq!(cs["cost"]["total"], 33.0);
+}
