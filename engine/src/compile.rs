@@ -154,7 +154,7 @@ pub fn compile(
                     port: port.clone(),
                     channel: w,
                 }),
-                (None, Some(h)) if reserved(plan, env, &channels, &h, n, j) => {
+                (None, Some(h)) if taken_by_other(&channels, &h, (n, j)) => {
                     actions.push(Action::DisconnectOut {
                         cu: cid.clone(),
                         port: port.clone(),
@@ -197,17 +197,14 @@ pub fn compile(
     }
 }
 
-/// Whether channel `h`, which out port `j` of node `n` publishes on now, is taken by another
-/// out port in the plan (so `n` must stop publishing on it).
-fn reserved(
-    _plan: &Plan,
-    _env: &Environment,
+/// Whether `channel`, which out port `port` (node, index) publishes on now, is given to another
+/// out port by the plan (so this one must stop publishing on it).
+fn taken_by_other(
     channels: &BTreeMap<(usize, usize), Channel>,
-    h: &str,
-    n: usize,
-    j: usize,
+    channel: &str,
+    port: (usize, usize),
 ) -> bool {
-    channels.iter().any(|(k, c)| c == h && *k != (n, j))
+    channels.iter().any(|(k, c)| c == channel && *k != port)
 }
 
 /// The channel of every out port the plan uses: the target's channel for ports feeding a

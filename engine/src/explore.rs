@@ -520,7 +520,7 @@ impl<'a> Search<'a> {
             inputs: vec![None; search.targets.len()],
         });
         search.node_tids.push(usize::MAX);
-        for (c, cid) in search.cus.clone().iter().enumerate() {
+        for cid in &search.cus.clone() {
             let cu = &env.cus[cid];
             if !cu.protected {
                 continue;
@@ -528,7 +528,6 @@ impl<'a> Search<'a> {
             let Some(&t) = tid_index.get(cu.tid.as_str()) else {
                 continue;
             };
-            let _ = c;
             search.registry.entry(t).or_insert(search.nodes.len());
             search.nodes.push(PlanNode {
                 tid: cu.tid.clone(),
