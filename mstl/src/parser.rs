@@ -5,9 +5,11 @@
 
 use crate::syntax::{Atom, Cmp, Domain, Formula, Interval, Rcc8, Region, Term};
 
-/// The deepest recursion of the parser accepted: about three levels per parenthesis or nested
-/// operator, so formulas nest some 150 levels deep at most (far beyond any written by hand).
-pub const MAX_DEPTH: usize = 512;
+/// The deepest recursion of the parser accepted. It is far above what any tree of
+/// [`MAX_TREE_DEPTH`] needs when printed (at most about six levels per operator, with the
+/// printer's parentheses), so every accepted formula's printed text is accepted too; it only
+/// stops absurd nesting of parentheses (some 2,600 levels).
+pub const MAX_DEPTH: usize = 8 * MAX_TREE_DEPTH;
 /// The longest formula accepted, in bytes.
 pub const MAX_LEN: usize = 1 << 20;
 /// The deepest syntax tree accepted, counting chains such as `a && b && c` one level per
@@ -231,8 +233,8 @@ struct Parser {
 }
 
 /// The stack the parser runs on: enough for [`MAX_DEPTH`] levels of recursion in any build
-/// profile (unoptimised frames are several kilobytes), reserved, not committed.
-const PARSER_STACK: usize = 64 << 20;
+/// profile (unoptimised frames are a few kilobytes), reserved, not committed.
+const PARSER_STACK: usize = 128 << 20;
 
 /// Parses an MSTL formula. The recursive descent runs on a thread of its own with a stack
 /// sized for [`MAX_DEPTH`], so no input overflows the caller's stack.

@@ -323,3 +323,22 @@ fn printing_adds_no_nesting() {
         "a -> b -> (c U d U e)"
     );
 }
+
+#[test]
+fn near_the_limits_printing_still_parses_back() {
+    // Found by fuzzing: a formula near the recursion limit, printed with the parentheses the
+    // printer adds, must still parse.
+    let bangs = "!".repeat(450);
+    let text =
+        format!("{bangs}\"q\" = 1 U[5,inf] exists x in {{a, b}}: exists x in {{a, b}}: {bangs}kyw");
+    let f = parse(&text).unwrap();
+    assert_eq!(parse(&f.to_string()).unwrap(), f);
+    // The deepest tree accepted, printed, parses back.
+    let deep = format!("{}p", "!".repeat(MAX_TREE_DEPTH - 1));
+    let f = parse(&deep).unwrap();
+    assert_eq!(parse(&f.to_string()).unwrap(), f);
+    let nested_ands =
+        (0..MAX_TREE_DEPTH / 2).fold("p".to_owned(), |acc, _| format!("q && ({acc})"));
+    let f = parse(&nested_ands).unwrap();
+    assert_eq!(parse(&f.to_string()).unwrap(), f);
+}
