@@ -19,9 +19,8 @@ use std::time::{Duration, Instant};
 
 use dyknow_engine::knowledge;
 use dyknow_engine::{
-    Candidates, Environment, ExploreOptions, Ids, Target, Transformation, compile, explore,
+    Candidates, Environment, ExploreOptions, Ids, Target, Transformation, explore,
 };
-// COMPILE runs inside every review measured below.
 use dyknow_store::{InputFormat, KnowledgeBase};
 
 fn median(mut v: Vec<Duration>) -> Duration {
@@ -48,12 +47,9 @@ fn review(kb: &KnowledgeBase, prefer: Vec<String>, ids: &mut Ids) -> f64 {
         prefer,
         ..ExploreOptions::default()
     };
-    let exploration = explore(&loaded.env, &loaded.candidates, &options);
-    let compiled = compile(&loaded.env, &exploration, &options, ids);
-    let mut after = loaded.env.clone();
-    after.apply(&compiled.actions);
-    knowledge::write(kb, &knowledge::delta(&loaded.env, &after, &loaded.iris)).unwrap();
-    compiled.cost.total
+    let reviewed = knowledge::review(&loaded, &options, ids);
+    knowledge::write(kb, &reviewed.delta).unwrap();
+    reviewed.compiled.cost.total
 }
 
 fn segmenter_crash(out: &mut impl Write, dir: &std::path::Path, runs: usize) {

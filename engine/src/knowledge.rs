@@ -773,3 +773,29 @@ SELECT ?json WHERE { ?cs a dyknow:ChangeSet ; dkros:changeSetJson ?json }"#,
     out.sort_by_key(number);
     Ok(out)
 }
+
+/// What one review decides: COMPILE's change set, the environment after it, and its delta.
+#[derive(Debug, Clone)]
+pub struct Reviewed {
+    /// The change set's actions, cost and what could not be satisfied.
+    pub compiled: crate::Compiled,
+    /// The environment after the change set (ε ⊗ δ).
+    pub after: Environment,
+    /// The graph delta that takes the knowledge base there.
+    pub delta: Delta,
+}
+
+/// One review on a loaded environment: EXPLORE, COMPILE, update ⊗ and the graph delta. Writes
+/// nothing ([`write`] does).
+pub fn review(loaded: &Loaded, options: &crate::ExploreOptions, ids: &mut crate::Ids) -> Reviewed {
+    let exploration = crate::explore(&loaded.env, &loaded.candidates, options);
+    let compiled = crate::compile(&loaded.env, &exploration, options, ids);
+    let mut after = loaded.env.clone();
+    after.apply(&compiled.actions);
+    let delta = delta(&loaded.env, &after, &loaded.iris);
+    Reviewed {
+        compiled,
+        after,
+        delta,
+    }
+}

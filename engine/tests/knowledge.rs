@@ -6,7 +6,7 @@
 use std::collections::BTreeSet;
 
 use dyknow_engine::knowledge::{self, Loaded};
-use dyknow_engine::{Environment, ExploreOptions, Ids, Provider, compile, explore};
+use dyknow_engine::{Environment, ExploreOptions, Ids, Provider};
 use dyknow_store::{InputFormat, KnowledgeBase};
 
 fn load_specs(kb: &KnowledgeBase, files: &[&str]) {
@@ -73,11 +73,11 @@ fn expected_depends_on(env: &Environment) -> BTreeSet<(String, String)> {
 }
 
 fn review(kb: &KnowledgeBase, loaded: &Loaded, options: &ExploreOptions, ids: &mut Ids) -> f64 {
-    let exploration = explore(&loaded.env, &loaded.candidates, options);
-    let compiled = compile(&loaded.env, &exploration, options, ids);
-    let mut after = loaded.env.clone();
-    after.apply(&compiled.actions);
-    let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
+    let knowledge::Reviewed {
+        compiled,
+        after,
+        delta,
+    } = knowledge::review(loaded, options, ids);
     knowledge::write(kb, &delta).unwrap();
     let (extra, missing) = kb.materialisation_drift().unwrap();
     assert!(

@@ -323,7 +323,7 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
 /// like `dyknow load` would put it; CUs (and their subscriptions, publications and cost
 /// models) become the environment; then one review.
 fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(), Failure> {
-    use dyknow_engine::{Cause, ChangeSet, ExploreOptions, Ids, compile, knowledge};
+    use dyknow_engine::{Cause, ChangeSet, ExploreOptions, Ids, knowledge};
     if !(horizon.is_finite() && horizon >= 0.0) {
         return Err(Failure(
             2,
@@ -352,16 +352,8 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
         timeout: timeout_ms.map(Duration::from_millis),
         ..ExploreOptions::default()
     };
-    let exploration = dyknow_engine::explore(&loaded.env, &loaded.candidates, &options);
-    let compiled = compile(
-        &loaded.env,
-        &exploration,
-        &options,
-        &mut Ids::after(&loaded.env),
-    );
-    let mut after = loaded.env.clone();
-    after.apply(&compiled.actions);
-    let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
+    let reviewed = knowledge::review(&loaded, &options, &mut Ids::after(&loaded.env));
+    let (compiled, delta) = (reviewed.compiled, reviewed.delta);
     let change_set = ChangeSet::new("cs-1".to_owned(), Cause::Explore, compiled, &delta);
     println!("{}", serde_json::to_string_pretty(&change_set)?);
     if change_set.unsatisfied_targets.is_empty() {

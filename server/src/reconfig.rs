@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, SystemTime};
 
 use dyknow_engine::knowledge::{self, Learned};
-use dyknow_engine::{Cause, ChangeSet, EngineError, ExploreOptions, Ids, compile, explore};
+use dyknow_engine::{Cause, ChangeSet, EngineError, ExploreOptions, Ids};
 use dyknow_store::KnowledgeBase;
 use serde::Serialize;
 use tokio::sync::{Notify, broadcast};
@@ -296,18 +296,16 @@ impl Reconfigurator {
             prefer,
             ..ExploreOptions::default()
         };
-        let exploration = explore(&loaded.env, &loaded.candidates, &options);
         let mut ids = self.lock().ids.clone();
-        let compiled = compile(&loaded.env, &exploration, &options, &mut ids);
+        let knowledge::Reviewed {
+            compiled, delta, ..
+        } = knowledge::review(&loaded, &options, &mut ids);
         let unsatisfied = !compiled.unsatisfied_targets.is_empty();
         if compiled.actions.is_empty() {
             let mut state = self.lock();
             state.unsatisfied = unsatisfied;
             return Ok(None);
         }
-        let mut after = loaded.env.clone();
-        after.apply(&compiled.actions);
-        let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
         let id = format!("cs-{}", self.lock().next_id);
         let cause = causes.first().cloned().unwrap_or(Cause::Review);
         let change_set = ChangeSet::new(id.clone(), cause, compiled, &delta);
