@@ -491,12 +491,12 @@ impl Reasoner {
             }
         }
         for f in &over {
-            if !self.removable(f)
-                || self.base.contains(f)
-                || self.derivable(*f)
-                || self.derivable_by_trp(*f)
-            {
+            if !self.removable(f) || self.base.contains(f) || self.derivable(*f) {
                 self.assert_fact(*f, &mut queue);
+            } else if self.derivable_by_trp(*f) && self.facts.insert(*f) {
+                // Only prp-trp derives it: a fact of the closure, not a base fact (putting it
+                // into the base would let it outlive the base facts it was derived from).
+                queue.push(Event::Fact(*f));
             }
         }
         let rederived = self.saturate(queue);
