@@ -4,14 +4,15 @@
 #   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
+#   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/dyknow/target}"
 venv=benches/.venv
-if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python" -c 'import owlrl, reasonable' 2>/dev/null; then
+if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python" -c 'import owlrl, reasonable, reelay, mstlo_python' 2>/dev/null; then
   [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-  "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4
+  "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4 reelay==25.0.0 mstlo-python==0.2.2
 fi
 export OXIGRAPH_BIN="$PWD/$venv/bin/oxigraph"
 export PEER_PYTHON="$PWD/$venv/bin/python"
@@ -21,6 +22,9 @@ if [ "$which" = all ] || [ "$which" = knowledge ]; then
 fi
 if [ "$which" = all ] || [ "$which" = reasoning ]; then
   cargo bench --locked --workspace --bench reasoning
+fi
+if [ "$which" = all ] || [ "$which" = mstl ]; then
+  cargo bench --locked --workspace --bench progression
 fi
 if [ "$which" = all ] || [ "$which" = engine ]; then
   cargo bench --locked --workspace --bench explore

@@ -82,6 +82,26 @@ pub enum Command {
         #[arg(required_unless_present = "environment", value_name = "FILE")]
         files: Vec<PathBuf>,
     },
+    /// Progresses MSTL formulas over a state trace (JSON lines, docs/mstl.md) and prints one
+    /// verdict line per formula as soon as it is decided, then `unknown` for those the trace
+    /// leaves undecided.
+    Check {
+        /// A formula (repeat for several; verdicts name them by position, from 0).
+        #[arg(long = "formula", value_name = "F", required = true)]
+        formulas: Vec<String>,
+        /// The trace file; `-` reads standard input (verdicts are printed as states arrive).
+        #[arg(long, value_name = "FILE")]
+        trace: PathBuf,
+        /// Landmark regions, added to the trace header's.
+        #[arg(long, value_name = "a,b", value_delimiter = ',')]
+        landmarks: Vec<String>,
+        /// Static regions, added to the trace header's.
+        #[arg(long = "static", value_name = "r1,r2", value_delimiter = ',')]
+        static_regions: Vec<String>,
+        /// A named domain for quantifiers, `NAME=a,b` (repeatable; replaces the header's).
+        #[arg(long = "domain", value_name = "NAME=a,b")]
+        domains: Vec<String>,
+    },
 }
 
 /// Options of `dyknow serve`.
@@ -155,6 +175,13 @@ pub fn main() -> ExitCode {
             files.extend(environment);
             explore(horizon, timeout_ms, &files)
         }
+        Command::Check {
+            formulas,
+            trace,
+            landmarks,
+            static_regions,
+            domains,
+        } => check(&formulas, &trace, landmarks, static_regions, &domains),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -366,6 +393,51 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
                 change_set.unsatisfied_targets.join(", ")
             ),
         ))
+    }
+}
+
+/// `dyknow check`: parse every formula first (a bad one is a usage error naming its column),
+/// then stream the trace through a monitor.
+fn check(
+    formulas: &[String],
+    trace: &Path,
+    landmarks: Vec<String>,
+    static_regions: Vec<String>,
+    domains: &[String],
+) -> Result<(), Failure> {
+    use dyknow_mstl::trace::{CheckError, Header, check, parse_domain};
+    let parsed = formulas
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            dyknow_mstl::parse(f).map_err(|e| Failure(2, format!("--formula {i} ({f}): {e}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut extra = Header {
+        landmarks: landmarks.into_iter().collect(),
+        static_regions: static_regions.into_iter().collect(),
+        ..Header::default()
+    };
+    for d in domains {
+        let (name, constants) = parse_domain(d).map_err(|e| Failure(2, e))?;
+        extra.domains.insert(name, constants);
+    }
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    let name = trace.display().to_string();
+    let result = if name == "-" {
+        check(&parsed, std::io::stdin().lock(), extra, &mut out)
+    } else {
+        let file = std::fs::File::open(trace).map_err(|e| Failure(2, format!("{name}: {e}")))?;
+        check(&parsed, std::io::BufReader::new(file), extra, &mut out)
+    };
+    match result {
+        Ok(_) => Ok(()),
+        Err(CheckError::Compile { formula, source }) => Err(Failure(
+            2,
+            format!("--formula {formula} ({}): {source}", formulas[formula]),
+        )),
+        Err(e) => Err(Failure(2, format!("{name}: {e}"))),
     }
 }
 

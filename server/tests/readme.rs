@@ -76,10 +76,20 @@ fn the_readme_tour_gives_the_answers_the_readme_shows() {
     };
     std::thread::spawn(move || for _ in lines {});
 
+    // `dyknow` in the tour's commands is the binary under test.
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_dyknow"))
+        .parent()
+        .expect("the binary's directory");
+    let path = format!(
+        "{}:{}",
+        bin_dir.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
     for (command, expected) in steps {
         let command = command.replace("localhost:7878", &address);
         let out = Command::new("bash")
             .args(["-c", &command])
+            .env("PATH", &path)
             .current_dir(&root)
             .output()
             .unwrap();

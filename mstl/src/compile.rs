@@ -1,0 +1,123 @@
+//! From the syntax tree to DAG nodes: `->` and `<->` in terms of `!`, `&&`, `||` (Kleene), named
+//! domains resolved, and region offsets rewritten by Theorems 4–5 so that no atom looks ahead:
+//! `R(next^i x, next^j y)` with `m = max(i, j) > 0` becomes `next^m R(next^(i-m) x, next^(j-m) y)`
+//! (so `R(x, next y)` becomes `next R(prev x, y)`), and evaluation only ever needs the current
+//! and earlier states.
+
+use std::collections::BTreeMap;
+
+use crate::dag::{Dag, FALSE, NodeId, TRUE, Window};
+use crate::syntax::{Atom, Domain, Formula, Region};
+
+/// Named domains: a name and its constants.
+pub type Domains = BTreeMap<String, Vec<String>>;
+
+/// Why a formula cannot be monitored.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CompileError {
+    /// A quantifier ranges over a named domain nobody gave.
+    #[error("unknown domain '{0}' (give it in the trace header or with --domain {0}=a,b)")]
+    UnknownDomain(String),
+}
+
+pub(crate) fn compile(
+    dag: &mut Dag,
+    f: &Formula,
+    domains: &Domains,
+) -> Result<NodeId, CompileError> {
+    crate::progress::deep(|| compile_node(dag, f, domains))
+}
+
+fn compile_node(dag: &mut Dag, f: &Formula, domains: &Domains) -> Result<NodeId, CompileError> {
+    let mut c = |g: &Formula| compile(dag, g, domains);
+    Ok(match f {
+        Formula::True => TRUE,
+        Formula::False => FALSE,
+        Formula::Atom(a) => {
+            let (delay, atom) = look_back(a);
+            let n = dag.atom(atom);
+            if delay > 0 { dag.next(delay, n) } else { n }
+        }
+        Formula::Not(a) => {
+            let a = c(a)?;
+            dag.not(a)
+        }
+        Formula::And(a, b) => {
+            let (a, b) = (c(a)?, c(b)?);
+            dag.and2(a, b)
+        }
+        Formula::Or(a, b) => {
+            let (a, b) = (c(a)?, c(b)?);
+            dag.or2(a, b)
+        }
+        Formula::Implies(a, b) => {
+            let (a, b) = (c(a)?, c(b)?);
+            let na = dag.not(a);
+            dag.or2(na, b)
+        }
+        Formula::Iff(a, b) => {
+            let (a, b) = (c(a)?, c(b)?);
+            let (na, nb) = (dag.not(a), dag.not(b));
+            let l = dag.or2(na, b);
+            let r = dag.or2(a, nb);
+            dag.and2(l, r)
+        }
+        Formula::Always(iv, a) => {
+            let a = c(a)?;
+            dag.always(Window::Rel(*iv), a)
+        }
+        Formula::Eventually(iv, a) => {
+            let a = c(a)?;
+            dag.eventually(Window::Rel(*iv), a)
+        }
+        Formula::Until(iv, a, b) => {
+            let (a, b) = (c(a)?, c(b)?);
+            dag.until(Window::Rel(*iv), a, b)
+        }
+        Formula::Next(k, a) => {
+            let a = c(a)?;
+            dag.next(*k, a)
+        }
+        Formula::Forall(x, d, body) | Formula::Exists(x, d, body) => {
+            let constants: Vec<String> = match d {
+                Domain::Named(name) => domains
+                    .get(name)
+                    .cloned()
+                    .ok_or_else(|| CompileError::UnknownDomain(name.clone()))?,
+                Domain::Set(cs) => cs.clone(),
+            };
+            let body = c(body)?;
+            let mut syms: Vec<_> = constants.iter().map(|k| dag.sym(k)).collect();
+            syms.sort_unstable();
+            syms.dedup();
+            let var = dag.sym(x);
+            dag.quantifier(matches!(f, Formula::Forall(..)), var, syms.into(), body)
+        }
+    })
+}
+
+/// Theorems 4–5: the delay `m` and the atom whose region offsets are all ≤ 0.
+fn look_back(a: &Atom) -> (u32, Atom) {
+    match a {
+        Atom::Spatial {
+            relation,
+            left,
+            right,
+        } if left.offset > 0 || right.offset > 0 => {
+            let m = left.offset.max(right.offset);
+            let back = |r: &Region| Region {
+                offset: r.offset.saturating_sub(m),
+                name: r.name.clone(),
+            };
+            (
+                m.unsigned_abs(),
+                Atom::Spatial {
+                    relation: *relation,
+                    left: back(left),
+                    right: back(right),
+                },
+            )
+        }
+        other => (0, other.clone()),
+    }
+}

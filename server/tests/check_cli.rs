@@ -1,0 +1,234 @@
+//! `dyknow check` as a process (issue 5, acceptance 2): the seed's formulas (3.2), (4.5), (5.12)
+//! and (6.1), each on traces of `specs/traces/` that make it true, false and unknown, with the
+//! state at which the verdict is decided; several formulas at once; streaming from standard
+//! input; bad input.
+#![expect(
+    clippy::unwrap_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+
+const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+
+const F3_2: &str = "inRoom -> always (poorLight -> eventually[0,10s] goodLight)";
+const F4_5: &str =
+    "forall x in NAO: always (batteryLevel(x) < 0.1 -> eventually[0,60s] Charging(x))";
+const F5_12: &str = "forall x in UAV: always (altitude(x) > 50)";
+const F6_1: &str = "always[0,1440min] InsideCircle(ball)";
+
+fn trace(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../specs/traces")
+        .join(name)
+}
+
+fn check(formulas: &[&str], trace: &PathBuf, extra: &[&str]) -> (i32, Vec<String>, String) {
+    let mut cmd = Command::new(BIN);
+    cmd.arg("check");
+    for f in formulas {
+        cmd.args(["--formula", f]);
+    }
+    let out = cmd.arg("--trace").arg(trace).args(extra).output().unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8(out.stdout)
+            .unwrap()
+            .lines()
+            .map(str::to_owned)
+            .collect(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn verdict(formula: usize, verdict: &str, t: u64) -> String {
+    format!("{{\"formula\": {formula}, \"verdict\": \"{verdict}\", \"t\": {t}}}")
+}
+
+#[test]
+fn seed_formulas_true_false_unknown() {
+    let cases: &[(&str, &str, &[&str], &str, u64)] = &[
+        // (3.2): poor light at 0 and no good light by 10 s; not in the room; good light in time
+        // but the trace ends while `always` still watches.
+        (F3_2, "office-light-false.jsonl", &[], "false", 10_000),
+        (F3_2, "office-light-true.jsonl", &[], "true", 0),
+        (F3_2, "office-light-unknown.jsonl", &[], "unknown", 30_000),
+        // (4.5): nao1 low at 30 s and not charging by 90 s; charging in time (unbounded
+        // `always` stays open); no robots at all, so the universal holds vacuously.
+        (F4_5, "nao-battery.jsonl", &[], "false", 90_000),
+        (F4_5, "nao-battery-charging.jsonl", &[], "unknown", 90_000),
+        (F4_5, "nao-battery-no-robots.jsonl", &[], "true", 0),
+        // (5.12): uav1 drops to 49.5 m; uav2's altitude missing at 100 (unknown, never
+        // false); an empty UAV domain from the command line.
+        (F5_12, "uav-altitude.jsonl", &[], "false", 200),
+        (F5_12, "uav-altitude-missing.jsonl", &[], "unknown", 200),
+        (
+            F5_12,
+            "uav-altitude-no-uavs.jsonl",
+            &["--domain", "UAV="],
+            "true",
+            0,
+        ),
+        // (6.1): inside for the whole day (decided at 1440 min, whatever follows); leaves
+        // after an hour; lost from view at 1 min.
+        (F6_1, "ball-circle.jsonl", &[], "true", 86_400_000),
+        (F6_1, "ball-circle-leaves.jsonl", &[], "false", 3_600_000),
+        (F6_1, "ball-circle-lost.jsonl", &[], "unknown", 90_000_000),
+    ];
+    for (formula, file, extra, expected, t) in cases {
+        let (code, lines, stderr) = check(&[formula], &trace(file), extra);
+        assert_eq!(code, 0, "{file}: {stderr}");
+        assert_eq!(lines, vec![verdict(0, expected, *t)], "{formula} on {file}");
+    }
+}
+
+#[test]
+fn several_formulas_report_in_the_order_they_are_decided() {
+    let (code, lines, stderr) = check(
+        &[
+            F5_12,
+            "eventually[0,150] altitude(uav2) < 79.5",
+            "always altitude(uav2) > 0",
+        ],
+        &trace("uav-altitude.jsonl"),
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        lines,
+        vec![
+            verdict(1, "true", 100),
+            verdict(0, "false", 200),
+            verdict(2, "unknown", 300)
+        ]
+    );
+}
+
+/// Verdicts are written as soon as a state decides them, before the trace ends.
+#[test]
+fn streams_from_standard_input() {
+    let mut child = Command::new(BIN)
+        .args([
+            "check",
+            "--formula",
+            "eventually[0,1s] p",
+            "--formula",
+            "always q",
+        ])
+        .args(["--trace", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    writeln!(
+        stdin,
+        "{{\"t\": 0, \"state\": {{\"p\": false, \"q\": true}}}}"
+    )
+    .unwrap();
+    writeln!(
+        stdin,
+        "{{\"t\": 500, \"state\": {{\"p\": true, \"q\": true}}}}"
+    )
+    .unwrap();
+    stdin.flush().unwrap();
+    let mut line = String::new();
+    stdout.read_line(&mut line).unwrap();
+    assert_eq!(line.trim_end(), verdict(0, "true", 500));
+    writeln!(stdin, "{{\"t\": 900, \"state\": {{\"q\": false}}}}").unwrap();
+    drop(stdin);
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    assert_eq!(rest.trim_end(), verdict(1, "false", 900));
+    assert!(child.wait().unwrap().success());
+}
+
+#[test]
+fn bad_input_is_a_usage_error_naming_the_place() {
+    let t = trace("uav-altitude.jsonl");
+    let (code, lines, stderr) = check(&["always (p"], &t, &[]);
+    assert_eq!((code, lines.len()), (2, 0));
+    assert!(stderr.contains("column 10"), "{stderr}");
+    let (code, _, stderr) = check(&["forall x in Robots: P(x)"], &t, &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("unknown domain 'Robots'"), "{stderr}");
+    let (code, _, stderr) = check(&["p"], &t, &["--domain", "nameless"]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("NAME=a,b"), "{stderr}");
+    let dir = tempfile::tempdir().unwrap();
+    for (body, expected) in [
+        (
+            "{\"t\": 5, \"state\": {}}\n{\"t\": 5, \"state\": {}}\n",
+            "line 2: timestamp 5 does not follow 5",
+        ),
+        (
+            "{\"t\": 0, \"state\": {\"p\": [1]}}\n",
+            "line 1: the value of 'p'",
+        ),
+        (
+            "{\"t\": 0, \"state\": {}}\n{\"t\": 1, \"sta",
+            "line 2, column",
+        ),
+        ("{\"t\": -3}\n", "line 1: t must be a non-negative integer"),
+        (
+            "{\"state\": {}}\n{\"state\": {}}\n",
+            "line 1: a state needs t",
+        ),
+        (
+            "{\"t\": 0, \"spatial\": [[\"a\", \"b\", [\"XX\"]]]}\n",
+            "line 1: \"XX\" is not an RCC-8 relation",
+        ),
+        (
+            "{\"domains\": {\"UAV\": \"uav1\"}}\n",
+            "line 1: domain UAV must be an array",
+        ),
+        (
+            "{\"t\": 0, \"colour\": 1}\n",
+            "line 1: unknown key 'colour'",
+        ),
+    ] {
+        let path = dir.path().join("bad.jsonl");
+        std::fs::write(&path, body).unwrap();
+        let (code, _, stderr) = check(&["always p"], &path, &[]);
+        assert_eq!(code, 2, "{body}");
+        assert!(stderr.contains(expected), "{body}: {stderr}");
+    }
+}
+
+/// Spatial observations decide spatial atoms without a closure yet: exactly `{R}` is true,
+/// a set without `R` false; static relations carry over to later states.
+#[test]
+fn spatial_observations_and_static_regions() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("spatial.jsonl");
+    std::fs::write(
+        &path,
+        "{\"static\": [\"office\", \"canteen\"]}\n\
+         {\"t\": 0, \"spatial\": [[\"canteen\", \"office\", [\"DC\"]], [\"student\", \"office\", [\"NTPP\", \"TPP\"]]]}\n\
+         {\"t\": 10, \"spatial\": [[\"office\", \"student\", [\"NTPPI\"]]]}\n",
+    )
+    .unwrap();
+    let (code, lines, stderr) = check(
+        &[
+            "always DC(office, canteen)",
+            "NTPP(student, office)",
+            "next NTPP(student, office)",
+            "EC(student, office)",
+        ],
+        &path,
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        lines,
+        vec![
+            verdict(3, "false", 0),
+            verdict(2, "true", 10),
+            verdict(0, "unknown", 10),
+            verdict(1, "unknown", 10),
+        ]
+    );
+}
