@@ -23,7 +23,7 @@ Peers (pin: reelay==25.0.0, mstlo-python==0.2.2):
     F1: once[0:10] {p}                                                   (D = 10 steps)
     F2: (once[19:19] {p: false}) -> (once[0:10] (historically[0:9] {p})) (D = 19 steps)
   In dense mode the bounds are milliseconds (time = 100*k): once[0:1000], once[1999:1999],
-  historically[0:999]. Rye needs the parentheses: `once[0:10] historically[0:9] {p}` is a syntax
+  historically[0:999]. Reelay needs the parentheses: `once[0:10] historically[0:9] {p}` is a syntax
   error that reelay reports on stderr and then monitors as something else (or segfaults).
   mstlo has bounded future STL only (no unbounded G), over dense time with zero-order hold:
   the monitor evaluates the body at every sample, so the outer G is again the monitor's loop.

@@ -2,12 +2,14 @@
 //! domains resolved, and region offsets rewritten by Theorems 4–5 so that no atom looks ahead:
 //! `R(next^i x, next^j y)` with `m = max(i, j) > 0` becomes `next^m R(next^(i-m) x, next^(j-m) y)`
 //! (so `R(x, next y)` becomes `next R(prev x, y)`), and evaluation only ever needs the current
-//! and earlier states.
+//! and earlier states. Bound variables are renamed apart (`x` becomes `x\0<n>`, a name no formula
+//! or domain can hold), so substituting a constant never captures an inner variable of the same
+//! name: `forall x in {y, z}: exists y in {y, z}: x != y` stays true.
 
 use std::collections::BTreeMap;
 
 use crate::dag::{Dag, FALSE, NodeId, TRUE, Window};
-use crate::syntax::{Atom, Domain, Formula, Region};
+use crate::syntax::{Atom, Domain, Formula, Region, Term};
 
 /// Named domains: a name and its constants.
 pub type Domains = BTreeMap<String, Vec<String>>;
@@ -18,23 +20,65 @@ pub enum CompileError {
     /// A quantifier ranges over a named domain nobody gave.
     #[error("unknown domain '{0}' (give it in the trace header or with --domain {0}=a,b)")]
     UnknownDomain(String),
+    /// A domain constant holds a NUL character (reserved for renamed variables).
+    #[error("the domain constant {0:?} holds a NUL character")]
+    BadConstant(String),
 }
+
+/// Bound variables in scope: the name written and the name it was renamed to.
+type Scope = Vec<(String, String)>;
 
 pub(crate) fn compile(
     dag: &mut Dag,
     f: &Formula,
     domains: &Domains,
 ) -> Result<NodeId, CompileError> {
-    crate::progress::deep(|| compile_node(dag, f, domains))
+    compile_in(dag, f, domains, &mut Scope::new())
 }
 
-fn compile_node(dag: &mut Dag, f: &Formula, domains: &Domains) -> Result<NodeId, CompileError> {
-    let mut c = |g: &Formula| compile(dag, g, domains);
+fn compile_in(
+    dag: &mut Dag,
+    f: &Formula,
+    domains: &Domains,
+    scope: &mut Scope,
+) -> Result<NodeId, CompileError> {
+    crate::progress::deep(|| compile_node(dag, f, domains, scope))
+}
+
+fn compile_node(
+    dag: &mut Dag,
+    f: &Formula,
+    domains: &Domains,
+    scope: &mut Scope,
+) -> Result<NodeId, CompileError> {
+    if let Formula::Forall(x, d, body) | Formula::Exists(x, d, body) = f {
+        let constants: Vec<String> = match d {
+            Domain::Named(name) => domains
+                .get(name)
+                .cloned()
+                .ok_or_else(|| CompileError::UnknownDomain(name.clone()))?,
+            Domain::Set(cs) => cs.clone(),
+        };
+        if let Some(bad) = constants.iter().find(|c| c.contains('\0')) {
+            return Err(CompileError::BadConstant(bad.clone()));
+        }
+        let fresh = format!("{x}\0{}", dag.fresh_variable());
+        scope.push((x.clone(), fresh.clone()));
+        let body = compile_in(dag, body, domains, scope);
+        scope.pop();
+        let body = body?;
+        let mut syms: Vec<_> = constants.iter().map(|k| dag.sym(k)).collect();
+        syms.sort_unstable();
+        syms.dedup();
+        let var = dag.sym(&fresh);
+        return Ok(dag.quantifier(matches!(f, Formula::Forall(..)), var, syms.into(), body));
+    }
+    let mut c = |g: &Formula| compile_in(dag, g, domains, scope);
     Ok(match f {
         Formula::True => TRUE,
         Formula::False => FALSE,
         Formula::Atom(a) => {
-            let (delay, atom) = look_back(a);
+            let (delay, atom) = look_back(&rename(a, scope));
             let n = dag.atom(atom);
             if delay > 0 { dag.next(delay, n) } else { n }
         }
@@ -78,22 +122,57 @@ fn compile_node(dag: &mut Dag, f: &Formula, domains: &Domains) -> Result<NodeId,
             let a = c(a)?;
             dag.next(*k, a)
         }
-        Formula::Forall(x, d, body) | Formula::Exists(x, d, body) => {
-            let constants: Vec<String> = match d {
-                Domain::Named(name) => domains
-                    .get(name)
-                    .cloned()
-                    .ok_or_else(|| CompileError::UnknownDomain(name.clone()))?,
-                Domain::Set(cs) => cs.clone(),
-            };
-            let body = c(body)?;
-            let mut syms: Vec<_> = constants.iter().map(|k| dag.sym(k)).collect();
-            syms.sort_unstable();
-            syms.dedup();
-            let var = dag.sym(x);
-            dag.quantifier(matches!(f, Formula::Forall(..)), var, syms.into(), body)
-        }
+        Formula::Forall(..) | Formula::Exists(..) => unreachable!("handled above"),
     })
+}
+
+/// The atom with its bound variables renamed (the innermost binding of a name wins); names
+/// with arguments are functions, never variables.
+fn rename(a: &Atom, scope: &Scope) -> Atom {
+    let bound = |name: &str| {
+        scope
+            .iter()
+            .rev()
+            .find(|(x, _)| x == name)
+            .map(|(_, fresh)| fresh.clone())
+    };
+    fn term(t: &Term, bound: &dyn Fn(&str) -> Option<String>) -> Term {
+        match t {
+            Term::Name { name, args } if args.is_empty() => Term::Name {
+                name: bound(name).unwrap_or_else(|| name.clone()),
+                args: Vec::new(),
+            },
+            Term::Name { name, args } => Term::Name {
+                name: name.clone(),
+                args: args.iter().map(|a| term(a, bound)).collect(),
+            },
+            other => other.clone(),
+        }
+    }
+    let region = |r: &Region| Region {
+        offset: r.offset,
+        name: bound(&r.name).unwrap_or_else(|| r.name.clone()),
+    };
+    match a {
+        Atom::Predicate { name, args } => Atom::Predicate {
+            name: name.clone(),
+            args: args.iter().map(|t| term(t, &bound)).collect(),
+        },
+        Atom::Compare { left, op, right } => Atom::Compare {
+            left: term(left, &bound),
+            op: *op,
+            right: term(right, &bound),
+        },
+        Atom::Spatial {
+            relation,
+            left,
+            right,
+        } => Atom::Spatial {
+            relation: *relation,
+            left: region(left),
+            right: region(right),
+        },
+    }
 }
 
 /// Theorems 4–5: the delay `m` and the atom whose region offsets are all ≤ 0.

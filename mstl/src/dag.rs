@@ -59,7 +59,7 @@ pub(crate) enum Node {
     /// At least two disjuncts, as `And`.
     Or(Arc<[NodeId]>),
     /// `next^k φ`. `Next(0, φ)` occurs only in progressed formulas: φ from the state it is
-    /// progressed at, with φ's intervals relative to that state (no time shift).
+    /// progressed at, with φ's windows anchored at that state.
     Next(u32, NodeId),
     Always(Window, NodeId),
     Eventually(Window, NodeId),
@@ -92,6 +92,8 @@ pub(crate) struct Dag {
     /// The timestamp of the state being progressed: anchored windows are compared from the
     /// next state on.
     pub(crate) now: Option<u64>,
+    /// Bound variables renamed so far (for fresh names).
+    variables: u64,
 }
 
 impl Default for Dag {
@@ -106,6 +108,7 @@ impl Default for Dag {
             sym_index: FxHashMap::default(),
             live_after_collect: 0,
             now: None,
+            variables: 0,
         };
         for n in [Node::False, Node::True, Node::Unknown] {
             dag.intern(n);
@@ -161,6 +164,12 @@ impl Dag {
         self.index
             .insert_unique(hash, id, |id| node_hash(&nodes[id.0 as usize]));
         id
+    }
+
+    /// A number for a fresh variable name.
+    pub(crate) fn fresh_variable(&mut self) -> u64 {
+        self.variables += 1;
+        self.variables
     }
 
     pub(crate) fn sym(&mut self, name: &str) -> Sym {
@@ -418,9 +427,9 @@ impl Dag {
         }
     }
 
-    /// Temporal constructors fold exactly when the formula has the same value at every state
-    /// whatever the states hold (atoms unknown), so a progressed formula is a constant iff the
-    /// states so far decide it: `G[I] true = true`, `F[I] false = false`, `φ U[I] false = false`,
+    /// Temporal constructors fold exactly when the operator has the same value whatever the
+    /// states hold (atoms unknown), so a progressed formula is a constant iff the states so far
+    /// decide it operator by operator in Kleene's logic: `G[I] true = true`, `F[I] false = false`, `φ U[I] false = false`,
     /// and, for a formula as written whose window starts at 0 (the current state lies in it),
     /// `G[0,b] c = F[0,b] c = φ U[0,b] c = c` for a constant `c`, `false U[0,b] ψ = ψ`,
     /// `false U[a,b] ψ = false` for `a > 0`, and `true U[I] ψ = F[I] ψ`. Anchored windows

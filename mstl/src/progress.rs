@@ -86,7 +86,9 @@ impl Progress {
             _ => return (self.step(x, v), neutral),
         };
         let t = self.dag.now.unwrap_or(0);
-        let (lo, hi, anchored) = anchor(w, t, x);
+        let Some((lo, hi, anchored)) = anchor(w, t, x) else {
+            return (neutral, neutral);
+        };
         if hi.is_some_and(|h| h < t) {
             return (neutral, neutral);
         }
@@ -141,7 +143,9 @@ impl Progress {
             // Lines 6–13, with `eventually[I] φ = true U[I] φ` and `always = ¬eventually¬`
             // written out. `Some(n)` when the node is anchored already (its own residual).
             Node::Eventually(w, a) => {
-                let (lo, hi, anchored) = anchor(w, t, n);
+                let Some((lo, hi, anchored)) = anchor(w, t, n) else {
+                    return FALSE;
+                };
                 if hi.is_some_and(|h| h < t) {
                     return FALSE;
                 }
@@ -154,7 +158,9 @@ impl Progress {
                 self.dag.or2(now, rest)
             }
             Node::Always(w, a) => {
-                let (lo, hi, anchored) = anchor(w, t, n);
+                let Some((lo, hi, anchored)) = anchor(w, t, n) else {
+                    return TRUE;
+                };
                 if hi.is_some_and(|h| h < t) {
                     return TRUE;
                 }
@@ -166,7 +172,9 @@ impl Progress {
                 self.dag.and2(now, rest)
             }
             Node::Until(w, a, b) => {
-                let (lo, hi, anchored) = anchor(w, t, n);
+                let Some((lo, hi, anchored)) = anchor(w, t, n) else {
+                    return FALSE;
+                };
                 if hi.is_some_and(|h| h < t) {
                     return FALSE;
                 }
@@ -276,15 +284,16 @@ pub(crate) fn deep<R>(f: impl FnOnce() -> R) -> R {
 }
 
 /// The window in timestamps: a relative one anchored at `t`, the node itself when anchored
-/// already.
-fn anchor(w: Window, t: u64, n: NodeId) -> (u64, Option<u64>, Option<NodeId>) {
+/// already. `None` when it starts beyond the last timestamp there can be (no state can fall in
+/// it); an end beyond it is no end.
+fn anchor(w: Window, t: u64, n: NodeId) -> Option<(u64, Option<u64>, Option<NodeId>)> {
     match w {
-        Window::Rel(iv) => (
-            t.saturating_add(iv.lo),
-            iv.hi.map(|h| t.saturating_add(h)),
+        Window::Rel(iv) => Some((
+            t.checked_add(iv.lo)?,
+            iv.hi.and_then(|h| t.checked_add(h)),
             None,
-        ),
-        Window::Abs { lo, hi } => (lo, hi, Some(n)),
+        )),
+        Window::Abs { lo, hi } => Some((lo, hi, Some(n))),
     }
 }
 

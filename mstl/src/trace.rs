@@ -62,9 +62,12 @@ pub enum CheckError {
         /// Why.
         source: CompileError,
     },
-    /// Reading the trace or writing verdicts failed.
+    /// Reading the trace failed.
     #[error(transparent)]
     Io(#[from] std::io::Error),
+    /// Writing the verdicts failed.
+    #[error("writing verdicts: {0}")]
+    Output(std::io::Error),
 }
 
 /// The relations of RCC-8 as bits (bit i is `Rcc8` variant i).
@@ -177,7 +180,7 @@ impl<R: BufRead> Reader<R> {
                 continue;
             }
             let line = self.line;
-            return match serde_json::from_str::<Json>(&self.buf) {
+            return match serde_json::from_str::<Json>(self.buf.trim_end()) {
                 Ok(Json::Object(map)) => Ok(Some((line, map))),
                 Ok(_) => Err(trace_error(line, "expected a JSON object")),
                 Err(e) => {
@@ -258,9 +261,10 @@ fn state(
     for (k, v) in map {
         match k.as_str() {
             "t" => {
+                // Integers, or floats that hold an integer exactly (below 2^53).
                 let n = v.as_u64().or_else(|| {
                     v.as_f64()
-                        .filter(|f| f.fract() == 0.0 && *f >= 0.0 && *f < 1.8e19)
+                        .filter(|f| f.fract() == 0.0 && *f >= 0.0 && *f < 9_007_199_254_740_992.0)
                         .map(|f| f as u64)
                 });
                 t = Some(n.ok_or_else(|| {
@@ -314,13 +318,28 @@ fn state(
                         })?;
                         rels |= bit(r);
                     }
+                    if x == y && rels & bit(Rcc8::Eq) == 0 || rels == 0 {
+                        return Err(trace_error(
+                            line,
+                            format!("{item}: no relation is possible (a region is EQ to itself)"),
+                        ));
+                    }
                     let (pair, rels) = if x <= y {
                         ((x.clone(), y.clone()), rels)
                     } else {
                         ((y.clone(), x.clone()), converse(rels))
                     };
-                    let entry = out.spatial.entry(pair).or_insert(Rels::MAX);
+                    let entry = out.spatial.entry(pair.clone()).or_insert(Rels::MAX);
                     *entry &= rels;
+                    if *entry == 0 {
+                        return Err(trace_error(
+                            line,
+                            format!(
+                                "the constraints between {} and {} contradict each other",
+                                pair.0, pair.1
+                            ),
+                        ));
+                    }
                 }
             }
             other => {
@@ -335,7 +354,17 @@ fn state(
     // Static regions: what was observed between two of them holds from then on.
     for (pair, rels) in &out.spatial {
         if statics.contains(&pair.0) && statics.contains(&pair.1) {
-            *carried.entry(pair.clone()).or_insert(Rels::MAX) &= *rels;
+            let held = carried.entry(pair.clone()).or_insert(Rels::MAX);
+            if *held & *rels == 0 {
+                return Err(trace_error(
+                    line,
+                    format!(
+                        "{} and {} are static, and this contradicts what was observed between them before",
+                        pair.0, pair.1
+                    ),
+                ));
+            }
+            *held &= *rels;
         }
     }
     for (pair, rels) in carried.iter() {
@@ -388,9 +417,6 @@ pub fn check<R: BufRead, W: Write>(
     let mut pending = formulas.len();
     let mut next = first;
     while let Some((line, map)) = next {
-        if pending == 0 {
-            break;
-        }
         let (t, s) = state(line, map, &h.static_regions, &mut carried)?;
         let verdicts = monitor.step(t, &s).map_err(|e| match e {
             StepError::NotIncreasing { .. } | StepError::Finished => {
@@ -398,20 +424,24 @@ pub fn check<R: BufRead, W: Write>(
             }
         })?;
         for v in verdicts {
-            write_verdict(out, v)?;
+            write_verdict(out, v).map_err(CheckError::Output)?;
             all.push(*v);
         }
         if !verdicts.is_empty() {
             pending -= verdicts.len();
-            out.flush()?;
+            out.flush().map_err(CheckError::Output)?;
+        }
+        if pending == 0 {
+            // Every formula is decided: read no further (a live stream may never end).
+            break;
         }
         next = reader.next()?;
     }
     for v in monitor.finish() {
-        write_verdict(out, &v)?;
+        write_verdict(out, &v).map_err(CheckError::Output)?;
         all.push(v);
     }
-    out.flush()?;
+    out.flush().map_err(CheckError::Output)?;
     Ok(all)
 }
 

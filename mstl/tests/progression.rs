@@ -369,10 +369,12 @@ fn leaf() -> impl Strategy<Value = Formula> {
             name: p.to_owned(),
             args: vec![]
         })),
-        prop::sample::select(vec!["x", "a", "b"]).prop_map(|x| Formula::Atom(Atom::Predicate {
-            name: "P".to_owned(),
-            args: vec![name(x)]
-        })),
+        prop::sample::select(vec!["x", "y", "a", "b"]).prop_map(|x| Formula::Atom(
+            Atom::Predicate {
+                name: "P".to_owned(),
+                args: vec![name(x)]
+            }
+        )),
         (
             prop::sample::select(vec!["x", "a"]),
             prop::sample::select(vec![Cmp::Gt, Cmp::Le, Cmp::Eq])
@@ -385,11 +387,15 @@ fn leaf() -> impl Strategy<Value = Formula> {
                 op,
                 right: Term::Number(1.0),
             })),
-        prop::sample::select(vec!["x", "b"]).prop_map(|x| Formula::Atom(Atom::Compare {
-            left: name(x),
-            op: Cmp::Eq,
-            right: name("a"),
-        })),
+        (
+            prop::sample::select(vec!["x", "b"]),
+            prop::sample::select(vec!["a", "y"])
+        )
+            .prop_map(|(x, y)| Formula::Atom(Atom::Compare {
+                left: name(x),
+                op: Cmp::Eq,
+                right: name(y),
+            })),
         (0i32..=2, 0i32..=2).prop_map(|(i, j)| Formula::Atom(Atom::Spatial {
             relation: Rcc8::Eq,
             left: Region {
@@ -404,11 +410,19 @@ fn leaf() -> impl Strategy<Value = Formula> {
     ]
 }
 
+/// Domains, some of whose constants are named like the variables (renaming must keep them
+/// apart: a substituted constant `y` is not the variable `y` of an inner quantifier).
 fn domain() -> impl Strategy<Value = Domain> {
     prop_oneof![
-        6 => Just(Domain::Set(vec!["a".to_owned(), "b".to_owned()])),
+        4 => Just(Domain::Set(vec!["a".to_owned(), "b".to_owned()])),
+        2 => Just(Domain::Set(vec!["a".to_owned(), "y".to_owned()])),
+        2 => Just(Domain::Set(vec!["x".to_owned(), "y".to_owned()])),
         1 => Just(Domain::Set(vec![])),
     ]
+}
+
+fn variable() -> impl Strategy<Value = String> {
+    prop::sample::select(vec!["x".to_owned(), "y".to_owned()])
 }
 
 fn formula() -> impl Strategy<Value = Formula> {
@@ -428,12 +442,12 @@ fn formula() -> impl Strategy<Value = Formula> {
                 b(c)
             )),
             (1u32..=2, inner.clone()).prop_map(move |(k, a)| Formula::Next(k, b(a))),
-            (inner.clone(), domain()).prop_map(move |(a, d)| Formula::Forall(
-                "x".to_owned(),
+            (variable(), inner.clone(), domain()).prop_map(move |(x, a, d)| Formula::Forall(
+                x,
                 d,
                 b(a)
             )),
-            (inner, domain()).prop_map(move |(a, d)| Formula::Exists("x".to_owned(), d, b(a))),
+            (variable(), inner, domain()).prop_map(move |(x, a, d)| Formula::Exists(x, d, b(a))),
         ]
     })
 }
@@ -444,10 +458,10 @@ fn bool_or_missing() -> impl Strategy<Value = Option<bool>> {
 
 fn state_values() -> impl Strategy<Value = BTreeMap<String, V>> {
     (
-        prop::collection::vec(bool_or_missing(), 3 + 2 + 2),
+        prop::collection::vec(bool_or_missing(), 3 + 4 + 2),
         prop::collection::vec(
             prop_oneof![3 => (0u8..3).prop_map(Some), 1 => Just(None)],
-            2,
+            3,
         ),
     )
         .prop_map(|(bools, nums)| {
@@ -457,6 +471,8 @@ fn state_values() -> impl Strategy<Value = BTreeMap<String, V>> {
                 "r",
                 "P(a)",
                 "P(b)",
+                "P(x)",
+                "P(y)",
                 "EQ(prev s,s)",
                 "EQ(prev^2 s,s)",
             ];
@@ -466,7 +482,7 @@ fn state_values() -> impl Strategy<Value = BTreeMap<String, V>> {
                     m.insert((*k).to_owned(), V::B(b));
                 }
             }
-            for (k, v) in ["f(a)", "f(b)"].iter().zip(nums) {
+            for (k, v) in ["f(a)", "f(b)", "f(x)"].iter().zip(nums) {
                 if let Some(n) = v {
                     m.insert((*k).to_owned(), V::N(f64::from(n)));
                 }
@@ -652,4 +668,43 @@ fn deepest_accepted_formulas_progress_on_a_small_stack() {
         .unwrap()
         .join()
         .unwrap();
+}
+
+/// A constant named like an inner quantifier's variable is not captured by it (found by
+/// review: substitution by name made the first formula false).
+#[test]
+fn substituted_constants_are_not_captured() {
+    let f = parse("forall x in {y, z}: exists y in {y, z}: !(x = y)").unwrap();
+    let g = parse("forall x in {y}: exists y in {z}: x = y").unwrap();
+    let trace = [State {
+        t: 0,
+        values: BTreeMap::new(),
+    }];
+    assert_eq!(
+        monitored(&[f, g], &trace),
+        vec![(Truth::True, 0), (Truth::False, 0)]
+    );
+}
+
+/// Windows that start beyond the last possible timestamp hold no state; near `u64::MAX` nothing
+/// saturates into a window it does not reach.
+#[test]
+fn windows_beyond_the_last_timestamp() {
+    let s = |t: u64| State {
+        t,
+        values: [("p".to_owned(), V::B(true))].into_iter().collect(),
+    };
+    let f = parse("eventually[1000,2000] p").unwrap();
+    let g = parse("always[1000,2000] !p").unwrap();
+    let h = parse("eventually[0,2000] p").unwrap();
+    let trace = [s(u64::MAX - 600), s(u64::MAX)];
+    let first = u64::MAX - 600;
+    assert_eq!(
+        monitored(&[f, g, h], &trace),
+        vec![
+            (Truth::False, first),
+            (Truth::True, first),
+            (Truth::True, first)
+        ]
+    );
 }

@@ -410,7 +410,7 @@ fn check(
         .iter()
         .enumerate()
         .map(|(i, f)| {
-            dyknow_mstl::parse(f).map_err(|e| Failure(2, format!("--formula {i} ({f}): {e}")))
+            dyknow_mstl::parse(f).map_err(|e| Failure(2, format!("--formula {i} {f:?}: {e}")))
         })
         .collect::<Result<Vec<_>, _>>()?;
     let mut extra = Header {
@@ -435,8 +435,9 @@ fn check(
         Ok(_) => Ok(()),
         Err(CheckError::Compile { formula, source }) => Err(Failure(
             2,
-            format!("--formula {formula} ({}): {source}", formulas[formula]),
+            format!("--formula {formula} {:?}: {source}", formulas[formula]),
         )),
+        Err(e @ CheckError::Output(_)) => Err(Failure(2, e.to_string())),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),
     }
 }

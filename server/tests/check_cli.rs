@@ -189,6 +189,26 @@ fn bad_input_is_a_usage_error_naming_the_place() {
             "{\"t\": 0, \"colour\": 1}\n",
             "line 1: unknown key 'colour'",
         ),
+        (
+            "{\"t\": 9007199254740993.0}\n",
+            "line 1: t must be a non-negative integer",
+        ),
+        (
+            "{\"t\": 0, \"spatial\": [[\"a\", \"b\", []]]}\n",
+            "no relation is possible",
+        ),
+        (
+            "{\"t\": 0, \"spatial\": [[\"a\", \"a\", [\"DC\"]]]}\n",
+            "no relation is possible",
+        ),
+        (
+            "{\"t\": 0, \"spatial\": [[\"a\", \"b\", [\"DC\"]], [\"b\", \"a\", [\"PO\"]]]}\n",
+            "line 1: the constraints between a and b contradict each other",
+        ),
+        (
+            "{\"static\": [\"a\", \"b\"]}\n{\"t\": 0, \"spatial\": [[\"a\", \"b\", [\"DC\"]]]}\n{\"t\": 1, \"spatial\": [[\"a\", \"b\", [\"EC\"]]]}\n",
+            "line 3: a and b are static",
+        ),
     ] {
         let path = dir.path().join("bad.jsonl");
         std::fs::write(&path, body).unwrap();
@@ -231,4 +251,48 @@ fn spatial_observations_and_static_regions() {
             verdict(1, "unknown", 10),
         ]
     );
+}
+
+/// Once every formula is decided, `check` reads no further: on a live stream that stays open it
+/// exits at once.
+#[test]
+fn stops_reading_once_everything_is_decided() {
+    let mut child = Command::new(BIN)
+        .args(["check", "--formula", "p", "--trace", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    writeln!(stdin, "{{\"t\": 0, \"state\": {{\"p\": true}}}}").unwrap();
+    stdin.flush().unwrap();
+    // stdin stays open: the process must end on its own.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success());
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "check kept reading");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut out).unwrap();
+    assert_eq!(out.trim_end(), verdict(0, "true", 0));
+    drop(stdin);
+}
+
+/// A constant named like an inner variable is not captured (`docs/mstl.md`, renaming).
+#[test]
+fn quantified_variables_are_renamed_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("one.jsonl");
+    std::fs::write(&path, "{\"t\": 0}\n").unwrap();
+    let (code, lines, stderr) = check(
+        &["forall x in {y, z}: exists y in {y, z}: !(x = y)"],
+        &path,
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(lines, vec![verdict(0, "true", 0)]);
 }
