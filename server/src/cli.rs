@@ -102,6 +102,18 @@ pub enum Command {
         #[arg(long = "domain", value_name = "NAME=a,b")]
         domains: Vec<String>,
     },
+    /// The algebraic closure of RCC-8 networks in GQR's CSP format (docs/rcc8.md): for each
+    /// instance `consistent` and the refined network, or `inconsistent`. Exits 1 if any
+    /// instance is inconsistent.
+    Rcc8 {
+        /// Decide consistency exactly (backtracking over base relations), not only by path
+        /// consistency.
+        #[arg(long)]
+        exact: bool,
+        /// The network file (several instances, each ended by `.`); `-` reads standard input.
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+    },
 }
 
 /// Options of `dyknow serve`.
@@ -182,6 +194,7 @@ pub fn main() -> ExitCode {
             static_regions,
             domains,
         } => check(&formulas, &trace, landmarks, static_regions, &domains),
+        Command::Rcc8 { exact, file } => rcc8(&file, exact),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -440,6 +453,41 @@ fn check(
         Err(e @ CheckError::Output(_)) => Err(Failure(2, e.to_string())),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),
     }
+}
+
+/// `dyknow rcc8`: every instance closed (and, with `--exact`, solved); answers in input order.
+fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
+    use std::io::Read;
+    let name = file.display().to_string();
+    let mut text = String::new();
+    let read = if name == "-" {
+        std::io::stdin().read_to_string(&mut text)
+    } else {
+        std::fs::File::open(file).and_then(|mut f| f.read_to_string(&mut text))
+    };
+    read.map_err(|e| Failure(2, format!("{name}: {e}")))?;
+    let networks =
+        dyknow_rcc8::gqr::parse(&text).map_err(|e| Failure(2, format!("{name}: {e}")))?;
+    let mut out = String::new();
+    let mut inconsistent = 0;
+    for mut network in networks {
+        let closed = network.algebraic_closure().is_ok() && (!exact || network.clone().solve());
+        if closed {
+            out.push_str("consistent\n");
+            dyknow_rcc8::gqr::write(&network, &mut out)?;
+        } else {
+            out.push_str("inconsistent\n");
+            inconsistent += 1;
+        }
+    }
+    print!("{out}");
+    if inconsistent > 0 {
+        return Err(Failure(
+            1,
+            format!("{inconsistent} inconsistent instance(s)"),
+        ));
+    }
+    Ok(())
 }
 
 fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {

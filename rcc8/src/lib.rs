@@ -1,0 +1,22 @@
+//! RCC-8 qualitative spatial reasoning (seed Ch. 3.1.1, 3.3): relations as 8-bit sets with
+//! precomputed composition and converse ([`Relation`]), constraint networks with their
+//! algebraic closure and exact consistency ([`Network`]), and GQR's CSP file format ([`gqr`]).
+//! Knows nothing of RDF.
+//!
+//! ```
+//! use dyknow_rcc8::{Network, Relation};
+//! // The seed's Example 7, busy student: NTPP(student, office), DC(canteen, office).
+//! let (student, office, canteen) = (0, 1, 2);
+//! let mut n = Network::new(3);
+//! n.set(student, office, Relation::NTPP);
+//! n.set(canteen, office, Relation::DC);
+//! n.algebraic_closure().unwrap();
+//! assert_eq!(n.get(student, canteen), Relation::DC);
+//! ```
+
+pub mod gqr;
+mod network;
+mod relation;
+
+pub use network::{Inconsistent, Network};
+pub use relation::{BASE_COMPOSITION, Relation};

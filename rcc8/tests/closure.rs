@@ -1,0 +1,200 @@
+//! Differential tests (issue 6, acceptance 1): on random small networks, the algebraic closure
+//! against brute-force refinement over scenarios, and exact consistency against brute-force
+//! search. The brute force is written from the definitions: a scenario assigns one base
+//! relation to every pair and is consistent when every triangle is allowed by composition.
+
+use dyknow_rcc8::{Network, Relation, gqr};
+use proptest::prelude::*;
+
+/// Every consistent scenario refining `net` (converse-symmetric, atomic, triangle-closed).
+fn scenarios(net: &Network) -> Vec<Vec<Relation>> {
+    let n = net.len();
+    let pairs: Vec<(usize, usize)> = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+        .collect();
+    let mut out = Vec::new();
+    let mut assign = vec![Relation::EMPTY; n * n];
+    for i in 0..n {
+        assign[i * n + i] = Relation::EQ;
+    }
+    fn go(
+        k: usize,
+        pairs: &[(usize, usize)],
+        net: &Network,
+        assign: &mut Vec<Relation>,
+        out: &mut Vec<Vec<Relation>>,
+    ) {
+        let n = net.len();
+        if k == pairs.len() {
+            out.push(assign.clone());
+            return;
+        }
+        let (i, j) = pairs[k];
+        for b in net.get(i, j).bases() {
+            assign[i * n + j] = b;
+            assign[j * n + i] = b.converse();
+            // Every triangle whose three sides are assigned (pairs are in lexicographic order,
+            // so (i, j) is the last assigned of any triangle over i < j < ... ≤ j).
+            let ok = (0..n).filter(|m| *m != i && *m != j).all(|m| {
+                let (a, c) = (assign[i * n + m], assign[m * n + j]);
+                a.is_empty() || c.is_empty() || a.compose(c).contains(b)
+            });
+            if ok {
+                go(k + 1, pairs, net, assign, out);
+            }
+            assign[i * n + j] = Relation::EMPTY;
+            assign[j * n + i] = Relation::EMPTY;
+        }
+    }
+    go(0, &pairs, net, &mut assign, &mut out);
+    // Double-check every triangle of every complete scenario.
+    out.retain(|s| {
+        (0..n).all(|i| {
+            (0..n)
+                .all(|j| (0..n).all(|m| s[i * n + m].compose(s[m * n + j]).contains(s[i * n + j])))
+        })
+    });
+    out
+}
+
+fn network() -> impl Strategy<Value = Network> {
+    (2usize..=5).prop_flat_map(|n| {
+        let pairs = n * (n - 1) / 2;
+        prop::collection::vec(
+            prop_oneof![2 => Just(0xffu8), 3 => 1u8..=255, 2 => (0usize..8).prop_map(|i| 1u8 << i)],
+            pairs,
+        )
+        .prop_map(move |rels| {
+            let mut net = Network::new(n);
+            let mut k = 0;
+            for i in 0..n {
+                for j in i + 1..n {
+                    net.set(i, j, Relation(rels[k]));
+                    k += 1;
+                }
+            }
+            net
+        })
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|n| n.parse().ok()).unwrap_or(400),
+        ..ProptestConfig::default()
+    })]
+
+    /// The closure is sound (it keeps every relation some consistent scenario uses), it only
+    /// says "inconsistent" when no scenario exists, and it is a fixpoint: closing again
+    /// changes nothing, and every triangle satisfies R(i,j) ⊆ R(i,k) ∘ R(k,j).
+    #[test]
+    fn closure_against_brute_force(net in network()) {
+        let all = scenarios(&net);
+        let n = net.len();
+        let mut closed = net.clone();
+        match closed.algebraic_closure() {
+            Err(_) => prop_assert!(all.is_empty(), "closure says inconsistent, but a scenario exists"),
+            Ok(()) => {
+                for s in &all {
+                    for i in 0..n {
+                        for j in 0..n {
+                            prop_assert!(closed.get(i, j).contains(s[i * n + j]));
+                        }
+                    }
+                }
+                for i in 0..n {
+                    for j in 0..n {
+                        prop_assert!(net.get(i, j).contains(closed.get(i, j)));
+                        for k in 0..n {
+                            prop_assert!(closed.get(i, k).compose(closed.get(k, j)).contains(closed.get(i, j)));
+                        }
+                    }
+                }
+                let mut again = closed.clone();
+                again.algebraic_closure().unwrap();
+                prop_assert_eq!(again, closed);
+            }
+        }
+    }
+
+    /// Exact consistency decides exactly when a scenario exists, and returns one.
+    #[test]
+    fn exact_against_brute_force(net in network()) {
+        let all = scenarios(&net);
+        let mut solved = net.clone();
+        let found = solved.solve();
+        prop_assert_eq!(found, !all.is_empty());
+        if found {
+            let n = net.len();
+            let scenario: Vec<Relation> = (0..n * n).map(|k| solved.get(k / n, k % n)).collect();
+            prop_assert!(all.contains(&scenario), "the returned scenario is not a consistent one");
+        }
+    }
+}
+
+/// The seed's Example 7 (busy student): DC(student, canteen) is inferred.
+#[test]
+fn busy_student() {
+    let (student, office, canteen, desk) = (0, 1, 2, 3);
+    let mut n = Network::new(4);
+    n.set(student, office, Relation::NTPP);
+    n.set(canteen, office, Relation::DC);
+    n.set(desk, office, Relation::NTPP);
+    n.algebraic_closure().unwrap();
+    assert_eq!(n.get(student, canteen), Relation::DC);
+    assert_eq!(n.get(desk, canteen), Relation::DC);
+}
+
+/// GQR's unit test `testRCC8NotPathConsistent` (tests/data/SOURCE.md) and its `alleq.csp`.
+#[test]
+fn gqr_examples() {
+    let nets = gqr::parse("2\n0 1 ( TPP DC )\n1 2 ( TPP EC )\n0 2 ( TPPI EQ )\n.\n").unwrap();
+    let mut net = nets[0].clone();
+    assert!(net.algebraic_closure().is_err());
+    let nets = gqr::parse(include_str!("data/gqr-instances/alleq.csp")).unwrap();
+    let mut net = nets[0].clone();
+    assert!(net.algebraic_closure().is_ok());
+    assert!(net.solve());
+}
+
+/// Every published sample instance parses, and closure, exact solving and printing agree:
+/// the printed closure parses back to the same network; a network exact search solves is
+/// not declared inconsistent by the closure.
+#[test]
+fn gqr_sample_instances() {
+    for file in ["PC.csp", "example-10x20.csp", "example-10x10.csp"] {
+        let path = format!(
+            "{}/tests/data/gqr-instances/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        let nets = gqr::parse(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        assert!(!nets.is_empty(), "{file}");
+        for net in nets {
+            let mut closed = net.clone();
+            if closed.algebraic_closure().is_ok() {
+                let mut printed = String::new();
+                gqr::write(&closed, &mut printed).unwrap();
+                assert_eq!(gqr::parse(&printed).unwrap(), vec![closed]);
+            } else {
+                assert!(!net.clone().solve(), "{file}");
+            }
+        }
+    }
+}
+
+#[test]
+fn gqr_format_errors_name_the_place() {
+    let e = gqr::parse("2\n0 1 ( XX )\n.\n").unwrap_err();
+    assert_eq!((e.line, e.column), (2, 7));
+    let e = gqr::parse("2\n0 5 ( DC )\n").unwrap_err();
+    assert_eq!((e.line, e.column), (2, 3));
+    let e = gqr::parse("x\n").unwrap_err();
+    assert_eq!(e.line, 1);
+    let e = gqr::parse("2\n0 1 ( DC\n").unwrap_err();
+    assert!(e.message.contains("')'"), "{e}");
+    let e = gqr::parse(".\n").unwrap_err();
+    assert!(e.message.contains("header"), "{e}");
+    // Both directions are intersected after converting one; TPP ^-1 reads as TPPI.
+    let nets = gqr::parse("1\n0 1 ( TPP NTPP PO )\n1 0 ( TPP ^-1 DC )\n.\n").unwrap();
+    assert_eq!(nets[0].get(0, 1), Relation::TPP);
+}

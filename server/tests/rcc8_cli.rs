@@ -1,0 +1,81 @@
+//! `dyknow rcc8` as a process (contract `rcc8.md`): answers per instance, the refined network in
+//! GQR's format, exit 1 on an inconsistent instance, `--exact`, bad input.
+#![expect(
+    clippy::unwrap_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+
+fn rcc8(input: &str, extra: &[&str]) -> (i32, String, String) {
+    let mut child = Command::new(BIN)
+        .arg("rcc8")
+        .args(extra)
+        .arg("-")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// The seed's Example 7 (busy student: 0 student, 1 office, 2 canteen): DC(student, canteen)
+/// is inferred; then GQR's not-path-consistent example.
+#[test]
+fn answers_each_instance() {
+    let input = "2 # busy student\n0 1 ( NTTP )\n2 1 ( DC )\n.\n\
+                 2\n0 1 ( TPP DC )\n1 2 ( TPP EC )\n0 2 ( TPPI EQ )\n.\n";
+    let (code, out, stderr) = rcc8(input, &[]);
+    assert_eq!(code, 1, "{stderr}");
+    assert_eq!(
+        out,
+        "consistent\n2\n0 1 ( NTPP )\n0 2 ( DC )\n1 2 ( DC )\n.\ninconsistent\n"
+    );
+    let (code, out, _) = rcc8("2\n0 1 ( NTPP )\n2 1 ( DC )\n.\n", &[]);
+    assert_eq!(code, 0);
+    assert!(out.starts_with("consistent\n"));
+}
+
+/// Path consistency does not decide RCC-8 with arbitrary disjunctions; `--exact` does. Of GQR's
+/// ten random instances in `example-10x20.csp`, four are path-consistent and two consistent.
+#[test]
+fn exact_decides_what_path_consistency_cannot() {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../rcc8/tests/data/gqr-instances/example-10x20.csp"
+    ))
+    .unwrap();
+    let count = |out: &str| out.lines().filter(|l| *l == "consistent").count();
+    let (code, out, _) = rcc8(&text, &[]);
+    assert_eq!((code, count(&out)), (1, 4));
+    let (code, out, _) = rcc8(&text, &["--exact"]);
+    assert_eq!((code, count(&out)), (1, 2));
+}
+
+#[test]
+fn bad_input_names_line_and_column() {
+    let (code, out, stderr) = rcc8("2\n0 1 ( DC XX )\n.\n", &[]);
+    assert_eq!((code, out.as_str()), (2, ""));
+    assert!(
+        stderr.contains("line 2, column 10: 'XX' is not an RCC-8 relation"),
+        "{stderr}"
+    );
+    let (code, _, stderr) = rcc8("1\n0 7 ( DC )\n.\n", &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("variable 7 beyond"), "{stderr}");
+}
