@@ -13,7 +13,7 @@ use crate::network::Network;
 use crate::relation::Relation;
 
 /// The largest number of variables accepted in an instance (the matrix is n² bytes).
-pub const MAX_VARIABLES: usize = 20_000;
+pub const MAX_VARIABLES: usize = 4_096;
 
 /// A syntax error, located.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

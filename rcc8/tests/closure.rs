@@ -198,3 +198,14 @@ fn gqr_format_errors_name_the_place() {
     let nets = gqr::parse("1\n0 1 ( TPP NTPP PO )\n1 0 ( TPP ^-1 DC )\n.\n").unwrap();
     assert_eq!(nets[0].get(0, 1), Relation::TPP);
 }
+
+/// A header asking for more variables than accepted is refused before any allocation.
+#[test]
+fn too_many_variables_are_refused() {
+    let e = gqr::parse("99999\n.\n").unwrap_err();
+    assert!(e.message.contains("accepted"), "{e}");
+    assert_eq!(
+        gqr::parse("4095\n.\n").unwrap()[0].len(),
+        gqr::MAX_VARIABLES
+    );
+}
