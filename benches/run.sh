@@ -5,6 +5,7 @@
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
+#   benches/run.sh rcc8        RCC-8 closure (Figures 3.8, 3.9) against PyRCC8
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,6 +15,9 @@ if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python"
   [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
   "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4 reelay==25.0.0 mstlo-python==0.2.2
 fi
+# PyRCC8 1.2.2 is on PyPI only as a Python 2 source archive: benches/peers/install_pyrcc8.py
+# fetches it (pinned sha256), ports it with lib2to3 and installs it (nothing if present).
+"$venv/bin/python" -c 'import pyrcc8' 2>/dev/null || "$venv/bin/python" benches/peers/install_pyrcc8.py
 export OXIGRAPH_BIN="$PWD/$venv/bin/oxigraph"
 export PEER_PYTHON="$PWD/$venv/bin/python"
 which="${1:-all}"
@@ -25,6 +29,9 @@ if [ "$which" = all ] || [ "$which" = reasoning ]; then
 fi
 if [ "$which" = all ] || [ "$which" = mstl ]; then
   cargo bench --locked --workspace --bench progression
+fi
+if [ "$which" = all ] || [ "$which" = rcc8 ]; then
+  cargo bench --locked --workspace --bench closure
 fi
 if [ "$which" = all ] || [ "$which" = engine ]; then
   cargo bench --locked --workspace --bench explore

@@ -2,7 +2,7 @@
 //! consistency (seed Algorithm 1), and exact consistency by backtracking over base relations
 //! with path consistency at each node.
 
-use crate::relation::Relation;
+use crate::relation::{Relation, composition_table};
 
 /// A network of RCC-8 constraints over variables `0..n`: the relation of every ordered pair,
 /// kept converse-symmetric (`rel(j, i) = rel(i, j)⁻¹`), EQ on the diagonal.
@@ -69,9 +69,27 @@ impl Network {
     /// Path consistency from the edges that changed (the incremental closure of Ch. 3.4.2:
     /// after adding constraints to a closed network, only paths through them can refine).
     pub fn close_from(&mut self, changed: &[(usize, usize)]) -> Result<(), Inconsistent> {
+        self.close_logged(changed, &mut |_, _| {})
+    }
+
+    /// Writes `r` between `i` and `j` (and its converse), logging the old values.
+    fn write(&mut self, i: usize, j: usize, r: Relation, log: &mut impl FnMut(usize, Relation)) {
+        let (a, b) = (i * self.n + j, j * self.n + i);
+        log(a, self.rel[a]);
+        log(b, self.rel[b]);
+        self.rel[a] = r;
+        self.rel[b] = r.converse();
+    }
+
+    /// [`Network::close_from`], calling `log(cell, old)` before every cell it changes.
+    fn close_logged(
+        &mut self,
+        changed: &[(usize, usize)],
+        log: &mut impl FnMut(usize, Relation),
+    ) -> Result<(), Inconsistent> {
         let n = self.n;
         for i in 0..n {
-            if self.get(i, i).is_empty() || !self.get(i, i).contains(Relation::EQ) {
+            if !self.get(i, i).contains(Relation::EQ) {
                 return Err(Inconsistent(i, i));
             }
         }
@@ -87,38 +105,43 @@ impl Network {
                 queue.push((i, j));
             }
         }
+        let table = composition_table();
         while let Some((i, j)) = queue.pop() {
             queued[i * n + j] = false;
             let rij = self.get(i, j);
+            let (row_ij, row_ji) = (
+                usize::from(rij.0) * 256,
+                usize::from(rij.converse().0) * 256,
+            );
             for k in 0..n {
                 if k == i || k == j {
                     continue;
                 }
-                // (i, k) through j.
-                let rik = self.get(i, k);
-                let refined = rik.and(rij.compose(self.get(j, k)));
-                if refined != rik {
+                // (i, k) through j, then (k, j) through i. A universal side composes to the
+                // universal relation (R ∘ U = U for every non-empty R), which refines nothing.
+                for (a, b, via) in [(i, k, (j, k, row_ij)), (k, j, (k, i, row_ji))] {
+                    let other = self.get(via.0, via.1);
+                    if other == Relation::UNIVERSAL {
+                        continue;
+                    }
+                    let composed = if a == i {
+                        table[via.2 + usize::from(other.0)]
+                    } else {
+                        // R(k, j) ⊆ R(k, i) ∘ R(i, j) = (R(j, i) ∘ R(i, k))⁻¹.
+                        Relation(table[via.2 + usize::from(other.converse().0)])
+                            .converse()
+                            .0
+                    };
+                    let current = self.get(a, b);
+                    let refined = current.and(Relation(composed));
+                    if refined == current {
+                        continue;
+                    }
+                    self.write(a, b, refined, log);
                     if refined.is_empty() {
-                        self.set(i, k, refined);
-                        return Err(Inconsistent(i, k));
+                        return Err(Inconsistent(a, b));
                     }
-                    self.set(i, k, refined);
-                    let (a, b) = if i < k { (i, k) } else { (k, i) };
-                    if !queued[a * n + b] {
-                        queued[a * n + b] = true;
-                        queue.push((a, b));
-                    }
-                }
-                // (k, j) through i.
-                let rkj = self.get(k, j);
-                let refined = rkj.and(self.get(k, i).compose(rij));
-                if refined != rkj {
-                    if refined.is_empty() {
-                        self.set(k, j, refined);
-                        return Err(Inconsistent(k, j));
-                    }
-                    self.set(k, j, refined);
-                    let (a, b) = if k < j { (k, j) } else { (j, k) };
+                    let (a, b) = if a < b { (a, b) } else { (b, a) };
                     if !queued[a * n + b] {
                         queued[a * n + b] = true;
                         queue.push((a, b));
@@ -130,37 +153,61 @@ impl Network {
     }
 
     /// Exact consistency: whether some scenario (one base relation per pair) satisfies every
-    /// constraint. Backtracking: close, pick the undecided pair with the fewest relations, try
-    /// each of its base relations. On success the network is left as a consistent scenario
-    /// (for RCC-8, an atomic path-consistent network is consistent: Renz and Nebel 1999).
+    /// constraint. Backtracking without recursion: close, pick the undecided pair with the
+    /// fewest relations, try each of its base relations with path consistency from it, and undo
+    /// through a trail of changed cells. On success the network is left as a consistent scenario
+    /// (for RCC-8, an atomic path-consistent network is consistent: Renz and Nebel 1999); on
+    /// failure it is left closed as before the search.
     pub fn solve(&mut self) -> bool {
         if self.algebraic_closure().is_err() {
             return false;
         }
-        self.search()
+        let mut trail: Vec<(usize, Relation)> = Vec::new();
+        // Frames: the pair decided, the base relations not yet tried, the trail mark.
+        let mut frames: Vec<(usize, usize, Relation, usize)> = Vec::new();
+        loop {
+            match self.undecided() {
+                None => return true,
+                Some((i, j)) => frames.push((i, j, self.get(i, j), trail.len())),
+            }
+            loop {
+                let Some(top) = frames.last_mut() else {
+                    return false;
+                };
+                let (i, j, remaining, mark) = *top;
+                while trail.len() > mark {
+                    if let Some((cell, old)) = trail.pop() {
+                        self.rel[cell] = old;
+                    }
+                }
+                let Some(b) = remaining.bases().next() else {
+                    frames.pop();
+                    continue;
+                };
+                top.2 = Relation(remaining.0 & !b.0);
+                let mut log = |cell, old| trail.push((cell, old));
+                self.write(i, j, b, &mut log);
+                if self.close_logged(&[(i, j)], &mut log).is_ok() {
+                    break;
+                }
+            }
+        }
     }
 
-    fn search(&mut self) -> bool {
+    /// The pair `i < j` with the fewest base relations above one, if any.
+    fn undecided(&self) -> Option<(usize, usize)> {
         let mut pick: Option<(usize, usize, u32)> = None;
         for i in 0..self.n {
             for j in i + 1..self.n {
                 let k = self.get(i, j).len();
                 if k > 1 && pick.is_none_or(|(_, _, best)| k < best) {
                     pick = Some((i, j, k));
+                    if k == 2 {
+                        return Some((i, j));
+                    }
                 }
             }
         }
-        let Some((i, j, _)) = pick else {
-            return true;
-        };
-        for b in self.get(i, j).bases() {
-            let mut next = self.clone();
-            next.set(i, j, b);
-            if next.close_from(&[(i, j)]).is_ok() && next.search() {
-                *self = next;
-                return true;
-            }
-        }
-        false
+        pick.map(|(i, j, _)| (i, j))
     }
 }

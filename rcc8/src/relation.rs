@@ -237,6 +237,11 @@ static CONVERSE: [u8; 256] = {
     t
 };
 
+/// The 256 × 256 composition table, row `a` at `a * 256`.
+pub(crate) fn composition_table() -> &'static [u8] {
+    &COMPOSITION
+}
+
 /// `BASE[i] ∘ s` for every base relation `i` and set `s`.
 const ROWS: [[u8; 256]; 8] = {
     let mut t = [[0u8; 256]; 8];

@@ -1,0 +1,324 @@
+//! RCC-8 closure benchmark (issue 6; seed Figures 3.8–3.11 as tables):
+//! `cargo bench -p dyknow-rcc8 --bench closure` (`./dev bench rcc8`).
+//!
+//! Random instances of Renz and Nebel's model A(n, d, l = 4): n variables; each of the
+//! n(n-1)/2 pairs is constrained with probability d / (n - 1), so the average degree is d; a
+//! constraint holds each base relation with probability l / 8 (an empty draw is drawn again).
+//! 1. Mean closure time against d at n = 64 (the phase transition is near d ≈ 9), and at
+//!    n = 20, 100, 200, 500 around it.
+//! 2. The static/dynamic split of Ch. 3.4.2 at r = 0.25 (a quarter of the variables dynamic):
+//!    close the static part once, then per state add the dynamic constraints and re-close from
+//!    them (`close_from`), against closing the whole network each state.
+//! 3. Side by side with a Python RCC-8 reasoner (`benches/peers/rcc8_peers.py`) on the same
+//!    instances when `PEER_PYTHON` is set.
+//!
+//! The landmark experiment (Figures 3.10–3.11) waits for the landmark reasoning.
+//! `BENCH_QUICK=1`: fewer instances.
+#![expect(clippy::unwrap_used, reason = "a benchmark binary")]
+
+use std::io::Write;
+use std::time::Instant;
+
+use dyknow_rcc8::{Network, Relation, gqr};
+
+/// SplitMix64: a small, seeded generator (no dependency).
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    fn chance(&mut self, p: f64) -> bool {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
+    }
+}
+
+fn relation(rng: &mut Rng, l: f64) -> Relation {
+    loop {
+        let mut r = 0u8;
+        for i in 0..8 {
+            if rng.chance(l / 8.0) {
+                r |= 1 << i;
+            }
+        }
+        if r != 0 {
+            return Relation(r);
+        }
+    }
+}
+
+/// An instance of A(n, d, l).
+fn instance(rng: &mut Rng, n: usize, d: f64, l: f64) -> Network {
+    let mut net = Network::new(n);
+    let p = d / (n - 1) as f64;
+    for i in 0..n {
+        for j in i + 1..n {
+            if rng.chance(p) {
+                net.set(i, j, relation(rng, l));
+            }
+        }
+    }
+    net
+}
+
+/// The scenario of `n` random discs: centre and radius on a small integer grid.
+fn discs(rng: &mut Rng, n: usize) -> Network {
+    let d: Vec<(i64, i64, i64)> = (0..n)
+        .map(|_| {
+            let v = |rng: &mut Rng, m: u64| (rng.next() % m) as i64;
+            (v(rng, 40), v(rng, 40), 1 + v(rng, 12))
+        })
+        .collect();
+    let mut net = Network::new(n);
+    for i in 0..n {
+        for j in i + 1..n {
+            let ((x1, y1, r1), (x2, y2, r2)) = (d[i], d[j]);
+            let dist2 = (x1 - x2).pow(2) + (y1 - y2).pow(2);
+            let sum2 = (r1 + r2).pow(2);
+            let diff2 = (r1 - r2).pow(2);
+            let r = if dist2 == 0 && r1 == r2 {
+                Relation::EQ
+            } else if dist2 > sum2 {
+                Relation::DC
+            } else if dist2 == sum2 {
+                Relation::EC
+            } else if dist2 > diff2 {
+                Relation::PO
+            } else if r1 < r2 {
+                if dist2 == diff2 {
+                    Relation::TPP
+                } else {
+                    Relation::NTPP
+                }
+            } else if dist2 == diff2 {
+                Relation::TPPI
+            } else {
+                Relation::NTPPI
+            };
+            net.set(i, j, r);
+        }
+    }
+    net
+}
+
+/// Mean closure time (µs) and the share of instances found path-consistent.
+fn mean_closure(nets: &[Network]) -> (f64, f64) {
+    let mut total = 0.0;
+    let mut consistent = 0;
+    for net in nets {
+        let mut net = net.clone();
+        let start = Instant::now();
+        let ok = net.algebraic_closure().is_ok();
+        total += start.elapsed().as_secs_f64();
+        consistent += usize::from(ok);
+    }
+    (
+        total / nets.len() as f64 * 1e6,
+        consistent as f64 / nets.len() as f64,
+    )
+}
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok();
+    let mut out = std::io::stdout().lock();
+    let mut rng = Rng(0x5eed);
+    writeln!(out, "# RCC-8 algebraic closure, model A(n, d, l = 4)\n").unwrap();
+    writeln!(
+        out,
+        "| n | d | instances | mean closure | path-consistent |"
+    )
+    .unwrap();
+    writeln!(out, "| --- | --- | --- | --- | --- |").unwrap();
+    let mut sets: Vec<(usize, f64, Vec<Network>)> = Vec::new();
+    for (n, ds, count) in [
+        (
+            64,
+            (1..=20).map(f64::from).collect::<Vec<_>>(),
+            if quick { 20 } else { 200 },
+        ),
+        (20, vec![5.0, 9.0, 12.0], if quick { 20 } else { 200 }),
+        (100, vec![5.0, 9.0, 12.0], if quick { 10 } else { 100 }),
+        (200, vec![5.0, 9.0, 12.0], if quick { 5 } else { 50 }),
+        (500, vec![5.0, 9.0, 12.0], if quick { 3 } else { 20 }),
+    ] {
+        for d in ds {
+            let nets: Vec<Network> = (0..count).map(|_| instance(&mut rng, n, d, 4.0)).collect();
+            let (mean, share) = mean_closure(&nets);
+            writeln!(
+                out,
+                "| {n} | {d} | {count} | {mean:.1} µs | {:.0} % |",
+                share * 100.0
+            )
+            .unwrap();
+            out.flush().unwrap();
+            if (n == 64 || n == 500 || n == 20) && d == 9.0 {
+                sets.push((n, d, nets));
+            }
+        }
+    }
+
+    // The static/dynamic split at r = 0.25.
+    writeln!(
+        out,
+        "\n## Static/dynamic split, r = 0.25 (d = 9, l = 4; per state)\n"
+    )
+    .unwrap();
+    writeln!(out, "| n | states | whole network closed per state | static part closed once, dynamic re-closed | speed-up |").unwrap();
+    writeln!(out, "| --- | --- | --- | --- | --- |").unwrap();
+    for n in [64usize, 200, 500] {
+        let states = if quick { 5 } else { 50 };
+        // A consistent scenario: the RCC-8 relations of random discs on a small integer grid
+        // (so tangencies occur); the static part is the first 3n/4 variables.
+        let dynamic = n / 4;
+        let stat = n - dynamic;
+        let base = discs(&mut rng, n);
+        let weaken = |rng: &mut Rng, r: Relation| r.or(relation(rng, 1.0));
+        let mut static_net = Network::new(n);
+        let p = 9.0 / (n - 1) as f64;
+        for i in 0..stat {
+            for j in i + 1..stat {
+                if rng.chance(p) {
+                    static_net.set(i, j, weaken(&mut rng, base.get(i, j)));
+                }
+            }
+        }
+        let mut closed_static = static_net.clone();
+        closed_static.algebraic_closure().unwrap();
+        let mut full_time = 0.0;
+        let mut split_time = 0.0;
+        for _ in 0..states {
+            // This state's dynamic constraints (the same scenario, weakened differently).
+            let mut dynamic_constraints = Vec::new();
+            for i in 0..n {
+                for j in (i + 1).max(stat)..n {
+                    if rng.chance(p) {
+                        dynamic_constraints.push((i, j, weaken(&mut rng, base.get(i, j))));
+                    }
+                }
+            }
+            let mut full = static_net.clone();
+            for (i, j, r) in &dynamic_constraints {
+                full.constrain(*i, *j, *r);
+            }
+            let start = Instant::now();
+            full.algebraic_closure().unwrap();
+            full_time += start.elapsed().as_secs_f64();
+            let mut split = closed_static.clone();
+            let start = Instant::now();
+            for (i, j, r) in &dynamic_constraints {
+                split.constrain(*i, *j, *r);
+            }
+            let edges: Vec<(usize, usize)> = dynamic_constraints
+                .iter()
+                .map(|(i, j, _)| (*i, *j))
+                .collect();
+            split.close_from(&edges).unwrap();
+            split_time += start.elapsed().as_secs_f64();
+            assert_eq!(split, full, "the split must reach the same closure");
+        }
+        writeln!(
+            out,
+            "| {n} | {states} | {:.1} µs | {:.1} µs | {:.1}× |",
+            full_time / states as f64 * 1e6,
+            split_time / states as f64 * 1e6,
+            full_time / split_time
+        )
+        .unwrap();
+        out.flush().unwrap();
+    }
+
+    let Ok(python) = std::env::var("PEER_PYTHON") else {
+        writeln!(
+            out,
+            "\n(PEER_PYTHON not set: peer not run; `./dev bench rcc8` sets it)"
+        )
+        .unwrap();
+        return;
+    };
+    writeln!(
+        out,
+        "\n## Side by side with the Python peer (same instances, d = 9)\n"
+    )
+    .unwrap();
+    writeln!(
+        out,
+        "| n | instances | DyKnow mean | peer mean | peer ÷ DyKnow | same answers |"
+    )
+    .unwrap();
+    writeln!(out, "| --- | --- | --- | --- | --- | --- |").unwrap();
+    let script = format!(
+        "{}/../benches/peers/rcc8_peers.py",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let dir = std::env::temp_dir().join(format!("dyknow-rcc8-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (n, _d, nets) in &sets {
+        let nets: Vec<Network> = nets
+            .iter()
+            .take(if *n == 500 { 5 } else { 50 })
+            .cloned()
+            .collect();
+        let mut text = String::new();
+        for net in &nets {
+            gqr::write(net, &mut text).unwrap();
+        }
+        let file = dir.join(format!("a-{n}.csp"));
+        std::fs::write(&file, text).unwrap();
+        let (ours, _) = mean_closure(&nets);
+        let answers: Vec<bool> = nets
+            .iter()
+            .map(|n| n.clone().algebraic_closure().is_ok())
+            .collect();
+        let timeout = std::env::var("PEER_TIMEOUT_S").unwrap_or_else(|_| "600".to_owned());
+        let run = std::process::Command::new("timeout")
+            .arg(timeout)
+            .arg(&python)
+            .arg(&script)
+            .arg(&file)
+            .output()
+            .unwrap();
+        let line = String::from_utf8_lossy(&run.stdout);
+        let peer: Option<serde_json::Value> = line
+            .lines()
+            .last()
+            .and_then(|l| serde_json::from_str(l).ok());
+        match peer {
+            Some(v) if v.get("mean_us").is_some() => {
+                let theirs = v["mean_us"].as_f64().unwrap_or(f64::NAN);
+                let same = v["per_instance_consistent"].as_array().map(|a| {
+                    a.iter()
+                        .map(|b| b.as_bool().unwrap_or(false))
+                        .collect::<Vec<_>>()
+                        == answers
+                });
+                writeln!(
+                    out,
+                    "| {n} | {} | {ours:.1} µs | {theirs:.1} µs ({} {}) | {:.0}× | {} |",
+                    nets.len(),
+                    v["peer"].as_str().unwrap_or("?"),
+                    v["version"].as_str().unwrap_or("?"),
+                    theirs / ours,
+                    match same {
+                        Some(true) => "yes",
+                        Some(false) => "NO",
+                        None => "?",
+                    }
+                )
+                .unwrap();
+            }
+            _ => writeln!(
+                out,
+                "| {n} | {} | {ours:.1} µs | did not run | - | - |",
+                nets.len()
+            )
+            .unwrap(),
+        }
+        out.flush().unwrap();
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
