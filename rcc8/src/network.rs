@@ -55,9 +55,10 @@ impl Network {
         r
     }
 
-    /// The algebraic closure (seed Algorithm 1): refines every relation by composition along
-    /// every path of length two until nothing changes. `Err` when a relation becomes empty
-    /// (the network is then left partly refined).
+    /// The algebraic closure (seed Algorithm 1, with a first-in first-out queue of changed
+    /// edges): refines every relation by composition along every path of length two until
+    /// nothing changes. `Err` when a relation becomes empty (the network is then left partly
+    /// refined).
     pub fn algebraic_closure(&mut self) -> Result<(), Inconsistent> {
         let edges: Vec<(usize, usize)> = (0..self.n)
             .flat_map(|i| (i + 1..self.n).map(move |j| (i, j)))
@@ -94,7 +95,8 @@ impl Network {
             }
         }
         let mut queued = vec![false; n * n];
-        let mut queue: Vec<(usize, usize)> = Vec::with_capacity(changed.len());
+        let mut queue: std::collections::VecDeque<(usize, usize)> =
+            std::collections::VecDeque::with_capacity(changed.len());
         for &(i, j) in changed {
             let (i, j) = if i < j { (i, j) } else { (j, i) };
             if i != j && !queued[i * n + j] {
@@ -102,11 +104,11 @@ impl Network {
                     return Err(Inconsistent(i, j));
                 }
                 queued[i * n + j] = true;
-                queue.push((i, j));
+                queue.push_back((i, j));
             }
         }
         let table = composition_table();
-        while let Some((i, j)) = queue.pop() {
+        while let Some((i, j)) = queue.pop_front() {
             queued[i * n + j] = false;
             let rij = self.get(i, j);
             let (row_ij, row_ji) = (
@@ -144,7 +146,7 @@ impl Network {
                     let (a, b) = if a < b { (a, b) } else { (b, a) };
                     if !queued[a * n + b] {
                         queued[a * n + b] = true;
-                        queue.push((a, b));
+                        queue.push_back((a, b));
                     }
                 }
             }
