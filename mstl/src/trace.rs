@@ -2,12 +2,12 @@
 //! (`domains`, `landmarks`, `static`), then one state per line; [`check`] progresses formulas
 //! over them and writes a verdict line as soon as each formula is decided.
 //!
-//! Spatial atoms are decided from what the state observes: the relations listed for the pair
-//! (either order) in `spatial`, intersected with those observed earlier between two `static`
-//! regions; exactly `{R}` makes `R(x, y)` true, a set without `R` makes it false. A state may
-//! also give a spatial atom directly as a key (`"PO(a,b)": true`). Inferring unobserved
-//! relations (algebraic closure) and relations across states through landmarks is the RCC-8
-//! reasoner's part; until it lands such atoms are unknown, which is sound.
+//! Spatial atoms are decided from the algebraic closure (`dyknow-rcc8`) of what the state
+//! observes: the relations listed in `spatial`, with those observed earlier between two
+//! `static` regions carried forward. Exactly `{R}` makes `R(x, y)` true, a set without `R`
+//! makes it false. A state may also give a spatial atom directly as a key (`"PO(a,b)": true`).
+//! Relations across states through landmarks are still to come: such atoms are unknown unless
+//! given as keys, which is sound.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, Write};
@@ -105,6 +105,8 @@ pub struct TraceState {
     values: FxHashMap<String, Owned>,
     /// Observed relations, keyed by the ordered pair (the smaller name first).
     spatial: FxHashMap<(String, String), Rels>,
+    /// The algebraic closure of the observed relations, over the regions they mention.
+    closure: Option<(FxHashMap<String, usize>, dyknow_rcc8::Network)>,
 }
 
 #[derive(Debug, Clone)]
@@ -118,6 +120,12 @@ impl TraceState {
     fn relations(&self, x: &str, y: &str) -> Option<Rels> {
         if x == y {
             return Some(bit(Rcc8::Eq));
+        }
+        if let Some((index, network)) = &self.closure
+            && let (Some(i), Some(j)) = (index.get(x), index.get(y))
+        {
+            let r = network.get(*i, *j);
+            return (r != dyknow_rcc8::Relation::UNIVERSAL).then_some(r.0);
         }
         if x < y {
             self.spatial.get(&(x.to_owned(), y.to_owned())).copied()
@@ -369,6 +377,40 @@ fn state(
     }
     for (pair, rels) in carried.iter() {
         *out.spatial.entry(pair.clone()).or_insert(Rels::MAX) &= *rels;
+    }
+    // The closure infers what was not observed (seed Ch. 3.3): the contract's "exactly {R}
+    // after algebraic closure". The bit order of both crates is DC, EC, PO, EQ, TPP, NTPP,
+    // TPPI, NTPPI.
+    if !out.spatial.is_empty() {
+        let mut index: FxHashMap<String, usize> = FxHashMap::default();
+        for (a, b) in out.spatial.keys() {
+            for r in [a, b] {
+                let next = index.len();
+                index.entry(r.clone()).or_insert(next);
+            }
+        }
+        let mut network = dyknow_rcc8::Network::new(index.len());
+        for ((a, b), rels) in &out.spatial {
+            network.constrain(index[a], index[b], dyknow_rcc8::Relation(*rels));
+        }
+        if let Err(e) = network.algebraic_closure() {
+            let name = |k: usize| {
+                index
+                    .iter()
+                    .find(|(_, v)| **v == k)
+                    .map_or("?", |(n, _)| n.as_str())
+                    .to_owned()
+            };
+            return Err(trace_error(
+                line,
+                format!(
+                    "the spatial constraints are inconsistent: no relation is possible between {} and {}",
+                    name(e.0),
+                    name(e.1)
+                ),
+            ));
+        }
+        out.closure = Some((index, network));
     }
     Ok((t, out))
 }

@@ -194,6 +194,10 @@ fn bad_input_is_a_usage_error_naming_the_place() {
             "line 1: t must be a non-negative integer",
         ),
         (
+            "{\"t\": 0, \"spatial\": [[\"a\", \"b\", [\"NTPP\"]], [\"b\", \"c\", [\"NTPP\"]], [\"c\", \"a\", [\"NTPP\"]]]}\n",
+            "line 1: the spatial constraints are inconsistent",
+        ),
+        (
             "{\"t\": 0, \"spatial\": [[\"a\", \"b\", []]]}\n",
             "no relation is possible",
         ),
@@ -295,4 +299,56 @@ fn quantified_variables_are_renamed_apart() {
     );
     assert_eq!(code, 0, "{stderr}");
     assert_eq!(lines, vec![verdict(0, "true", 0)]);
+}
+
+/// The seed's Figure 3.5: `always (PO(a,b) -> eventually DC(a,b))` with static EC(a,c) and
+/// EC(a,d). Through the algebraic closure, PO(a,b) is unknown at the first state, DC(a,b) is
+/// unknown at the second and true at the third.
+#[test]
+fn figure_3_5_through_the_closure() {
+    let (code, lines, stderr) = check(
+        &[
+            "PO(a,b)",
+            "next DC(a,b)",
+            "next next DC(a,b)",
+            "always (PO(a,b) -> eventually DC(a,b))",
+        ],
+        &trace("figure-3.5.jsonl"),
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        lines,
+        vec![
+            verdict(2, "true", 2),
+            verdict(0, "unknown", 2),
+            verdict(1, "unknown", 2),
+            verdict(3, "unknown", 2),
+        ]
+    );
+}
+
+/// The seed's Example 7 (busy student): DC(student, canteen) is inferred, not observed; the
+/// static office–canteen relation carries over to the next state, where the student is in the
+/// canteen and so no longer in the office.
+#[test]
+fn busy_student_through_the_closure() {
+    let (code, lines, stderr) = check(
+        &[
+            "DC(student, canteen)",
+            "DC(desk, canteen)",
+            "next DC(student, office)",
+        ],
+        &trace("busy-student.jsonl"),
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        lines,
+        vec![
+            verdict(0, "true", 0),
+            verdict(1, "true", 0),
+            verdict(2, "true", 60_000)
+        ]
+    );
 }
