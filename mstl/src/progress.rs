@@ -75,18 +75,36 @@ impl Progress {
     /// disjunction, dually), without building the junction of the two that the parent would
     /// flatten at once; any other member gives its progression and the neutral constant.
     fn parts<V: Valuation + ?Sized>(&mut self, x: NodeId, conj: bool, v: &V) -> (NodeId, NodeId) {
-        let (neutral, absorbing) = if conj { (TRUE, FALSE) } else { (FALSE, TRUE) };
+        let neutral = if conj { TRUE } else { FALSE };
         if let Some((epoch, result)) = self.memo.get(x.0 as usize)
             && *epoch == self.epoch
         {
             return (*result, neutral);
         }
-        let (w, a) = match (self.dag.node(x), conj) {
-            (Node::Always(w, a), true) | (Node::Eventually(w, a), false) => (*w, *a),
-            _ => return (self.step(x, v), neutral),
-        };
+        match (self.dag.node(x), conj) {
+            (Node::Always(w, a), true) | (Node::Eventually(w, a), false) => {
+                let (w, a) = (*w, *a);
+                self.window(x, w, a, conj, v)
+            }
+            _ => (self.step(x, v), neutral),
+        }
+    }
+
+    /// Lines 6–13 for `G[I] φ` (`always`) and `F[I] φ`: the part the current state decides and
+    /// the pending rest, whose conjunction (disjunction for `F`) is the progression. A window
+    /// that has passed or cannot be reached gives the neutral constant for both; one that ends
+    /// now leaves no rest.
+    fn window<V: Valuation + ?Sized>(
+        &mut self,
+        n: NodeId,
+        w: Window,
+        a: NodeId,
+        always: bool,
+        v: &V,
+    ) -> (NodeId, NodeId) {
+        let (neutral, absorbing) = if always { (TRUE, FALSE) } else { (FALSE, TRUE) };
         let t = self.dag.now.unwrap_or(0);
-        let Some((lo, hi, anchored)) = anchor(w, t, x) else {
+        let Some((lo, hi, anchored)) = anchor(w, t, n) else {
             return (neutral, neutral);
         };
         if hi.is_some_and(|h| h < t) {
@@ -98,7 +116,7 @@ impl Progress {
         }
         let rest = anchored.unwrap_or_else(|| {
             let w = Window::Abs { lo, hi };
-            if conj {
+            if always {
                 self.dag.always(w, a)
             } else {
                 self.dag.eventually(w, a)
@@ -143,32 +161,11 @@ impl Progress {
             // Lines 6–13, with `eventually[I] φ = true U[I] φ` and `always = ¬eventually¬`
             // written out. `Some(n)` when the node is anchored already (its own residual).
             Node::Eventually(w, a) => {
-                let Some((lo, hi, anchored)) = anchor(w, t, n) else {
-                    return FALSE;
-                };
-                if hi.is_some_and(|h| h < t) {
-                    return FALSE;
-                }
-                let now = if lo <= t { self.step(a, v) } else { FALSE };
-                if now == TRUE || hi == Some(t) {
-                    return now;
-                }
-                let rest =
-                    anchored.unwrap_or_else(|| self.dag.eventually(Window::Abs { lo, hi }, a));
+                let (now, rest) = self.window(n, w, a, false, v);
                 self.dag.or2(now, rest)
             }
             Node::Always(w, a) => {
-                let Some((lo, hi, anchored)) = anchor(w, t, n) else {
-                    return TRUE;
-                };
-                if hi.is_some_and(|h| h < t) {
-                    return TRUE;
-                }
-                let now = if lo <= t { self.step(a, v) } else { TRUE };
-                if now == FALSE || hi == Some(t) {
-                    return now;
-                }
-                let rest = anchored.unwrap_or_else(|| self.dag.always(Window::Abs { lo, hi }, a));
+                let (now, rest) = self.window(n, w, a, true, v);
                 self.dag.and2(now, rest)
             }
             Node::Until(w, a, b) => {

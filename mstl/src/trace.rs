@@ -12,6 +12,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, Write};
 
+use dyknow_rcc8::Relation;
 use rustc_hash::FxHashMap;
 use serde_json::Value as Json;
 
@@ -70,33 +71,11 @@ pub enum CheckError {
     Output(std::io::Error),
 }
 
-/// The relations of RCC-8 as bits (bit i is `Rcc8` variant i).
+/// A set of RCC-8 relations as `dyknow_rcc8::Relation`'s bits (in `Rcc8`'s variant order).
 type Rels = u8;
 
 fn bit(r: Rcc8) -> Rels {
-    1 << (r as u8)
-}
-
-fn converse(rels: Rels) -> Rels {
-    let mut out = rels & (bit(Rcc8::Dc) | bit(Rcc8::Ec) | bit(Rcc8::Po) | bit(Rcc8::Eq));
-    for (a, b) in [(Rcc8::Tpp, Rcc8::Tppi), (Rcc8::Ntpp, Rcc8::Ntppi)] {
-        if rels & bit(a) != 0 {
-            out |= bit(b);
-        }
-        if rels & bit(b) != 0 {
-            out |= bit(a);
-        }
-    }
-    out
-}
-
-/// A relation name as `rcc8.md` accepts it.
-fn relation(name: &str) -> Option<Rcc8> {
-    match name {
-        "TPP^-1" => Some(Rcc8::Tppi),
-        "NTPP^-1" => Some(Rcc8::Ntppi),
-        other => Rcc8::from_name(other),
-    }
+    Relation::BASE[r as usize].0
 }
 
 /// A state of a trace, as a [`Valuation`].
@@ -121,19 +100,10 @@ impl TraceState {
         if x == y {
             return Some(bit(Rcc8::Eq));
         }
-        if let Some((index, network)) = &self.closure
-            && let (Some(i), Some(j)) = (index.get(x), index.get(y))
-        {
-            let r = network.get(*i, *j);
-            return (r != dyknow_rcc8::Relation::UNIVERSAL).then_some(r.0);
-        }
-        if x < y {
-            self.spatial.get(&(x.to_owned(), y.to_owned())).copied()
-        } else {
-            self.spatial
-                .get(&(y.to_owned(), x.to_owned()))
-                .map(|r| converse(*r))
-        }
+        // Every observed pair is in the closure; a region never observed has no relation.
+        let (index, network) = self.closure.as_ref()?;
+        let r = network.get(*index.get(x)?, *index.get(y)?);
+        (r != Relation::UNIVERSAL).then_some(r.0)
     }
 }
 
@@ -321,10 +291,10 @@ fn state(
                     };
                     let mut rels: Rels = 0;
                     for n in names {
-                        let r = n.as_str().and_then(relation).ok_or_else(|| {
+                        let r = n.as_str().and_then(Relation::from_name).ok_or_else(|| {
                             trace_error(line, format!("{n} is not an RCC-8 relation"))
                         })?;
-                        rels |= bit(r);
+                        rels |= r.0;
                     }
                     if x == y && rels & bit(Rcc8::Eq) == 0 || rels == 0 {
                         return Err(trace_error(
@@ -335,7 +305,7 @@ fn state(
                     let (pair, rels) = if x <= y {
                         ((x.clone(), y.clone()), rels)
                     } else {
-                        ((y.clone(), x.clone()), converse(rels))
+                        ((y.clone(), x.clone()), Relation(rels).converse().0)
                     };
                     let entry = out.spatial.entry(pair.clone()).or_insert(Rels::MAX);
                     *entry &= rels;
@@ -391,7 +361,7 @@ fn state(
         }
         let mut network = dyknow_rcc8::Network::new(index.len());
         for ((a, b), rels) in &out.spatial {
-            network.constrain(index[a], index[b], dyknow_rcc8::Relation(*rels));
+            network.constrain(index[a], index[b], Relation(*rels));
         }
         if let Err(e) = network.algebraic_closure() {
             let name = |k: usize| {
