@@ -5,7 +5,7 @@
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
-#   benches/run.sh rcc8        RCC-8 closure (Figures 3.8, 3.9) against PyRCC8
+#   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -32,6 +32,7 @@ if [ "$which" = all ] || [ "$which" = mstl ]; then
 fi
 if [ "$which" = all ] || [ "$which" = rcc8 ]; then
   cargo bench --locked --workspace --bench closure
+  cargo bench --locked --workspace --bench landmarks
 fi
 if [ "$which" = all ] || [ "$which" = engine ]; then
   cargo bench --locked --workspace --bench explore

@@ -175,6 +175,31 @@ fn rename(a: &Atom, scope: &Scope) -> Atom {
     }
 }
 
+/// How many states before the current one the spatial atoms of `f` refer to once Theorems 4–5
+/// have removed every look-ahead: `R(next^i x, next^j y)` looks `max(i, j, 0) - min(i, j)`
+/// states back (`EQ(r, next r)` becomes `next EQ(prev r, r)`: one).
+pub(crate) fn history(f: &Formula) -> u32 {
+    crate::progress::deep(|| match f {
+        Formula::True | Formula::False => 0,
+        Formula::Atom(Atom::Spatial { left, right, .. }) => {
+            let (a, b) = (i64::from(left.offset), i64::from(right.offset));
+            u32::try_from(a.max(b).max(0) - a.min(b)).unwrap_or(u32::MAX)
+        }
+        Formula::Atom(_) => 0,
+        Formula::Not(a)
+        | Formula::Always(_, a)
+        | Formula::Eventually(_, a)
+        | Formula::Next(_, a)
+        | Formula::Forall(_, _, a)
+        | Formula::Exists(_, _, a) => history(a),
+        Formula::And(a, b)
+        | Formula::Or(a, b)
+        | Formula::Implies(a, b)
+        | Formula::Iff(a, b)
+        | Formula::Until(_, a, b) => history(a).max(history(b)),
+    })
+}
+
 /// Theorems 4–5: the delay `m` and the atom whose region offsets are all ≤ 0.
 fn look_back(a: &Atom) -> (u32, Atom) {
     match a {

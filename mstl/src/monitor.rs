@@ -5,7 +5,7 @@
 
 use crate::Truth;
 use crate::atom::Valuation;
-use crate::compile::{CompileError, Domains, compile};
+use crate::compile::{CompileError, Domains, compile, history};
 use crate::dag::{FALSE, NodeId, TRUE, UNKNOWN};
 use crate::progress::Progress;
 use crate::syntax::Formula;
@@ -72,6 +72,7 @@ pub struct Monitor {
     last_t: Option<u64>,
     finished: bool,
     verdicts: Vec<Verdict>,
+    history: u32,
 }
 
 impl Monitor {
@@ -91,6 +92,7 @@ impl Monitor {
     /// Adds a formula, evaluated from the next state on. Returns its index.
     pub fn add(&mut self, formula: &Formula) -> Result<usize, CompileError> {
         let root = compile(&mut self.progress.dag, formula, &self.domains)?;
+        self.history = self.history.max(history(formula));
         self.entries.push(Entry {
             initial: root,
             current: root,
@@ -145,6 +147,13 @@ impl Monitor {
         self.entries
             .get(formula)
             .map_or(0, |e| self.progress.dag.size(e.current))
+    }
+
+    /// How many states before the current one a [`Valuation`] may be asked about: spatial
+    /// atoms over `prev` region terms (after Theorems 4–5 turned every `next` into `prev`)
+    /// relate regions at earlier states, so a valuation must remember that many.
+    pub fn history(&self) -> u32 {
+        self.history
     }
 
     /// DAG nodes in use (live or awaiting collection); stays bounded on endless streams.

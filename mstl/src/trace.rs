@@ -3,16 +3,22 @@
 //! over them and writes a verdict line as soon as each formula is decided.
 //!
 //! Spatial atoms are decided from the algebraic closure (`dyknow-rcc8`) of what the state
-//! observes: the relations listed in `spatial`, with those observed earlier between two
-//! `static` regions carried forward. Exactly `{R}` makes `R(x, y)` true, a set without `R`
-//! makes it false. A state may also give a spatial atom directly as a key (`"PO(a,b)": true`).
-//! Relations across states through landmarks are still to come: such atoms are unknown unless
-//! given as keys, which is sound.
+//! observes: the relations listed in `spatial`, with the relations between two `static`
+//! regions, or between two landmarks, carried forward from earlier states (observed or
+//! inferred: they never change). Exactly `{R}` makes `R(x, y)` true, a set without `R` makes
+//! it false. Atoms over `prev` regions (what Theorems 4–5 make of `next`) relate regions at two
+//! states through the extended spatial relation matrix of those states (seed Def. 13) with the
+//! landmarks rigid between them (Defs. 14–15): without landmarks nothing is known across time.
+//! Landmarks that the observations contradict (the seed's (3.26)) are reported as an error
+//! naming a minimal set of them. A state may also give a spatial atom directly as a key
+//! (`"PO(a,b)": true`), which is read when reasoning leaves the atom undecided.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::io::{BufRead, Write};
+use std::rc::Rc;
 
-use dyknow_rcc8::Relation;
+use dyknow_rcc8::{Extended, Network, Relation};
 use rustc_hash::FxHashMap;
 use serde_json::Value as Json;
 
@@ -78,14 +84,31 @@ fn bit(r: Rcc8) -> Rels {
     Relation::BASE[r as usize].0
 }
 
-/// A state of a trace, as a [`Valuation`].
+/// A state's spatial knowledge: the algebraic closure of its constraints (observed and
+/// carried), over the regions they mention.
+#[derive(Debug)]
+struct Closure {
+    index: FxHashMap<String, usize>,
+    network: Network,
+}
+
+impl Closure {
+    /// The relation between two regions, `None` when one of them is not mentioned.
+    fn get(&self, x: &str, y: &str) -> Option<Relation> {
+        if x == y {
+            return Some(Relation::EQ);
+        }
+        Some(self.network.get(*self.index.get(x)?, *self.index.get(y)?))
+    }
+}
+
+/// A state of a trace: its values and spatial knowledge.
 #[derive(Debug, Default)]
-pub struct TraceState {
+struct TraceState {
     values: FxHashMap<String, Owned>,
     /// Observed relations, keyed by the ordered pair (the smaller name first).
     spatial: FxHashMap<(String, String), Rels>,
-    /// The algebraic closure of the observed relations, over the regions they mention.
-    closure: Option<(FxHashMap<String, usize>, dyknow_rcc8::Network)>,
+    closure: Option<Rc<Closure>>,
 }
 
 #[derive(Debug, Clone)]
@@ -95,21 +118,195 @@ enum Owned {
     Text(String),
 }
 
-impl TraceState {
-    fn relations(&self, x: &str, y: &str) -> Option<Rels> {
-        if x == y {
-            return Some(bit(Rcc8::Eq));
+/// The current state and earlier states' spatial knowledge, with the extended matrices
+/// between them: what `Valuation::spatial` needs for atoms over `prev` regions.
+#[derive(Debug, Default)]
+struct Timeline {
+    /// The last `keep` states (oldest first; the last is the current one): line, t, closure.
+    states: VecDeque<(usize, u64, Option<Rc<Closure>>)>,
+    keep: usize,
+    /// States taken so far; the current state is number `count - 1`.
+    count: u64,
+    landmarks: Vec<String>,
+    /// Extended matrices between two states (by number), built on demand.
+    linked: RefCell<FxHashMap<(u64, u64), Rc<Linked>>>,
+    /// A landmark conflict found while deciding an atom, reported after the step.
+    conflict: RefCell<Option<CheckError>>,
+}
+
+/// The extended spatial relation matrix of two states, over the regions either mentions and
+/// the landmarks.
+#[derive(Debug)]
+struct Linked {
+    index: FxHashMap<String, usize>,
+    matrix: Extended,
+}
+
+impl Timeline {
+    fn new(keep: usize, landmarks: &BTreeSet<String>) -> Self {
+        Self {
+            keep: keep.max(1),
+            landmarks: landmarks.iter().cloned().collect(),
+            ..Self::default()
         }
-        // Every observed pair is in the closure; a region never observed has no relation.
-        let (index, network) = self.closure.as_ref()?;
-        let r = network.get(*index.get(x)?, *index.get(y)?);
-        (r != Relation::UNIVERSAL).then_some(r.0)
+    }
+
+    /// Takes the next state, forgetting what lies beyond the history kept.
+    fn push(&mut self, line: usize, t: u64, closure: Option<Rc<Closure>>) {
+        self.states.push_back((line, t, closure));
+        self.count += 1;
+        while self.states.len() > self.keep {
+            self.states.pop_front();
+        }
+        let oldest = self.count - self.states.len() as u64;
+        self.linked.get_mut().retain(|(p, _), _| *p >= oldest);
+    }
+
+    /// With landmarks, links the current state to the previous one (reporting a conflict) and
+    /// replaces the current state's closure by the extended matrix's second block over its
+    /// regions and the landmarks: what rigid landmarks carry over from earlier states (the
+    /// relations between them, observed or inferred) refines the present.
+    fn refine(&mut self) -> Result<(), CheckError> {
+        if self.landmarks.is_empty() || self.count < 2 {
+            return Ok(());
+        }
+        let Some(linked) = self.link(self.count - 2, self.count - 1)? else {
+            return Ok(());
+        };
+        let Some(current) = self.states.back_mut() else {
+            return Ok(());
+        };
+        let mut index: FxHashMap<String, usize> = FxHashMap::default();
+        let names = current
+            .2
+            .iter()
+            .flat_map(|c| c.index.keys())
+            .chain(&self.landmarks);
+        for name in names {
+            let next = index.len();
+            index.entry(name.clone()).or_insert(next);
+        }
+        let mut network = Network::new(index.len());
+        for (a, &i) in &index {
+            for (b, &j) in &index {
+                if i < j {
+                    network.set(i, j, linked.matrix.after(linked.index[a], linked.index[b]));
+                }
+            }
+        }
+        current.2 = Some(Rc::new(Closure { index, network }));
+        Ok(())
+    }
+
+    /// State number `k`, if still kept.
+    fn at(&self, k: u64) -> Option<&(usize, u64, Option<Rc<Closure>>)> {
+        let oldest = self.count.checked_sub(self.states.len() as u64)?;
+        let i = usize::try_from(k.checked_sub(oldest)?).ok()?;
+        self.states.get(i)
+    }
+
+    /// The state number `back` states before the current one.
+    fn back(&self, offset: i32) -> Option<u64> {
+        (self.count.checked_sub(1)?).checked_sub(u64::from(offset.unsigned_abs()))
+    }
+
+    /// The relation between two region terms (offsets ≤ 0), `None` when unknown.
+    fn relation(&self, left: &Region, right: &Region) -> Option<Relation> {
+        let (p, q) = (self.back(left.offset)?, self.back(right.offset)?);
+        if p == q {
+            let (_, _, closure) = self.at(p)?;
+            return closure.as_ref()?.get(&left.name, &right.name);
+        }
+        // M^{p,q} relates the earlier state's region to the later one's.
+        let (early, late, x, y) = if p < q {
+            (p, q, left, right)
+        } else {
+            (q, p, right, left)
+        };
+        let linked = match self.link(early, late) {
+            Ok(linked) => linked?,
+            Err(e) => {
+                self.conflict.borrow_mut().get_or_insert(e);
+                return None;
+            }
+        };
+        let r = linked
+            .matrix
+            .across(*linked.index.get(&x.name)?, *linked.index.get(&y.name)?);
+        Some(if p < q { r } else { r.converse() })
+    }
+
+    /// The extended matrix of states `p < q` with the landmarks rigid between them (built
+    /// once), `Ok(None)` when a state is no longer kept.
+    fn link(&self, p: u64, q: u64) -> Result<Option<Rc<Linked>>, CheckError> {
+        if let Some(done) = self.linked.borrow().get(&(p, q)) {
+            return Ok(Some(done.clone()));
+        }
+        let (Some(early), Some(late)) = (self.at(p), self.at(q)) else {
+            return Ok(None);
+        };
+        let mut index: FxHashMap<String, usize> = FxHashMap::default();
+        let names = [&early.2, &late.2]
+            .into_iter()
+            .flatten()
+            .flat_map(|c| c.index.keys())
+            .chain(&self.landmarks);
+        for name in names {
+            let next = index.len();
+            index.entry(name.clone()).or_insert(next);
+        }
+        let block = |closure: &Option<Rc<Closure>>| {
+            let mut net = Network::new(index.len());
+            if let Some(c) = closure {
+                for (a, &i) in &c.index {
+                    for (b, &j) in &c.index {
+                        if i < j {
+                            net.set(index[a], index[b], c.network.get(i, j));
+                        }
+                    }
+                }
+            }
+            net
+        };
+        let landmarks: Vec<usize> = self.landmarks.iter().map(|l| index[l]).collect();
+        let linked = match Extended::of_closed(&block(&early.2), &block(&late.2), &landmarks) {
+            Ok(matrix) => Rc::new(Linked { index, matrix }),
+            Err(conflict) => {
+                let name = |k: usize| {
+                    index
+                        .iter()
+                        .find(|(_, v)| **v == k)
+                        .map_or("?", |(n, _)| n.as_str())
+                };
+                let mut names: Vec<&str> = conflict.landmarks.iter().map(|&k| name(k)).collect();
+                names.sort_unstable();
+                return Err(trace_error(
+                    late.0,
+                    format!(
+                        "the landmarks {} cannot all be rigid between t={} (line {}) and t={}: \
+                         the observations contradict it (seed (3.26)); declare fewer landmarks",
+                        names.join(", "),
+                        early.1,
+                        early.0,
+                        late.1
+                    ),
+                ));
+            }
+        };
+        self.linked.borrow_mut().insert((p, q), linked.clone());
+        Ok(Some(linked))
     }
 }
 
-impl Valuation for TraceState {
+/// The current state and the timeline, as a [`Valuation`].
+struct Now<'a> {
+    state: &'a TraceState,
+    timeline: &'a Timeline,
+}
+
+impl Valuation for Now<'_> {
     fn value(&self, key: &str) -> Option<Value<'_>> {
-        self.values.get(key).map(|v| match v {
+        self.state.values.get(key).map(|v| match v {
             Owned::Bool(b) => Value::Bool(*b),
             Owned::Number(n) => Value::Number(*n),
             Owned::Text(s) => Value::Text(s),
@@ -117,14 +314,11 @@ impl Valuation for TraceState {
     }
 
     fn spatial(&self, relation: Rcc8, left: &Region, right: &Region, key: &str) -> Truth {
-        if left.offset == 0
-            && right.offset == 0
-            && let Some(rels) = self.relations(&left.name, &right.name)
-        {
-            if rels == bit(relation) {
+        if let Some(rels) = self.timeline.relation(left, right) {
+            if rels.0 == bit(relation) {
                 return Truth::True;
             }
-            if rels & bit(relation) == 0 {
+            if rels.0 & bit(relation) == 0 {
                 return Truth::False;
             }
         }
@@ -231,7 +425,7 @@ fn header(line: usize, map: &serde_json::Map<String, Json>) -> Result<Header, Ch
 fn state(
     line: usize,
     map: serde_json::Map<String, Json>,
-    statics: &BTreeSet<String>,
+    h: &Header,
     carried: &mut FxHashMap<(String, String), Rels>,
 ) -> Result<(u64, TraceState), CheckError> {
     let mut t = None;
@@ -329,20 +523,21 @@ fn state(
         }
     }
     let t = t.ok_or_else(|| trace_error(line, "a state needs t (its timestamp in ms)"))?;
-    // Static regions: what was observed between two of them holds from then on.
+    // Relations between two static regions never change: what was observed or inferred between
+    // them holds from then on. (Landmarks carry theirs through the extended matrix with the
+    // previous state: `Timeline::refine`.)
+    let lasting = |a: &str, b: &str| h.static_regions.contains(a) && h.static_regions.contains(b);
     for (pair, rels) in &out.spatial {
-        if statics.contains(&pair.0) && statics.contains(&pair.1) {
-            let held = carried.entry(pair.clone()).or_insert(Rels::MAX);
-            if *held & *rels == 0 {
-                return Err(trace_error(
-                    line,
-                    format!(
-                        "{} and {} are static, and this contradicts what was observed between them before",
-                        pair.0, pair.1
-                    ),
-                ));
-            }
-            *held &= *rels;
+        if let Some(held) = carried.get(pair)
+            && held & rels == 0
+        {
+            return Err(trace_error(
+                line,
+                format!(
+                    "{} and {} are static, and this contradicts what held between them before",
+                    pair.0, pair.1
+                ),
+            ));
         }
     }
     for (pair, rels) in carried.iter() {
@@ -359,7 +554,7 @@ fn state(
                 index.entry(r.clone()).or_insert(next);
             }
         }
-        let mut network = dyknow_rcc8::Network::new(index.len());
+        let mut network = Network::new(index.len());
         for ((a, b), rels) in &out.spatial {
             network.constrain(index[a], index[b], Relation(*rels));
         }
@@ -380,7 +575,20 @@ fn state(
                 ),
             ));
         }
-        out.closure = Some((index, network));
+        let lasting_regions: Vec<(&String, usize)> = index
+            .iter()
+            .filter(|(r, _)| h.static_regions.contains(*r))
+            .map(|(r, &i)| (r, i))
+            .collect();
+        for &(a, i) in &lasting_regions {
+            for &(b, j) in &lasting_regions {
+                let r = network.get(i, j);
+                if a < b && r != Relation::UNIVERSAL && lasting(a, b) {
+                    carried.insert((a.clone(), b.clone()), r.0);
+                }
+            }
+        }
+        out.closure = Some(Rc::new(Closure { index, network }));
     }
     Ok((t, out))
 }
@@ -425,16 +633,43 @@ pub fn check<R: BufRead, W: Write>(
             .map_err(|source| CheckError::Compile { formula: i, source })?;
     }
     let mut carried = FxHashMap::default();
+    // Keep the states that atoms over `prev` regions look back to, and the previous state when
+    // there are landmarks to check against the observations.
+    let keep = usize::try_from(monitor.history())
+        .unwrap_or(usize::MAX)
+        .max(usize::from(!h.landmarks.is_empty()))
+        .saturating_add(1);
+    let mut timeline = Timeline::new(keep, &h.landmarks);
+    let mut last_t = None;
     let mut all = Vec::new();
     let mut pending = formulas.len();
     let mut next = first;
     while let Some((line, map)) = next {
-        let (t, s) = state(line, map, &h.static_regions, &mut carried)?;
-        let verdicts = monitor.step(t, &s).map_err(|e| match e {
+        let (t, s) = state(line, map, &h, &mut carried)?;
+        if let Some(previous) = last_t
+            && t <= previous
+        {
+            return Err(trace_error(
+                line,
+                StepError::NotIncreasing { previous, t }.to_string(),
+            ));
+        }
+        last_t = Some(t);
+        timeline.push(line, t, s.closure.clone());
+        // Landmarks are checked against each pair of consecutive states as they come.
+        timeline.refine()?;
+        let now = Now {
+            state: &s,
+            timeline: &timeline,
+        };
+        let verdicts = monitor.step(t, &now).map_err(|e| match e {
             StepError::NotIncreasing { .. } | StepError::Finished => {
                 trace_error(line, e.to_string())
             }
         })?;
+        if let Some(e) = timeline.conflict.take() {
+            return Err(e);
+        }
         for v in verdicts {
             write_verdict(out, v).map_err(CheckError::Output)?;
             all.push(*v);

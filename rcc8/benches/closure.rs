@@ -19,92 +19,8 @@
 use std::io::Write;
 use std::time::Instant;
 
+use dyknow_rcc8::generate::{Rng, discs, model_a as instance, relation, scenario};
 use dyknow_rcc8::{Network, Relation, gqr};
-
-/// SplitMix64: a small, seeded generator (no dependency).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    fn chance(&mut self, p: f64) -> bool {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-}
-
-fn relation(rng: &mut Rng, l: f64) -> Relation {
-    loop {
-        let mut r = 0u8;
-        for i in 0..8 {
-            if rng.chance(l / 8.0) {
-                r |= 1 << i;
-            }
-        }
-        if r != 0 {
-            return Relation(r);
-        }
-    }
-}
-
-/// An instance of A(n, d, l).
-fn instance(rng: &mut Rng, n: usize, d: f64, l: f64) -> Network {
-    let mut net = Network::new(n);
-    let p = d / (n - 1) as f64;
-    for i in 0..n {
-        for j in i + 1..n {
-            if rng.chance(p) {
-                net.set(i, j, relation(rng, l));
-            }
-        }
-    }
-    net
-}
-
-/// The scenario of `n` random discs: centre and radius on a small integer grid.
-fn discs(rng: &mut Rng, n: usize) -> Network {
-    let d: Vec<(i64, i64, i64)> = (0..n)
-        .map(|_| {
-            let v = |rng: &mut Rng, m: u64| (rng.next() % m) as i64;
-            (v(rng, 40), v(rng, 40), 1 + v(rng, 12))
-        })
-        .collect();
-    let mut net = Network::new(n);
-    for i in 0..n {
-        for j in i + 1..n {
-            let ((x1, y1, r1), (x2, y2, r2)) = (d[i], d[j]);
-            let dist2 = (x1 - x2).pow(2) + (y1 - y2).pow(2);
-            let sum2 = (r1 + r2).pow(2);
-            let diff2 = (r1 - r2).pow(2);
-            let r = if dist2 == 0 && r1 == r2 {
-                Relation::EQ
-            } else if dist2 > sum2 {
-                Relation::DC
-            } else if dist2 == sum2 {
-                Relation::EC
-            } else if dist2 > diff2 {
-                Relation::PO
-            } else if r1 < r2 {
-                if dist2 == diff2 {
-                    Relation::TPP
-                } else {
-                    Relation::NTPP
-                }
-            } else if dist2 == diff2 {
-                Relation::TPPI
-            } else {
-                Relation::NTPPI
-            };
-            net.set(i, j, r);
-        }
-    }
-    net
-}
 
 /// Mean closure time (µs) and the share of instances found path-consistent.
 fn mean_closure(nets: &[Network]) -> (f64, f64) {
@@ -176,7 +92,7 @@ fn main() {
         // (so tangencies occur); the static part is the first 3n/4 variables.
         let dynamic = n / 4;
         let stat = n - dynamic;
-        let base = discs(&mut rng, n);
+        let base = scenario(&discs(&mut rng, n));
         let weaken = |rng: &mut Rng, r: Relation| r.or(relation(rng, 1.0));
         let mut static_net = Network::new(n);
         let p = 9.0 / (n - 1) as f64;

@@ -1,7 +1,8 @@
 //! RCC-8 qualitative spatial reasoning (seed Ch. 3.1.1, 3.3): relations as 8-bit sets with
 //! precomputed composition and converse ([`Relation`]), constraint networks with their
-//! algebraic closure and exact consistency ([`Network`]), and GQR's CSP file format ([`gqr`]).
-//! Knows nothing of RDF.
+//! algebraic closure and exact consistency ([`Network`]), intertemporal inference through
+//! landmarks in extended spatial relation matrices ([`Extended`], Ch. 3.3.3), GQR's CSP file
+//! format ([`gqr`]), and seeded random instances ([`generate`]). Knows nothing of RDF.
 //!
 //! ```
 //! use dyknow_rcc8::{Network, Relation};
@@ -14,9 +15,12 @@
 //! assert_eq!(n.get(student, canteen), Relation::DC);
 //! ```
 
+pub mod generate;
 pub mod gqr;
+mod landmark;
 mod network;
 mod relation;
 
+pub use landmark::{Extended, LandmarkConflict};
 pub use network::{Inconsistent, Network};
 pub use relation::{BASE_COMPOSITION, Relation};

@@ -352,3 +352,111 @@ fn busy_student_through_the_closure() {
         ]
     );
 }
+
+/// The seed's (3.26)–(3.31): `PO(r1, r2)` then `DC(r1, r2)`. The choice of landmarks decides
+/// `always EQ(r1, next r1)` ((3.27)–(3.29), bounded here so that two states decide it), and
+/// (3.30)–(3.31) follow; choosing both is inconsistent and reported ((3.26)).
+#[test]
+fn landmark_choice_decides_intertemporal_atoms() {
+    const EQ1: &str = "always[0,150] EQ(r1, next r1)";
+    const EQ2: &str = "always[0,150] EQ(r2, next r2)";
+    let f3_30 = format!("{EQ1} && !{EQ2}");
+    let f3_31 = format!("{EQ2} && !{EQ1}");
+    let formulas = [EQ1, EQ2, &f3_30, &f3_31];
+    let run = |extra: &[&str]| {
+        let (code, mut lines, stderr) = check(&formulas, &trace("landmarks-3.26.jsonl"), extra);
+        assert_eq!(code, 0, "{stderr}");
+        lines.sort();
+        lines
+    };
+    let mut expected = vec![
+        // (3.27), (3.30): r1 is the frame of reference; r2 moved away from it.
+        verdict(0, "true", 200),
+        verdict(1, "false", 100),
+        verdict(2, "true", 200),
+        verdict(3, "false", 100),
+    ];
+    expected.sort();
+    assert_eq!(run(&["--landmarks", "r1"]), expected);
+    // (3.28), (3.31): the converse with r2.
+    let mut expected = vec![
+        verdict(0, "false", 100),
+        verdict(1, "true", 200),
+        verdict(2, "false", 100),
+        verdict(3, "true", 200),
+    ];
+    expected.sort();
+    assert_eq!(run(&["--landmarks", "r2"]), expected);
+    // (3.29): no landmark, no frame of reference: nothing is known across time.
+    let mut expected: Vec<String> = (0..4).map(|i| verdict(i, "unknown", 200)).collect();
+    expected.sort();
+    assert_eq!(run(&[]), expected);
+    // (3.26): both cannot be rigid; the error names them, the line and both states.
+    let (code, lines, stderr) = check(
+        &formulas,
+        &trace("landmarks-3.26.jsonl"),
+        &["--landmarks", "r1,r2"],
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert!(lines.is_empty(), "{lines:?}");
+    assert!(stderr.contains("line 2"), "{stderr}");
+    assert!(stderr.contains("r1, r2"), "{stderr}");
+    assert!(
+        stderr.contains("t=0") && stderr.contains("t=100"),
+        "{stderr}"
+    );
+}
+
+/// A conflict that closure finds only across time: at t=0 the house is inside the garden and
+/// the garden touches the lake, so the house and the lake are disconnected; at t=100 the house
+/// is inside the lake. With both rigid that is impossible, and the minimal set is reported.
+#[test]
+fn landmark_conflicts_found_by_closure_are_reported() {
+    let (code, lines, stderr) = check(
+        &["always DC(house, lake)"],
+        &trace("landmarks-hidden-conflict.jsonl"),
+        &[],
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert!(lines.is_empty(), "{lines:?}");
+    assert!(stderr.contains("line 3"), "{stderr}");
+    assert!(stderr.contains("house, lake"), "{stderr}");
+}
+
+/// Landmarks are rigid, so what holds between two of them, observed or inferred, holds in
+/// later states; between a landmark and a region that moves it does not. The garden touched
+/// the lake and now does not: it moved.
+#[test]
+fn relations_between_landmarks_carry_forward() {
+    let dir = std::env::temp_dir().join(format!("dyknow-lm-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("carry.jsonl");
+    std::fs::write(
+        &file,
+        concat!(
+            "{\"landmarks\": [\"house\", \"lake\"]}\n",
+            "{\"t\": 0, \"spatial\": [[\"house\", \"garden\", [\"NTPP\"]], [\"garden\", \"lake\", [\"EC\"]]]}\n",
+            "{\"t\": 100, \"spatial\": [[\"garden\", \"lake\", [\"DC\"]]]}\n",
+        ),
+    )
+    .unwrap();
+    let (code, lines, stderr) = check(
+        &[
+            "next DC(house, lake)",
+            "next DC(house, garden)",
+            "next EQ(prev garden, garden)",
+        ],
+        &file,
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(
+        lines,
+        vec![
+            verdict(0, "true", 100),
+            verdict(2, "false", 100),
+            verdict(1, "unknown", 100),
+        ]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
