@@ -111,43 +111,32 @@ impl Network {
         while let Some((i, j)) = queue.pop_front() {
             queued[i * n + j] = false;
             let rij = self.get(i, j);
-            let (row_ij, row_ji) = (
-                usize::from(rij.0) * 256,
-                usize::from(rij.converse().0) * 256,
-            );
+            // Rows of the composition table for R(i,j) and R(j,i): every lookup below is into
+            // one of these two 256-byte rows, and the matrix is read along rows i and j.
+            let (t_ij, t_ji) = (row(table, rij), row(table, rij.converse()));
             for k in 0..n {
                 if k == i || k == j {
                     continue;
                 }
-                // (i, k) through j, then (k, j) through i. A universal side composes to the
-                // universal relation (R ∘ U = U for every non-empty R), which refines nothing.
-                for (a, b, via) in [(i, k, (j, k, row_ij)), (k, j, (k, i, row_ji))] {
-                    let other = self.get(via.0, via.1);
-                    if other == Relation::UNIVERSAL {
-                        continue;
+                // R(i,k) ⊆ R(i,j) ∘ R(j,k), then R(j,k) ⊆ R(j,i) ∘ R(i,k) (Algorithm 1,
+                // lines 5–16, with R(k,j) kept as the converse of R(j,k)). A universal side
+                // composes to the universal relation, which refines nothing.
+                let (rik, rjk) = (self.rel[i * n + k], self.rel[j * n + k]);
+                let ik = Relation(rik.0 & t_ij[usize::from(rjk.0)]);
+                if ik != rik {
+                    self.write(i, k, ik, log);
+                    if ik.is_empty() {
+                        return Err(Inconsistent(i, k));
                     }
-                    let composed = if a == i {
-                        table[via.2 + usize::from(other.0)]
-                    } else {
-                        // R(k, j) ⊆ R(k, i) ∘ R(i, j) = (R(j, i) ∘ R(i, k))⁻¹.
-                        Relation(table[via.2 + usize::from(other.converse().0)])
-                            .converse()
-                            .0
-                    };
-                    let current = self.get(a, b);
-                    let refined = current.and(Relation(composed));
-                    if refined == current {
-                        continue;
+                    enqueue(&mut queue, &mut queued, n, i, k);
+                }
+                let jk = Relation(rjk.0 & t_ji[usize::from(ik.0)]);
+                if jk != rjk {
+                    self.write(j, k, jk, log);
+                    if jk.is_empty() {
+                        return Err(Inconsistent(j, k));
                     }
-                    self.write(a, b, refined, log);
-                    if refined.is_empty() {
-                        return Err(Inconsistent(a, b));
-                    }
-                    let (a, b) = if a < b { (a, b) } else { (b, a) };
-                    if !queued[a * n + b] {
-                        queued[a * n + b] = true;
-                        queue.push_back((a, b));
-                    }
+                    enqueue(&mut queue, &mut queued, n, j, k);
                 }
             }
         }
@@ -211,5 +200,28 @@ impl Network {
             }
         }
         pick.map(|(i, j, _)| (i, j))
+    }
+}
+
+/// The row of the composition table for `r`: `r ∘ s` for every set `s`.
+fn row(table: &[u8], r: Relation) -> &[u8; 256] {
+    let start = usize::from(r.0) * 256;
+    table[start..start + 256]
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("the table has 256 rows of 256"))
+}
+
+/// Queues the pair `{a, b}` unless it is queued already.
+fn enqueue(
+    queue: &mut std::collections::VecDeque<(usize, usize)>,
+    queued: &mut [bool],
+    n: usize,
+    a: usize,
+    b: usize,
+) {
+    let (a, b) = if a < b { (a, b) } else { (b, a) };
+    if !queued[a * n + b] {
+        queued[a * n + b] = true;
+        queue.push_back((a, b));
     }
 }
