@@ -3,9 +3,9 @@
 //! over them and writes a verdict line as soon as each formula is decided.
 //!
 //! Spatial atoms are decided from the algebraic closure (`dyknow-rcc8`) of what the state
-//! observes: the relations listed in `spatial`, with the relations between two `static`
-//! regions, or between two landmarks, carried forward from earlier states (observed or
-//! inferred: they never change). Exactly `{R}` makes `R(x, y)` true, a set without `R` makes
+//! observes: the relations listed in `spatial`, with what earlier states observed or inferred
+//! between two `static` regions (closed once and refined, the split of Ch. 3.4.2), and between
+//! two landmarks (through the previous state: they are rigid). Exactly `{R}` makes `R(x, y)` true, a set without `R` makes
 //! it false. Atoms over `prev` regions (what Theorems 4–5 make of `next`) relate regions at two
 //! states through the extended spatial relation matrix of those states (seed Def. 13) with the
 //! landmarks rigid between them (Defs. 14–15): without landmarks nothing is known across time.
@@ -18,7 +18,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::io::{BufRead, Write};
 use std::rc::Rc;
 
-use dyknow_rcc8::{Extended, Network, Relation};
+use dyknow_rcc8::{Extended, Network, Relation, Split};
 use rustc_hash::FxHashMap;
 use serde_json::Value as Json;
 
@@ -84,8 +84,8 @@ fn bit(r: Rcc8) -> Rels {
     Relation::BASE[r as usize].0
 }
 
-/// A state's spatial knowledge: the algebraic closure of its constraints (observed and
-/// carried), over the regions they mention.
+/// A state's spatial knowledge: the algebraic closure of its constraints (observed, and what
+/// is known between static regions), over the static regions and those it mentions.
 #[derive(Debug)]
 struct Closure {
     index: FxHashMap<String, usize>,
@@ -329,6 +329,29 @@ impl Valuation for Now<'_> {
     }
 }
 
+/// The static regions, variables `0..s` of every state's network in the order of `names`,
+/// and the closure of what is known between them.
+struct Statics {
+    index: FxHashMap<String, usize>,
+    names: Vec<String>,
+    split: Split,
+}
+
+impl Statics {
+    fn new(regions: &BTreeSet<String>) -> Self {
+        let names: Vec<String> = regions.iter().cloned().collect();
+        Self {
+            index: names
+                .iter()
+                .enumerate()
+                .map(|(i, n)| (n.clone(), i))
+                .collect(),
+            split: Split::new(names.len()),
+            names,
+        }
+    }
+}
+
 /// A line of the trace: its number and its JSON object.
 type Line = (usize, serde_json::Map<String, Json>);
 
@@ -425,8 +448,7 @@ fn header(line: usize, map: &serde_json::Map<String, Json>) -> Result<Header, Ch
 fn state(
     line: usize,
     map: serde_json::Map<String, Json>,
-    h: &Header,
-    carried: &mut FxHashMap<(String, String), Rels>,
+    statics: &mut Statics,
 ) -> Result<(u64, TraceState), CheckError> {
     let mut t = None;
     let mut out = TraceState::default();
@@ -523,42 +545,41 @@ fn state(
         }
     }
     let t = t.ok_or_else(|| trace_error(line, "a state needs t (its timestamp in ms)"))?;
-    // Relations between two static regions never change: what was observed or inferred between
-    // them holds from then on. (Landmarks carry theirs through the extended matrix with the
-    // previous state: `Timeline::refine`.)
-    let lasting = |a: &str, b: &str| h.static_regions.contains(a) && h.static_regions.contains(b);
+    // The closure infers what was not observed (seed Ch. 3.3): the contract's "exactly {R}
+    // after algebraic closure". Relations between two static regions never change, so theirs
+    // is closed once and refined as states tell more (Ch. 3.4.2's split: `Statics`); each state
+    // adds its other constraints to a copy and re-closes from them. Landmarks carry their
+    // relations through the extended matrix with the previous state (`Timeline::refine`).
+    let mut fixed = Vec::new();
+    let mut moving = Vec::new();
     for (pair, rels) in &out.spatial {
-        if let Some(held) = carried.get(pair)
-            && held & rels == 0
-        {
-            return Err(trace_error(
-                line,
-                format!(
-                    "{} and {} are static, and this contradicts what held between them before",
-                    pair.0, pair.1
-                ),
-            ));
+        match (statics.index.get(&pair.0), statics.index.get(&pair.1)) {
+            (Some(&i), Some(&j)) => fixed.push((i, j, Relation(*rels))),
+            _ => moving.push((pair, Relation(*rels))),
         }
     }
-    for (pair, rels) in carried.iter() {
-        *out.spatial.entry(pair.clone()).or_insert(Rels::MAX) &= *rels;
-    }
-    // The closure infers what was not observed (seed Ch. 3.3): the contract's "exactly {R}
-    // after algebraic closure". The bit order of both crates is DC, EC, PO, EQ, TPP, NTPP,
-    // TPPI, NTPPI.
-    if !out.spatial.is_empty() {
-        let mut index: FxHashMap<String, usize> = FxHashMap::default();
-        for (a, b) in out.spatial.keys() {
-            for r in [a, b] {
+    statics.split.constrain(&fixed).map_err(|e| {
+        trace_error(
+            line,
+            format!(
+                "{} and {} are static, and this contradicts what held between static regions before",
+                statics.names[e.0], statics.names[e.1]
+            ),
+        )
+    })?;
+    if !out.spatial.is_empty() || !statics.names.is_empty() {
+        let mut index: FxHashMap<String, usize> = statics.index.clone();
+        for (pair, _) in &moving {
+            for r in [&pair.0, &pair.1] {
                 let next = index.len();
                 index.entry(r.clone()).or_insert(next);
             }
         }
-        let mut network = Network::new(index.len());
-        for ((a, b), rels) in &out.spatial {
-            network.constrain(index[a], index[b], Relation(*rels));
-        }
-        if let Err(e) = network.algebraic_closure() {
+        let dynamic: Vec<(usize, usize, Relation)> = moving
+            .iter()
+            .map(|((a, b), r)| (index[a], index[b], *r))
+            .collect();
+        let network = statics.split.state(index.len(), &dynamic).map_err(|e| {
             let name = |k: usize| {
                 index
                     .iter()
@@ -566,28 +587,25 @@ fn state(
                     .map_or("?", |(n, _)| n.as_str())
                     .to_owned()
             };
-            return Err(trace_error(
+            trace_error(
                 line,
                 format!(
                     "the spatial constraints are inconsistent: no relation is possible between {} and {}",
                     name(e.0),
                     name(e.1)
                 ),
-            ));
-        }
-        let lasting_regions: Vec<(&String, usize)> = index
-            .iter()
-            .filter(|(r, _)| h.static_regions.contains(*r))
-            .map(|(r, &i)| (r, i))
+            )
+        })?;
+        // What this state inferred between static regions holds from now on.
+        let s = statics.names.len();
+        let learnt: Vec<(usize, usize, Relation)> = (0..s)
+            .flat_map(|i| (i + 1..s).map(move |j| (i, j)))
+            .filter(|&(i, j)| network.get(i, j) != statics.split.get(i, j))
+            .map(|(i, j)| (i, j, network.get(i, j)))
             .collect();
-        for &(a, i) in &lasting_regions {
-            for &(b, j) in &lasting_regions {
-                let r = network.get(i, j);
-                if a < b && r != Relation::UNIVERSAL && lasting(a, b) {
-                    carried.insert((a.clone(), b.clone()), r.0);
-                }
-            }
-        }
+        statics.split.constrain(&learnt).unwrap_or_else(|_| {
+            unreachable!("a consistent state's closure refines the static part consistently")
+        });
         out.closure = Some(Rc::new(Closure { index, network }));
     }
     Ok((t, out))
@@ -632,7 +650,7 @@ pub fn check<R: BufRead, W: Write>(
             .add(f)
             .map_err(|source| CheckError::Compile { formula: i, source })?;
     }
-    let mut carried = FxHashMap::default();
+    let mut statics = Statics::new(&h.static_regions);
     // Keep the states that atoms over `prev` regions look back to, and the previous state when
     // there are landmarks to check against the observations.
     let keep = usize::try_from(monitor.history())
@@ -645,7 +663,7 @@ pub fn check<R: BufRead, W: Write>(
     let mut pending = formulas.len();
     let mut next = first;
     while let Some((line, map)) = next {
-        let (t, s) = state(line, map, &h, &mut carried)?;
+        let (t, s) = state(line, map, &mut statics)?;
         if let Some(previous) = last_t
             && t <= previous
         {

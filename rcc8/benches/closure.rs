@@ -1,4 +1,4 @@
-//! RCC-8 closure benchmark (issue 6; seed Figures 3.8–3.11 as tables):
+//! RCC-8 closure benchmark (issue 6; seed Figures 3.10–3.11 as tables):
 //! `cargo bench -p dyknow-rcc8 --bench closure` (`./dev bench rcc8`).
 //!
 //! Random instances of Renz and Nebel's model A(n, d, l = 4): n variables; each of the
@@ -7,12 +7,13 @@
 //! 1. Mean closure time against d at n = 64 (the phase transition is near d ≈ 9), and at
 //!    n = 20, 100, 200, 500 around it.
 //! 2. The static/dynamic split of Ch. 3.4.2 at r = 0.25 (a quarter of the variables dynamic):
-//!    close the static part once, then per state add the dynamic constraints and re-close from
-//!    them (`close_from`), against closing the whole network each state.
+//!    close the static part once ([`Split`]), then per state copy it, add the dynamic
+//!    constraints and re-close from the edges they changed (`Split::state`, the copy timed),
+//!    against closing the whole network each state.
 //! 3. Side by side with a Python RCC-8 reasoner (`benches/peers/rcc8_peers.py`) on the same
 //!    instances when `PEER_PYTHON` is set.
 //!
-//! The landmark experiment (Figures 3.10–3.11) waits for the landmark reasoning.
+//! The landmark experiment (Figures 3.8–3.9) is `benches/landmarks.rs`.
 //! `BENCH_QUICK=1`: fewer instances.
 #![expect(clippy::unwrap_used, reason = "a benchmark binary")]
 
@@ -20,7 +21,7 @@ use std::io::Write;
 use std::time::Instant;
 
 use dyknow_rcc8::generate::{Rng, discs, model_a as instance, relation, scenario};
-use dyknow_rcc8::{Network, Relation, gqr};
+use dyknow_rcc8::{Network, Relation, Split, gqr};
 
 /// Mean closure time (µs) and the share of instances found path-consistent.
 fn mean_closure(nets: &[Network]) -> (f64, f64) {
@@ -103,8 +104,13 @@ fn main() {
                 }
             }
         }
-        let mut closed_static = static_net.clone();
-        closed_static.algebraic_closure().unwrap();
+        let static_constraints: Vec<(usize, usize, Relation)> = (0..stat)
+            .flat_map(|i| (i + 1..stat).map(move |j| (i, j)))
+            .filter(|&(i, j)| static_net.get(i, j) != Relation::UNIVERSAL)
+            .map(|(i, j)| (i, j, static_net.get(i, j)))
+            .collect();
+        let mut split = Split::new(stat);
+        split.constrain(&static_constraints).unwrap();
         let mut full_time = 0.0;
         let mut split_time = 0.0;
         for _ in 0..states {
@@ -124,18 +130,10 @@ fn main() {
             let start = Instant::now();
             full.algebraic_closure().unwrap();
             full_time += start.elapsed().as_secs_f64();
-            let mut split = closed_static.clone();
             let start = Instant::now();
-            for (i, j, r) in &dynamic_constraints {
-                split.constrain(*i, *j, *r);
-            }
-            let edges: Vec<(usize, usize)> = dynamic_constraints
-                .iter()
-                .map(|(i, j, _)| (*i, *j))
-                .collect();
-            split.close_from(&edges).unwrap();
+            let state = split.state(n, &dynamic_constraints).unwrap();
             split_time += start.elapsed().as_secs_f64();
-            assert_eq!(split, full, "the split must reach the same closure");
+            assert_eq!(state, full, "the split must reach the same closure");
         }
         writeln!(
             out,

@@ -1,6 +1,7 @@
 //! RCC-8 qualitative spatial reasoning (seed Ch. 3.1.1, 3.3): relations as 8-bit sets with
 //! precomputed composition and converse ([`Relation`]), constraint networks with their
-//! algebraic closure and exact consistency ([`Network`]), intertemporal inference through
+//! algebraic closure and exact consistency ([`Network`]), the static/dynamic split of
+//! Ch. 3.4.2 ([`Split`]), intertemporal inference through
 //! landmarks in extended spatial relation matrices ([`Extended`], Ch. 3.3.3), GQR's CSP file
 //! format ([`gqr`]), and seeded random instances ([`generate`]). Knows nothing of RDF.
 //!
@@ -20,7 +21,9 @@ pub mod gqr;
 mod landmark;
 mod network;
 mod relation;
+mod split;
 
 pub use landmark::{Extended, LandmarkConflict};
 pub use network::{Inconsistent, Network};
 pub use relation::{BASE_COMPOSITION, Relation};
+pub use split::Split;

@@ -6,11 +6,26 @@ use crate::relation::{Relation, composition_table};
 
 /// A network of RCC-8 constraints over variables `0..n`: the relation of every ordered pair,
 /// kept converse-symmetric (`rel(j, i) = rel(i, j)⁻¹`), EQ on the diagonal.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone)]
 pub struct Network {
     n: usize,
     rel: Vec<Relation>,
+    /// Per variable, a bit set of the variables it may have a non-universal relation with
+    /// (`words` 64-bit words per row): the closure visits only those neighbours. A bit may
+    /// stay set after its relation returns to universal (harmless: that visit refines nothing),
+    /// but a non-universal relation always has its bit.
+    near: Vec<u64>,
+    words: usize,
 }
+
+/// Networks are equal when their relations are.
+impl PartialEq for Network {
+    fn eq(&self, other: &Self) -> bool {
+        self.n == other.n && self.rel == other.rel
+    }
+}
+
+impl Eq for Network {}
 
 /// The closure found an empty relation: no scenario exists.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -24,7 +39,13 @@ impl Network {
         for i in 0..n {
             rel[i * n + i] = Relation::EQ;
         }
-        Self { n, rel }
+        let words = n.div_ceil(64);
+        Self {
+            n,
+            rel,
+            near: vec![0; n * words],
+            words,
+        }
     }
 
     /// The number of variables.
@@ -46,6 +67,15 @@ impl Network {
     pub fn set(&mut self, i: usize, j: usize, r: Relation) {
         self.rel[i * self.n + j] = r;
         self.rel[j * self.n + i] = r.converse();
+        self.mark(i, j, r);
+    }
+
+    /// Records `i` and `j` as neighbours when `r` is not universal.
+    fn mark(&mut self, i: usize, j: usize, r: Relation) {
+        if r != Relation::UNIVERSAL && i != j {
+            self.near[i * self.words + j / 64] |= 1 << (j % 64);
+            self.near[j * self.words + i / 64] |= 1 << (i % 64);
+        }
     }
 
     /// Intersects the relation between `i` and `j` with `r`; returns the result.
@@ -80,6 +110,7 @@ impl Network {
         log(b, self.rel[b]);
         self.rel[a] = r;
         self.rel[b] = r.converse();
+        self.mark(i, j, r);
     }
 
     /// [`Network::close_from`], calling `log(cell, old)` before every cell it changes.
@@ -114,29 +145,36 @@ impl Network {
             // Rows of the composition table for R(i,j) and R(j,i): every lookup below is into
             // one of these two 256-byte rows, and the matrix is read along rows i and j.
             let (t_ij, t_ji) = (row(table, rij), row(table, rij.converse()));
-            for k in 0..n {
-                if k == i || k == j {
-                    continue;
-                }
-                // R(i,k) ⊆ R(i,j) ∘ R(j,k), then R(j,k) ⊆ R(j,i) ∘ R(i,k) (Algorithm 1,
-                // lines 5–16, with R(k,j) kept as the converse of R(j,k)). A universal side
-                // composes to the universal relation, which refines nothing.
-                let (rik, rjk) = (self.rel[i * n + k], self.rel[j * n + k]);
-                let ik = Relation(rik.0 & t_ij[usize::from(rjk.0)]);
-                if ik != rik {
-                    self.write(i, k, ik, log);
-                    if ik.is_empty() {
-                        return Err(Inconsistent(i, k));
+            // Only a k related (not universally) to i or to j can refine anything: R(i,k) is
+            // refined through R(j,k), and R(j,k) through R(i,k).
+            for w in 0..self.words {
+                let mut bits = self.near[i * self.words + w] | self.near[j * self.words + w];
+                while bits != 0 {
+                    let k = w * 64 + bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    if k == i || k == j {
+                        continue;
                     }
-                    enqueue(&mut queue, &mut queued, n, i, k);
-                }
-                let jk = Relation(rjk.0 & t_ji[usize::from(ik.0)]);
-                if jk != rjk {
-                    self.write(j, k, jk, log);
-                    if jk.is_empty() {
-                        return Err(Inconsistent(j, k));
+                    // R(i,k) ⊆ R(i,j) ∘ R(j,k), then R(j,k) ⊆ R(j,i) ∘ R(i,k) (Algorithm 1,
+                    // lines 5–16, with R(k,j) kept as the converse of R(j,k)). A universal
+                    // side composes to the universal relation, which refines nothing.
+                    let (rik, rjk) = (self.rel[i * n + k], self.rel[j * n + k]);
+                    let ik = Relation(rik.0 & t_ij[usize::from(rjk.0)]);
+                    if ik != rik {
+                        self.write(i, k, ik, log);
+                        if ik.is_empty() {
+                            return Err(Inconsistent(i, k));
+                        }
+                        enqueue(&mut queue, &mut queued, n, i, k);
                     }
-                    enqueue(&mut queue, &mut queued, n, j, k);
+                    let jk = Relation(rjk.0 & t_ji[usize::from(ik.0)]);
+                    if jk != rjk {
+                        self.write(j, k, jk, log);
+                        if jk.is_empty() {
+                            return Err(Inconsistent(j, k));
+                        }
+                        enqueue(&mut queue, &mut queued, n, j, k);
+                    }
                 }
             }
         }

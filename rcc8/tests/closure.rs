@@ -3,7 +3,8 @@
 //! search. The brute force is written from the definitions: a scenario assigns one base
 //! relation to every pair and is consistent when every triangle is allowed by composition.
 
-use dyknow_rcc8::{Network, Relation, gqr};
+use dyknow_rcc8::generate::{Rng, model_a};
+use dyknow_rcc8::{Network, Relation, Split, gqr};
 use proptest::prelude::*;
 
 /// Every consistent scenario refining `net` (converse-symmetric, atomic, triangle-closed).
@@ -208,4 +209,84 @@ fn too_many_variables_are_refused() {
         gqr::parse("4095\n.\n").unwrap()[0].len(),
         gqr::MAX_VARIABLES
     );
+}
+
+/// The closure by sweeps over every triangle until nothing changes, written from the
+/// definition (no queue, no neighbour sets).
+fn naive_closure(net: &Network) -> Option<Network> {
+    let n = net.len();
+    let mut net = net.clone();
+    loop {
+        let mut changed = false;
+        for i in 0..n {
+            for j in 0..n {
+                for k in 0..n {
+                    let r = net.get(i, k).and(net.get(i, j).compose(net.get(j, k)));
+                    if r.is_empty() {
+                        return None;
+                    }
+                    if r != net.get(i, k) {
+                        net.set(i, k, r);
+                        changed = true;
+                    }
+                }
+            }
+        }
+        if !changed {
+            return Some(net);
+        }
+    }
+}
+
+/// Networks larger than one 64-bit word of neighbours (the closure visits only neighbours):
+/// the queue-based closure and the static/dynamic split reach the naive fixpoint, on instances
+/// on both sides of the phase transition.
+#[test]
+fn closure_on_multi_word_networks_equals_the_naive_fixpoint() {
+    let mut rng = Rng(7);
+    for (n, d) in [(70, 3.0), (70, 9.0), (70, 14.0), (130, 6.0), (130, 10.0)] {
+        for _ in 0..3 {
+            let net = model_a(&mut rng, n, d, 4.0);
+            let naive = naive_closure(&net);
+            let mut closed = net.clone();
+            let ours = closed.algebraic_closure().ok().map(|()| closed);
+            assert_eq!(ours, naive, "n = {n}, d = {d}");
+            // The split: the first 3n/4 variables static, closed once; the rest per state.
+            let s = 3 * n / 4;
+            let (mut fixed, mut moving) = (Vec::new(), Vec::new());
+            for i in 0..n {
+                for j in i + 1..n {
+                    let r = net.get(i, j);
+                    if r != Relation::UNIVERSAL {
+                        if j < s {
+                            fixed.push((i, j, r))
+                        } else {
+                            moving.push((i, j, r))
+                        }
+                    }
+                }
+            }
+            let mut split = Split::new(s);
+            match split.constrain(&fixed) {
+                Err(_) => assert!(naive.is_none()),
+                Ok(()) => assert_eq!(split.state(n, &moving).ok(), naive, "split, n = {n}"),
+            }
+        }
+    }
+}
+
+/// A contradiction leaves the static part as it was.
+#[test]
+fn split_refuses_contradictions_without_change() {
+    let mut split = Split::new(3);
+    split
+        .constrain(&[(0, 1, Relation::NTPP), (1, 2, Relation::NTPP)])
+        .unwrap();
+    assert_eq!(split.get(0, 2), Relation::NTPP);
+    let before = split.clone();
+    assert!(split.constrain(&[(0, 2, Relation::DC)]).is_err());
+    assert_eq!(split, before);
+    // Dynamic regions come after the static ones and see their closure.
+    let state = split.state(4, &[(3, 0, Relation::EQ)]).unwrap();
+    assert_eq!(state.get(3, 2), Relation::NTPP);
 }

@@ -460,3 +460,34 @@ fn relations_between_landmarks_carry_forward() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Static regions keep what held between them, observed or inferred: a later observation that
+/// contradicts an inferred relation is refused, naming the line.
+#[test]
+fn static_regions_refuse_a_contradiction_of_what_was_inferred() {
+    let dir = std::env::temp_dir().join(format!("dyknow-static-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("static.jsonl");
+    std::fs::write(
+        &file,
+        concat!(
+            "{\"static\": [\"desk\", \"office\", \"canteen\"]}\n",
+            "{\"t\": 0, \"spatial\": [[\"desk\", \"office\", [\"NTPP\"]], [\"canteen\", \"office\", [\"DC\"]]]}\n",
+            "{\"t\": 1, \"spatial\": [[\"student\", \"desk\", [\"PO\"]]]}\n",
+            "{\"t\": 2, \"spatial\": [[\"desk\", \"canteen\", [\"PO\"]]]}\n",
+        ),
+    )
+    .unwrap();
+    // DC(desk, canteen) was inferred at t=0 and still holds at t=1; PO(student, office) is not
+    // decided (the student may be inside the office). The observation at t=2 contradicts it.
+    let (code, lines, stderr) = check(
+        &["next DC(desk, canteen)", "next PO(student, office)"],
+        &file,
+        &[],
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert_eq!(lines, vec![verdict(0, "true", 1)]);
+    assert!(stderr.contains("line 4"), "{stderr}");
+    assert!(stderr.contains("static"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
