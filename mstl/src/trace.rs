@@ -9,8 +9,9 @@
 //! it false. Atoms over `prev` regions (what Theorems 4–5 make of `next`) relate regions at two
 //! states through the extended spatial relation matrix of those states (seed Def. 13) with the
 //! landmarks rigid between them (Defs. 14–15): without landmarks nothing is known across time.
-//! Landmarks that the observations contradict (the seed's (3.26)) are reported as an error
-//! naming a minimal set of them. A state may also give a spatial atom directly as a key
+//! Landmarks that the observations of two consecutive states contradict (the seed's (3.26))
+//! are reported as an error naming a minimal set of them; so is a contradiction between states
+//! further apart, found when an atom relates them. A state may also give a spatial atom directly as a key
 //! (`"PO(a,b)": true`), which is read when reasoning leaves the atom undecided.
 
 use std::cell::RefCell;
@@ -85,7 +86,8 @@ fn bit(r: Rcc8) -> Rels {
 }
 
 /// A state's spatial knowledge: the algebraic closure of its constraints (observed, and what
-/// is known between static regions), over the static regions and those it mentions.
+/// is known between static regions), over the static regions and those it mentions (and,
+/// once refined through the previous state, the landmarks).
 #[derive(Debug)]
 struct Closure {
     index: FxHashMap<String, usize>,
@@ -205,8 +207,10 @@ impl Timeline {
         self.states.get(i)
     }
 
-    /// The state number `back` states before the current one.
+    /// The number of the state at `offset` (≤ 0: Theorems 4–5 leave no look-ahead) from the
+    /// current one.
     fn back(&self, offset: i32) -> Option<u64> {
+        debug_assert!(offset <= 0, "atoms never look ahead after Theorems 4–5");
         (self.count.checked_sub(1)?).checked_sub(u64::from(offset.unsigned_abs()))
     }
 
@@ -223,6 +227,10 @@ impl Timeline {
         } else {
             (q, p, right, left)
         };
+        if self.landmarks.is_empty() {
+            // No frame of reference: nothing relates two states ((3.29)).
+            return None;
+        }
         let linked = match self.link(early, late) {
             Ok(linked) => linked?,
             Err(e) => {
@@ -562,7 +570,7 @@ fn state(
         trace_error(
             line,
             format!(
-                "{} and {} are static, and this contradicts what held between static regions before",
+                "the relations between static regions contradict each other or what held between them before: no relation is possible between {} and {}",
                 statics.names[e.0], statics.names[e.1]
             ),
         )

@@ -211,7 +211,7 @@ fn bad_input_is_a_usage_error_naming_the_place() {
         ),
         (
             "{\"static\": [\"a\", \"b\"]}\n{\"t\": 0, \"spatial\": [[\"a\", \"b\", [\"DC\"]]]}\n{\"t\": 1, \"spatial\": [[\"a\", \"b\", [\"EC\"]]]}\n",
-            "line 3: a and b are static",
+            "line 3: the relations between static regions contradict each other or what held between them before: no relation is possible between a and b",
         ),
     ] {
         let path = dir.path().join("bad.jsonl");
