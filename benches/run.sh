@@ -18,6 +18,14 @@ fi
 # PyRCC8 1.2.2 is on PyPI only as a Python 2 source archive: benches/peers/install_pyrcc8.py
 # fetches it (pinned sha256), ports it with lib2to3 and installs it (nothing if present).
 "$venv/bin/python" -c 'import pyrcc8' 2>/dev/null || "$venv/bin/python" benches/peers/install_pyrcc8.py
+# GQR, if benches/peers/build_gqr.sh built it from a checkout (GQR_SRC=...): the RCC-8 bench
+# then runs it side by side too.
+if [ -x benches/.gqr/gqr ]; then
+  export GQR_BIN="$PWD/benches/.gqr/gqr" GQR_DATA_DIR="$PWD/benches/.gqr/src/data"
+elif [ -n "${GQR_SRC:-}" ]; then
+  benches/peers/build_gqr.sh
+  export GQR_BIN="$PWD/benches/.gqr/gqr" GQR_DATA_DIR="$PWD/benches/.gqr/src/data"
+fi
 export OXIGRAPH_BIN="$PWD/$venv/bin/oxigraph"
 export PEER_PYTHON="$PWD/$venv/bin/python"
 which="${1:-all}"

@@ -11,7 +11,8 @@
 //!    constraints and re-close from the edges they changed (`Split::state`, the copy timed),
 //!    against closing the whole network each state.
 //! 3. Side by side with a Python RCC-8 reasoner (`benches/peers/rcc8_peers.py`) on the same
-//!    instances when `PEER_PYTHON` is set.
+//!    instances when `PEER_PYTHON` is set, and with GQR when `GQR_BIN` is set
+//!    (`benches/peers/build_gqr.sh` builds it from a checkout; never committed).
 //!
 //! The landmark experiment (Figures 3.8–3.9) is `benches/landmarks.rs`.
 //! `BENCH_QUICK=1`: fewer instances.
@@ -146,6 +147,8 @@ fn main() {
         out.flush().unwrap();
     }
 
+    gqr_side_by_side(&sets, &mut out);
+
     let Ok(python) = std::env::var("PEER_PYTHON") else {
         writeln!(
             out,
@@ -229,6 +232,77 @@ fn main() {
                 out,
                 "| {n} | {} | {ours:.1} µs | did not run | - | - |",
                 nets.len()
+            )
+            .unwrap(),
+        }
+        out.flush().unwrap();
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// GQR (`gqr pc -C rcc8`) on every instance of each set, in one file: its own
+/// "CSPs processing time" (after reading the calculus and the file) against our closure of the
+/// same instances, with the answers compared. GQR prints that time in milliseconds, so the
+/// sets are large.
+fn gqr_side_by_side(sets: &[(usize, f64, Vec<Network>)], out: &mut impl Write) {
+    let Ok(gqr) = std::env::var("GQR_BIN") else {
+        writeln!(out, "\n(GQR_BIN not set: GQR not run; see benches/peers/build_gqr.sh)").unwrap();
+        return;
+    };
+    writeln!(out, "\n## Side by side with GQR (same instances, d = 9)\n").unwrap();
+    writeln!(
+        out,
+        "| n | instances | DyKnow mean | GQR mean | GQR ÷ DyKnow | same answers |"
+    )
+    .unwrap();
+    writeln!(out, "| --- | --- | --- | --- | --- | --- |").unwrap();
+    let dir = std::env::temp_dir().join(format!("dyknow-gqr-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (n, _d, nets) in sets {
+        let mut text = String::new();
+        for net in nets {
+            gqr::write(net, &mut text).unwrap();
+        }
+        let file = dir.join(format!("a-{n}.csp"));
+        std::fs::write(&file, text).unwrap();
+        let (ours, _) = mean_closure(nets);
+        let answers: Vec<bool> = nets
+            .iter()
+            .map(|n| n.clone().algebraic_closure().is_ok())
+            .collect();
+        let run = std::process::Command::new(&gqr)
+            .args(["pc", "-C", "rcc8"])
+            .arg(&file)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&run.stdout);
+        let theirs: Vec<bool> = text
+            .lines()
+            .filter_map(|l| l.strip_prefix(": "))
+            .map(|v| v.trim() == "1")
+            .collect();
+        let seconds = text
+            .lines()
+            .find_map(|l| l.strip_prefix("CSPs processing time: "))
+            .and_then(|l| l.split_whitespace().next())
+            .and_then(|v| v.parse::<f64>().ok());
+        match seconds {
+            Some(sec) => {
+                let mean = sec / nets.len() as f64 * 1e6;
+                writeln!(
+                    out,
+                    "| {n} | {} | {ours:.1} µs | {mean:.1} µs | {:.2}× | {} |",
+                    nets.len(),
+                    mean / ours,
+                    if theirs == answers { "yes" } else { "NO" }
+                )
+                .unwrap();
+            }
+            None => writeln!(
+                out,
+                "| {n} | {} | {ours:.1} µs | did not run ({}) | - | - |",
+                nets.len(),
+                String::from_utf8_lossy(&run.stderr).lines().next().unwrap_or("")
             )
             .unwrap(),
         }
