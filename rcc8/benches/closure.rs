@@ -246,7 +246,11 @@ fn main() {
 /// sets are large.
 fn gqr_side_by_side(sets: &[(usize, f64, Vec<Network>)], out: &mut impl Write) {
     let Ok(gqr) = std::env::var("GQR_BIN") else {
-        writeln!(out, "\n(GQR_BIN not set: GQR not run; see benches/peers/build_gqr.sh)").unwrap();
+        writeln!(
+            out,
+            "\n(GQR_BIN not set: GQR not run; see benches/peers/build_gqr.sh)"
+        )
+        .unwrap();
         return;
     };
     writeln!(out, "\n## Side by side with GQR (same instances, d = 9)\n").unwrap();
@@ -302,7 +306,10 @@ fn gqr_side_by_side(sets: &[(usize, f64, Vec<Network>)], out: &mut impl Write) {
                 out,
                 "| {n} | {} | {ours:.1} µs | did not run ({}) | - | - |",
                 nets.len(),
-                String::from_utf8_lossy(&run.stderr).lines().next().unwrap_or("")
+                String::from_utf8_lossy(&run.stderr)
+                    .lines()
+                    .next()
+                    .unwrap_or("")
             )
             .unwrap(),
         }

@@ -290,3 +290,42 @@ fn split_refuses_contradictions_without_change() {
     let state = split.state(4, &[(3, 0, Relation::EQ)]).unwrap();
     assert_eq!(state.get(3, 2), Relation::NTPP);
 }
+
+/// GQR's published sample instances answer as GQR 1501 does (built from its checkout by
+/// `benches/peers/build_gqr.sh`; `gqr pc -C rcc8 FILE` and `gqr c -C rcc8 FILE`, 2026-11-21):
+/// path consistency and exact consistency, instance by instance.
+#[test]
+fn gqr_sample_instances_answer_as_gqr_does() {
+    let cases: [(&str, &str, &str); 4] = [
+        ("PC.csp", "0", "0"),
+        ("alleq.csp", "1", "1"),
+        ("example-10x10.csp", "0101101011", "0100101011"),
+        ("example-10x20.csp", "0110110000", "0010010000"),
+    ];
+    for (file, pc, exact) in cases {
+        let path = format!(
+            "{}/tests/data/gqr-instances/{file}",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        let nets = gqr::parse(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let ours_pc: String = nets
+            .iter()
+            .map(|n| {
+                if n.clone().algebraic_closure().is_ok() {
+                    '1'
+                } else {
+                    '0'
+                }
+            })
+            .collect();
+        let ours_exact: String = nets
+            .iter()
+            .map(|n| if n.clone().solve() { '1' } else { '0' })
+            .collect();
+        assert_eq!(
+            (ours_pc.as_str(), ours_exact.as_str()),
+            (pc, exact),
+            "{file}"
+        );
+    }
+}
