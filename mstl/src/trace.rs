@@ -178,16 +178,15 @@ impl Timeline {
         let Some(current) = self.states.back_mut() else {
             return Ok(());
         };
-        let mut index: FxHashMap<String, usize> = FxHashMap::default();
-        let names = current
-            .2
-            .iter()
-            .flat_map(|c| c.index.keys())
-            .chain(&self.landmarks);
-        for name in names {
-            let next = index.len();
-            index.entry(name.clone()).or_insert(next);
-        }
+        let mut index = FxHashMap::default();
+        number(
+            &mut index,
+            current
+                .2
+                .iter()
+                .flat_map(|c| c.index.keys())
+                .chain(&self.landmarks),
+        );
         let mut network = Network::new(index.len());
         for (a, &i) in &index {
             for (b, &j) in &index {
@@ -253,16 +252,15 @@ impl Timeline {
         let (Some(early), Some(late)) = (self.at(p), self.at(q)) else {
             return Ok(None);
         };
-        let mut index: FxHashMap<String, usize> = FxHashMap::default();
-        let names = [&early.2, &late.2]
-            .into_iter()
-            .flatten()
-            .flat_map(|c| c.index.keys())
-            .chain(&self.landmarks);
-        for name in names {
-            let next = index.len();
-            index.entry(name.clone()).or_insert(next);
-        }
+        let mut index = FxHashMap::default();
+        number(
+            &mut index,
+            [&early.2, &late.2]
+                .into_iter()
+                .flatten()
+                .flat_map(|c| c.index.keys())
+                .chain(&self.landmarks),
+        );
         let block = |closure: &Option<Rc<Closure>>| {
             let mut net = Network::new(index.len());
             if let Some(c) = closure {
@@ -280,13 +278,11 @@ impl Timeline {
         let linked = match Extended::of_closed(&block(&early.2), &block(&late.2), &landmarks) {
             Ok(matrix) => Rc::new(Linked { index, matrix }),
             Err(conflict) => {
-                let name = |k: usize| {
-                    index
-                        .iter()
-                        .find(|(_, v)| **v == k)
-                        .map_or("?", |(n, _)| n.as_str())
-                };
-                let mut names: Vec<&str> = conflict.landmarks.iter().map(|&k| name(k)).collect();
+                let mut names: Vec<&str> = conflict
+                    .landmarks
+                    .iter()
+                    .map(|&k| name_of(&index, k))
+                    .collect();
                 names.sort_unstable();
                 return Err(trace_error(
                     late.0,
@@ -358,6 +354,22 @@ impl Statics {
             names,
         }
     }
+}
+
+/// Gives each name not yet in `index` the next number.
+fn number<'a>(index: &mut FxHashMap<String, usize>, names: impl Iterator<Item = &'a String>) {
+    for name in names {
+        let next = index.len();
+        index.entry(name.clone()).or_insert(next);
+    }
+}
+
+/// The name numbered `k` (for error messages).
+fn name_of(index: &FxHashMap<String, usize>, k: usize) -> &str {
+    index
+        .iter()
+        .find(|(_, v)| **v == k)
+        .map_or("?", |(n, _)| n.as_str())
 }
 
 /// A line of the trace: its number and its JSON object.
@@ -577,24 +589,16 @@ fn state(
     })?;
     if !out.spatial.is_empty() || !statics.names.is_empty() {
         let mut index: FxHashMap<String, usize> = statics.index.clone();
-        for (pair, _) in &moving {
-            for r in [&pair.0, &pair.1] {
-                let next = index.len();
-                index.entry(r.clone()).or_insert(next);
-            }
-        }
+        number(
+            &mut index,
+            moving.iter().flat_map(|(pair, _)| [&pair.0, &pair.1]),
+        );
         let dynamic: Vec<(usize, usize, Relation)> = moving
             .iter()
             .map(|((a, b), r)| (index[a], index[b], *r))
             .collect();
         let network = statics.split.state(index.len(), &dynamic).map_err(|e| {
-            let name = |k: usize| {
-                index
-                    .iter()
-                    .find(|(_, v)| **v == k)
-                    .map_or("?", |(n, _)| n.as_str())
-                    .to_owned()
-            };
+            let name = |k| name_of(&index, k);
             trace_error(
                 line,
                 format!(

@@ -180,17 +180,7 @@ fn main() {
             .take(if *n == 500 { 5 } else { 50 })
             .cloned()
             .collect();
-        let mut text = String::new();
-        for net in &nets {
-            gqr::write(net, &mut text).unwrap();
-        }
-        let file = dir.join(format!("a-{n}.csp"));
-        std::fs::write(&file, text).unwrap();
-        let (ours, _) = mean_closure(&nets);
-        let answers: Vec<bool> = nets
-            .iter()
-            .map(|n| n.clone().algebraic_closure().is_ok())
-            .collect();
+        let (file, ours, answers) = for_peer(&dir, *n, &nets);
         let timeout = std::env::var("PEER_TIMEOUT_S").unwrap_or_else(|_| "600".to_owned());
         let run = std::process::Command::new("timeout")
             .arg(timeout)
@@ -240,6 +230,27 @@ fn main() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The instances written in GQR's format for a peer, with our mean closure time (µs) and our
+/// answers (path-consistent or not) on them.
+fn for_peer(
+    dir: &std::path::Path,
+    n: usize,
+    nets: &[Network],
+) -> (std::path::PathBuf, f64, Vec<bool>) {
+    let mut text = String::new();
+    for net in nets {
+        gqr::write(net, &mut text).unwrap();
+    }
+    let file = dir.join(format!("a-{n}.csp"));
+    std::fs::write(&file, text).unwrap();
+    let (ours, _) = mean_closure(nets);
+    let answers = nets
+        .iter()
+        .map(|n| n.clone().algebraic_closure().is_ok())
+        .collect();
+    (file, ours, answers)
+}
+
 /// GQR (`gqr pc -C rcc8`) on every instance of each set, in one file: its own
 /// "CSPs processing time" (after reading the calculus and the file) against our closure of the
 /// same instances, with the answers compared. GQR prints that time in milliseconds, so the
@@ -263,17 +274,7 @@ fn gqr_side_by_side(sets: &[(usize, f64, Vec<Network>)], out: &mut impl Write) {
     let dir = std::env::temp_dir().join(format!("dyknow-gqr-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     for (n, _d, nets) in sets {
-        let mut text = String::new();
-        for net in nets {
-            gqr::write(net, &mut text).unwrap();
-        }
-        let file = dir.join(format!("a-{n}.csp"));
-        std::fs::write(&file, text).unwrap();
-        let (ours, _) = mean_closure(nets);
-        let answers: Vec<bool> = nets
-            .iter()
-            .map(|n| n.clone().algebraic_closure().is_ok())
-            .collect();
+        let (file, ours, answers) = for_peer(&dir, *n, nets);
         let run = std::process::Command::new(&gqr)
             .args(["pc", "-C", "rcc8"])
             .arg(&file)
