@@ -1,7 +1,8 @@
 //! MSTL, the seed's Metric Spatio-Temporal Logic (Ch. 3.2), as `../shared/contract/mstl.md`
 //! fixes it: its syntax ([`syntax`]), parser ([`parse`]) and printer (`Display`); progression
-//! of formulas over state streams (seed Algorithm 3, extended) by a [`Monitor`]; and the
-//! trace files of `dyknow check` ([`trace`]). Knows nothing of RDF.
+//! of formulas over state streams (seed Algorithm 3, extended) by a [`Monitor`]; the spatial
+//! state of a stream taken one state at a time ([`StateStream`]: RCC-8 closure, static regions,
+//! landmarks); and the trace files of `dyknow check` ([`trace`]). Knows nothing of RDF.
 //!
 //! ```
 //! let f = dyknow_mstl::parse("forall x in UAV: always (altitude(x) > 50)").unwrap();
@@ -12,7 +13,10 @@
 //! Layout: `syntax`, `parser`, `printer` (the language); `dag` (hash-consed formula nodes
 //! with simplification and reclamation); `compile` (syntax to nodes, the `next` rewritings);
 //! `atom` (atoms against a state's [`Valuation`]); `progress` (Algorithm 3); `monitor` (a
-//! group of formulas over one stream, verdicts); `trace` (JSON-lines traces and verdicts).
+//! group of formulas over one stream, verdicts); `stream` (a state stream's spatial state,
+//! one [`State`] at a time: each state's algebraic closure, the static/dynamic split of
+//! Ch. 3.4.2, the landmarks and extended matrices of Ch. 3.3.3 for atoms over `prev` regions,
+//! [`StreamError`]); `trace` (JSON-lines traces and verdicts, a thin adapter over `stream`).
 
 mod atom;
 mod compile;
@@ -21,6 +25,7 @@ mod monitor;
 mod parser;
 mod printer;
 mod progress;
+mod stream;
 pub mod syntax;
 pub mod trace;
 
@@ -28,6 +33,7 @@ pub use atom::{Valuation, Value};
 pub use compile::{CompileError, Domains};
 pub use monitor::{Monitor, StepError, Verdict};
 pub use parser::{MAX_DEPTH, MAX_LEN, MAX_TREE_DEPTH, ParseError, is_keyword, parse};
+pub use stream::{SpatialConstraints, State, StateStream, StateValue, StreamError};
 pub use syntax::{Atom, Cmp, Domain, Formula, Interval, Rcc8, Region, Term};
 
 /// A truth value of Kleene's strong three-valued logic.
