@@ -2,8 +2,7 @@
 
 use std::collections::HashSet;
 
-use axum::http::StatusCode;
-use dyknow_acceptance::{EXAMPLE_SPECS, load_examples, send, service, specs_dir};
+use dyknow_acceptance::{Api, EXAMPLE_SPECS, specs_dir};
 use dyknow_ontology::{OwlSyntax, read_owl};
 use horned_owl::model::Component;
 use sophia::api::parser::TripleParser;
@@ -25,15 +24,12 @@ async fn every_example_spec_loads_through_the_api() {
     covered.sort();
     assert_eq!(files, covered);
 
-    let router = service();
-    load_examples(&router).await;
-    let (status, _, body) = send(&router, "GET", "/transformations", None, None, vec![]).await;
-    assert_eq!(status, StatusCode::OK);
-    let list: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let api = Api::new();
+    api.load_examples().await;
+    let list = api.get("/transformations").await.expect(200).json();
     // Listing 5.3 (1) + Example 12 (5) + Piff (7) + Puff (7) + ceiling (10).
     assert_eq!(list.as_array().unwrap().len(), 30);
-    let (_, _, body) = send(&router, "GET", "/targets", None, None, vec![]).await;
-    let targets: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let targets = api.get("/targets").await.expect(200).json();
     let labels: Vec<&str> = targets
         .as_array()
         .unwrap()
@@ -61,13 +57,12 @@ fn nt_graph(text: &str) -> LightGraph {
 
 #[tokio::test]
 async fn model_turtle_reimported_into_an_empty_store_is_isomorphic() {
-    let router = service();
-    load_examples(&router).await;
-    let (status, ct, turtle) =
-        send(&router, "GET", "/model?format=turtle", None, None, vec![]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert!(ct.starts_with("text/turtle"));
-    let turtle = String::from_utf8(turtle).unwrap();
+    let api = Api::new();
+    api.load_examples().await;
+    let answer = api.get("/model?format=turtle").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "text/turtle");
+    let turtle = answer.text();
 
     // Re-import into an empty Oxigraph store and dump it again.
     let store = dyknow_store::oxigraph::store::Store::new().unwrap();
@@ -90,8 +85,7 @@ async fn model_turtle_reimported_into_an_empty_store_is_isomorphic() {
     assert!(isomorphic_graphs(&original, &reimported).unwrap());
 
     // And the N-Triples export is the same graph.
-    let (_, _, nt) = send(&router, "GET", "/model?format=ntriples", None, None, vec![]).await;
-    let nt = String::from_utf8(nt).unwrap();
+    let nt = api.get("/model?format=ntriples").await.expect(200).text();
     assert!(isomorphic_graphs(&original, &nt_graph(&nt)).unwrap());
 
     // A graph that lost one triple is not isomorphic (the check can fail).
@@ -133,34 +127,29 @@ fn assert_same(a: &Components, b: &Components, an: &str, bn: &str) {
 
 #[tokio::test]
 async fn owl_exports_read_back_into_the_same_axioms() {
-    let router = service();
-    load_examples(&router).await;
-    let (status, ct, ofn) = send(
-        &router,
-        "GET",
-        "/model",
-        None,
-        Some("text/owl-functional"),
-        vec![],
-    )
-    .await;
-    assert_eq!(status, StatusCode::OK, "{}", String::from_utf8_lossy(&ofn));
-    assert_eq!(ct, "text/owl-functional");
-    let (status, ct, owx) = send(&router, "GET", "/model?format=owx", None, None, vec![]).await;
-    assert_eq!(status, StatusCode::OK);
-    assert_eq!(ct, "application/owl+xml");
-    let ofn = String::from_utf8(ofn).unwrap();
+    let api = Api::new();
+    api.load_examples().await;
+    let answer = api.get_accept("/model", "text/owl-functional").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "text/owl-functional");
+    let ofn = answer.text();
+    let answer = api.get("/model?format=owx").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "application/owl+xml");
     let from_ofn = axioms(read_owl(&ofn, OwlSyntax::Functional).unwrap());
-    let from_owx = axioms(read_owl(&String::from_utf8(owx).unwrap(), OwlSyntax::OwlXml).unwrap());
+    let from_owx = axioms(read_owl(&answer.text(), OwlSyntax::OwlXml).unwrap());
     assert_same(&from_ofn, &from_owx, "OFN", "OWX");
 
     // The same axioms horned-owl reads from the RDF form of the model.
-    let (_, _, nt) = send(&router, "GET", "/model?format=ntriples", None, None, vec![]).await;
+    let nt = api.get("/model?format=ntriples").await.expect(200).text();
     // The RDF form keeps both built-in ontology headers; the OWL export declares one ontology,
     // so the second header's own annotations are the one expected difference.
     let from_rdf: Components = axioms(
-        dyknow_ontology::rdf_owl_components(&nt, dyknow_store::oxigraph::io::RdfFormat::NTriples)
-            .unwrap(),
+        dyknow_ontology::rdf_owl_components(
+            nt.as_bytes(),
+            dyknow_store::oxigraph::io::RdfFormat::NTriples,
+        )
+        .unwrap(),
     )
     .into_iter()
     .filter(|c| {

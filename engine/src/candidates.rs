@@ -5,7 +5,8 @@
 
 use rustc_hash::FxHashMap;
 
-use crate::model::{Environment, Qid, Tid};
+use crate::ids::{Qid, Tid};
+use crate::model::Environment;
 
 /// An out port that can satisfy an in port or a target: the port `port` (an index into the
 /// transformation's outputs) of transformation `tid`.
@@ -27,7 +28,7 @@ pub struct Candidates {
 impl Candidates {
     /// Records that `provider` satisfies in port `input` of `tid`.
     pub fn add_input(&mut self, tid: &str, input: usize, provider: Provider) {
-        let list = self.inputs.entry((tid.to_owned(), input)).or_default();
+        let list = self.inputs.entry((Tid::from(tid), input)).or_default();
         if !list.contains(&provider) {
             list.push(provider);
             list.sort();
@@ -36,7 +37,7 @@ impl Candidates {
 
     /// Records that `provider` satisfies target `qid`.
     pub fn add_target(&mut self, qid: &str, provider: Provider) {
-        let list = self.targets.entry(qid.to_owned()).or_default();
+        let list = self.targets.entry(Qid::from(qid)).or_default();
         if !list.contains(&provider) {
             list.push(provider);
             list.sort();
@@ -46,7 +47,7 @@ impl Candidates {
     /// The providers of in port `input` of `tid`, sorted.
     pub fn for_input(&self, tid: &str, input: usize) -> &[Provider] {
         self.inputs
-            .get(&(tid.to_owned(), input))
+            .get(&(Tid::from(tid), input))
             .map_or(&[], Vec::as_slice)
     }
 

@@ -1,20 +1,25 @@
-//! Change sets as the change set JSON of the contract (`cli.md`) and as RDF deltas.
+//! Change sets as the change set JSON of the contract (`cli.md`): what a review (or a manual
+//! request) decided, why, at what cost, as actions and as the RDF delta of the environment
+//! graph; and whether the executors applied it. Serialises and deserialises, so the history
+//! read back from the knowledge base is typed.
 
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::compile::{Compiled, CostSummary};
-use crate::knowledge::Delta;
-use crate::model::{Action, Qid};
+use crate::ids::{ChangeSetId, Cid, Qid};
+use crate::model::Action;
 
 /// Why a change set was made.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
+#[non_exhaustive]
 pub enum Cause {
     /// `dyknow explore`, offline.
     Explore,
-    /// A review started on demand (`POST /review`).
+    /// A review started on demand (`POST /review`), at the end of a stable interval, or after
+    /// a perturbation that names no target or CU.
     Review,
     /// A target was added.
     TargetAdded {
@@ -29,12 +34,28 @@ pub enum Cause {
     /// A CU crashed.
     CuCrashed {
         /// The CU.
-        cu: String,
+        cu: Cid,
     },
+    /// A client asked for it (Spawn, Destroy).
+    Manual,
+}
+
+impl Cause {
+    /// The cause's `kind` in change set JSON (`target-added`, `cu-crashed`, …).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Explore => "explore",
+            Self::Review => "review",
+            Self::TargetAdded { .. } => "target-added",
+            Self::TargetReleased { .. } => "target-released",
+            Self::CuCrashed { .. } => "cu-crashed",
+            Self::Manual => "manual",
+        }
+    }
 }
 
 /// The RDF delta of a change set, as N-Triples.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct NTriplesDelta {
     /// Triples to insert.
     pub insert: String,
@@ -42,11 +63,42 @@ pub struct NTriplesDelta {
     pub delete: String,
 }
 
-/// A change set as the contract's change set JSON gives it, plus what the search could not do.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Where a change set is in its life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ChangeSetStatus {
+    /// Decided, not applied (`dyknow explore`).
+    Planned,
+    /// Every executor involved applied its actions.
+    Applied,
+    /// Some action failed (see [`ChangeSet::failures`]); its CU is treated as crashed.
+    Failed,
+}
+
+impl ChangeSetStatus {
+    /// Records written before change sets had a status were applied (to the model).
+    fn recorded_before_statuses() -> Self {
+        Self::Applied
+    }
+}
+
+/// An action an executor could not apply, and why.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ActionFailure {
+    /// The index of the action in [`ChangeSet::actions`].
+    pub action: usize,
+    /// Its CU.
+    pub cu: Cid,
+    /// Why it failed.
+    pub reason: String,
+}
+
+/// A change set as the contract's change set JSON gives it, plus what the search could not do
+/// and how its application went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChangeSet {
     /// `cs-N`.
-    pub id: String,
+    pub id: ChangeSetId,
     /// When it was made (RFC 3339, UTC).
     pub at: String,
     /// Why.
@@ -60,25 +112,30 @@ pub struct ChangeSet {
     /// Targets left unsatisfied because no valid configuration exists (the relaxation).
     pub unsatisfied_targets: Vec<Qid>,
     /// Whether EXPLORE proved the change set optimal (false when the any-time timeout cut
-    /// the search short).
+    /// the search short, and for change sets no search made).
     pub optimal: bool,
+    /// Planned, applied, or failed.
+    #[serde(default = "ChangeSetStatus::recorded_before_statuses")]
+    pub status: ChangeSetStatus,
+    /// The actions that failed, when the status is `failed`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub failures: Vec<ActionFailure>,
 }
 
 impl ChangeSet {
-    /// A change set from COMPILE's result and its RDF delta.
-    pub fn new(id: String, cause: Cause, compiled: Compiled, delta: &Delta) -> Self {
+    /// A planned change set from COMPILE's result and its RDF delta, made now.
+    pub fn new(id: ChangeSetId, cause: Cause, compiled: Compiled, delta: NTriplesDelta) -> Self {
         Self {
             id,
             at: rfc3339(SystemTime::now()),
             cause,
             cost: compiled.cost,
             actions: compiled.actions,
-            delta: NTriplesDelta {
-                insert: delta.insert_ntriples(),
-                delete: delta.delete_ntriples(),
-            },
+            delta,
             unsatisfied_targets: compiled.unsatisfied_targets,
             optimal: compiled.optimal,
+            status: ChangeSetStatus::Planned,
+            failures: Vec::new(),
         }
     }
 }
@@ -109,6 +166,72 @@ pub fn rfc3339(time: SystemTime) -> String {
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    #[test]
+    fn a_change_set_round_trips_through_json() {
+        let change_set = ChangeSet {
+            id: ChangeSetId::numbered(2),
+            at: "2026-11-21T12:00:00Z".to_owned(),
+            cause: Cause::CuCrashed { cu: "cu-3".into() },
+            cost: CostSummary {
+                total: 31.0,
+                labour: 1.0,
+                upkeep_per_time_unit: 3.0,
+                horizon: 10.0,
+            },
+            actions: vec![
+                Action::Spawn {
+                    cu: "cu-4".into(),
+                    transformation: "tid2".into(),
+                },
+                Action::ConnectIn {
+                    cu: "cu-4".into(),
+                    port: "in".to_owned(),
+                    channel: "ch-1".into(),
+                },
+                Action::DisconnectOut {
+                    cu: "cu-2".into(),
+                    port: "out".to_owned(),
+                },
+                Action::Destroy { cu: "cu-1".into() },
+            ],
+            delta: NTriplesDelta {
+                insert: "<urn:a> <urn:b> <urn:c> .\n".to_owned(),
+                delete: String::new(),
+            },
+            unsatisfied_targets: vec!["qid9".into()],
+            optimal: true,
+            status: ChangeSetStatus::Failed,
+            failures: vec![ActionFailure {
+                action: 0,
+                cu: "cu-4".into(),
+                reason: "no executor runs tid2".to_owned(),
+            }],
+        };
+        let json = serde_json::to_value(&change_set).expect("serialise");
+        // The contract's field names and spellings.
+        assert_eq!(json["id"], "cs-2");
+        assert_eq!(
+            json["cause"],
+            serde_json::json!({"kind": "cu-crashed", "cu": "cu-3"})
+        );
+        assert_eq!(
+            json["actions"][1],
+            serde_json::json!({"action": "connect-in", "cu": "cu-4", "port": "in", "channel": "ch-1"})
+        );
+        assert_eq!(json["status"], "failed");
+        assert_eq!(json["cause"]["kind"], change_set.cause.kind());
+        let back: ChangeSet = serde_json::from_value(json).expect("deserialise");
+        assert_eq!(back, change_set);
+        // A record from before statuses existed reads as applied, without failures.
+        let mut old = serde_json::to_value(&change_set).expect("serialise");
+        let fields = old.as_object_mut().expect("an object");
+        fields.remove("status");
+        fields.remove("failures");
+        let old: ChangeSet = serde_json::from_value(old).expect("deserialise");
+        assert_eq!(old.status, ChangeSetStatus::Applied);
+        assert!(old.failures.is_empty());
+    }
 
     #[test]
     fn rfc3339_formats_known_instants() {

@@ -4,13 +4,14 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::explore::{Exploration, ExploreOptions, NodeKind, Plan};
-use crate::model::{Action, Channel, Cid, Environment, Qid};
+use crate::ids::{Channel, Cid, Ids, Qid};
+use crate::model::{Action, Environment};
 
 /// The estimated cost of a change set (Def. 34), as change set JSON gives it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CostSummary {
     /// labour + horizon × upkeep.
     pub total: f64,
@@ -23,7 +24,7 @@ pub struct CostSummary {
 }
 
 /// What COMPILE produces: the actions, their cost, and what the search could not do.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Compiled {
     /// The actions, in order: per plan node its spawn and connections, then destructions.
     pub actions: Vec<Action>,
@@ -33,67 +34,6 @@ pub struct Compiled {
     pub unsatisfied_targets: Vec<Qid>,
     /// Whether the search proved this change set optimal (false after an any-time timeout).
     pub optimal: bool,
-}
-
-/// Fresh identifiers for CUs and channels: `cu-N` and `ch-N`, never used before.
-#[derive(Debug, Clone, Default)]
-pub struct Ids {
-    /// The next CU number.
-    pub next_cu: u64,
-    /// The next channel number.
-    pub next_channel: u64,
-    taken: BTreeSet<String>,
-}
-
-impl Ids {
-    /// Identifiers after every `cu-N` and `ch-N` the environment uses.
-    pub fn after(env: &Environment) -> Self {
-        let mut ids = Self::default();
-        ids.observe(env);
-        ids
-    }
-
-    /// Makes sure no identifier the environment uses is handed out.
-    pub fn observe(&mut self, env: &Environment) {
-        for cu in env.cus.values() {
-            self.taken.insert(cu.cid.clone());
-            for ch in cu.inputs.values().chain(cu.outputs.values()).flatten() {
-                self.taken.insert(ch.clone());
-            }
-        }
-        for t in env.targets.values() {
-            self.taken.insert(t.channel.clone());
-        }
-    }
-
-    fn fresh(&mut self, prefix: &str, counter: fn(&mut Self) -> &mut u64) -> String {
-        loop {
-            let n = {
-                let c = counter(self);
-                *c += 1;
-                *c
-            };
-            let id = format!("{prefix}-{n}");
-            if self.taken.insert(id.clone()) {
-                return id;
-            }
-        }
-    }
-
-    /// Marks `name` as used.
-    pub fn reserve(&mut self, name: &str) {
-        self.taken.insert(name.to_owned());
-    }
-
-    /// A CU name never used.
-    pub fn cu(&mut self) -> Cid {
-        self.fresh("cu", |s| &mut s.next_cu)
-    }
-
-    /// A channel name never used.
-    pub fn channel(&mut self) -> Channel {
-        self.fresh("ch", |s| &mut s.next_channel)
-    }
 }
 
 /// COMPILE(trace, ε) (Algorithm 6), for the best plan of `exploration`. Without a plan (no
@@ -120,7 +60,7 @@ pub fn compile(
     let mut cid_of: Vec<Cid> = Vec::with_capacity(plan.nodes.len());
     for node in &plan.nodes {
         cid_of.push(match &node.kind {
-            NodeKind::Root => Cid::new(),
+            NodeKind::Root => Cid::default(),
             NodeKind::Existing(cid) => {
                 removal.remove(cid); // Lines 7–9.
                 cid.clone()
@@ -249,11 +189,19 @@ fn assign_channels(
 }
 
 fn summary(after: &Environment, horizon: f64, labour: f64) -> CostSummary {
-    let upkeep = after.upkeep();
-    CostSummary {
-        total: labour + horizon * upkeep,
-        labour,
-        upkeep_per_time_unit: upkeep,
-        horizon,
+    CostSummary::of(after, horizon, labour)
+}
+
+impl CostSummary {
+    /// The estimated cost (Def. 34) of an update that spends `labour` and results in `after`:
+    /// labour + horizon × the upkeep of `after`.
+    pub fn of(after: &Environment, horizon: f64, labour: f64) -> Self {
+        let upkeep = after.upkeep();
+        Self {
+            total: labour + horizon * upkeep,
+            labour,
+            upkeep_per_time_unit: upkeep,
+            horizon,
+        }
     }
 }

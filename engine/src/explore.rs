@@ -22,7 +22,8 @@ use std::time::{Duration, Instant};
 use rustc_hash::FxHashMap;
 
 use crate::candidates::Candidates;
-use crate::model::{Cid, Environment, Qid, Tid};
+use crate::ids::{Channel, Cid, Qid, Tid};
+use crate::model::Environment;
 
 /// An estimated cost (Def. 34): targets left unsatisfied first (the relaxation), then the
 /// labour plus horizon × upkeep.
@@ -213,7 +214,7 @@ struct Search<'a> {
     in_counts: Vec<usize>,
     cus: Vec<Cid>,
     targets: Vec<Qid>,
-    target_channels: Vec<String>,
+    target_channels: Vec<Channel>,
     /// Static candidates per (tid, input), and per target.
     for_input: Vec<Vec<Vec<Static>>>,
     for_target: Vec<Vec<Static>>,
@@ -339,7 +340,7 @@ pub fn explore(
 impl<'a> Search<'a> {
     fn new(env: &Environment, candidates: &Candidates, options: &'a ExploreOptions) -> Self {
         let tids: Vec<Tid> = env.library.keys().cloned().collect();
-        let tid_index: FxHashMap<String, usize> = tids
+        let tid_index: FxHashMap<Tid, usize> = tids
             .iter()
             .enumerate()
             .map(|(i, t)| (t.clone(), i))
@@ -478,10 +479,7 @@ impl<'a> Search<'a> {
         let provider_of = |channel: Option<&str>| -> Option<(Cid, usize)> {
             let (cid, port) = publishers.get(channel?)?.first()?;
             let tf = env.library.get(&env.cus.get(*cid)?.tid)?;
-            Some((
-                (*cid).to_owned(),
-                tf.outputs.iter().position(|p| p == port)?,
-            ))
+            Some((Cid::from(*cid), tf.outputs.iter().position(|p| p == port)?))
         };
         let mut current_in = FxHashMap::default();
         for cu in env.cus.values() {
@@ -515,7 +513,7 @@ impl<'a> Search<'a> {
         };
         // Line 7: the root; then protected CUs, which stay whatever the plan.
         search.nodes.push(PlanNode {
-            tid: Tid::new(),
+            tid: Tid::default(),
             kind: NodeKind::Root,
             inputs: vec![None; search.targets.len()],
         });

@@ -3,23 +3,15 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::candidates::Candidates;
-
-/// A transformation's identifier: its label (the seed's *tid*).
-pub type Tid = String;
-/// A computation unit's identifier: its name (the seed's *cid*).
-pub type Cid = String;
-/// A target's identifier: its label (the seed's *qid*).
-pub type Qid = String;
-/// A channel, by name.
-pub type Channel = String;
+pub use crate::ids::{Channel, Cid, Qid, Tid};
 
 /// A transformation (Def. 17), with the DyKnow-ROS deviation of several out ports. The
 /// function itself is an executor's business; the engine needs the ports and the cost
 /// estimates.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Transformation {
     /// The seed's *tid*.
     pub tid: Tid,
@@ -34,7 +26,7 @@ pub struct Transformation {
 }
 
 /// A computation unit (Def. 18): an instance of a transformation with its channel bindings.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ComputationUnit {
     /// The seed's *cid*.
     pub cid: Cid,
@@ -49,7 +41,7 @@ pub struct ComputationUnit {
 }
 
 /// A target (Def. 19): a desired stream, described by tags, expected on a channel.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Target {
     /// The seed's *qid*.
     pub qid: Qid,
@@ -59,7 +51,7 @@ pub struct Target {
 
 /// An environment ⟨CU, F, T, ~⟩ (Def. 20). The similarity relation ~ lives in
 /// [`Candidates`], which says for every in port and target which out ports satisfy it.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Environment {
     /// The computation graph CU.
     pub cus: BTreeMap<Cid, ComputationUnit>,
@@ -70,7 +62,7 @@ pub struct Environment {
 }
 
 /// One action (Defs. 23–30), as change sets list them.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(tag = "action", rename_all = "kebab-case")]
 pub enum Action {
     /// register (Def. 23).
@@ -140,7 +132,7 @@ pub enum Action {
 }
 
 /// Why an environment is not valid (Def. 33, plus acyclicity).
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum Invalidity {
     /// 33.1: the CU's transformation is not in the library.
@@ -178,6 +170,48 @@ pub enum Invalidity {
         /// A CU on the cycle.
         cu: Cid,
     },
+}
+
+impl Action {
+    /// The CU the action is about, if any.
+    pub fn cu(&self) -> Option<&Cid> {
+        match self {
+            Self::Spawn { cu, .. }
+            | Self::Destroy { cu }
+            | Self::ConnectIn { cu, .. }
+            | Self::ConnectOut { cu, .. }
+            | Self::DisconnectIn { cu, .. }
+            | Self::DisconnectOut { cu, .. } => Some(cu),
+            Self::Register { .. }
+            | Self::Deregister { .. }
+            | Self::Query { .. }
+            | Self::Release { .. } => None,
+        }
+    }
+
+    /// The channel the action connects a port to, if any.
+    pub fn channel(&self) -> Option<&Channel> {
+        match self {
+            Self::ConnectIn { channel, .. } | Self::ConnectOut { channel, .. } => Some(channel),
+            _ => None,
+        }
+    }
+
+    /// The action's name in change set JSON (`spawn`, `connect-in`, …).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Register { .. } => "register",
+            Self::Deregister { .. } => "deregister",
+            Self::Query { .. } => "query",
+            Self::Release { .. } => "release",
+            Self::Spawn { .. } => "spawn",
+            Self::Destroy { .. } => "destroy",
+            Self::ConnectIn { .. } => "connect-in",
+            Self::ConnectOut { .. } => "connect-out",
+            Self::DisconnectIn { .. } => "disconnect-in",
+            Self::DisconnectOut { .. } => "disconnect-out",
+        }
+    }
 }
 
 impl Environment {
@@ -264,7 +298,7 @@ impl Environment {
         for (channel, producers) in &publishers {
             if producers.len() > 1 {
                 out.insert(Invalidity::SharedChannel {
-                    channel: (*channel).to_owned(),
+                    channel: Channel::from(*channel),
                 });
             }
         }
@@ -349,7 +383,7 @@ impl Environment {
             match next.pop() {
                 Some(up) => match state.get(up) {
                     Some(1) => {
-                        out.insert(Invalidity::Cycle { cu: up.to_owned() });
+                        out.insert(Invalidity::Cycle { cu: Cid::from(up) });
                     }
                     Some(_) => {}
                     None => {

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use dyknow_engine::{
-    Candidates, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, Target,
+    Candidates, Cid, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, Target, Tid,
     Transformation, compile, explore,
 };
 use proptest::prelude::*;
@@ -62,11 +62,11 @@ fn similar(i: &u8, o: &u8) -> bool {
 fn build(tfs: &[Tf], targets: &[u8]) -> (Environment, Candidates) {
     let mut env = Environment::default();
     for (k, t) in tfs.iter().enumerate() {
-        let tid = format!("t{k}");
+        let tid = Tid::new(format!("t{k}"));
         let inputs: Vec<String> = (0..t.inputs.len()).map(|i| format!("i{i}")).collect();
         let outputs: Vec<String> = (0..t.outputs.len()).map(|j| format!("o{j}")).collect();
         for c in 0..t.existing {
-            let cid = format!("old-{k}-{c}");
+            let cid = Cid::new(format!("old-{k}-{c}"));
             env.cus.insert(
                 cid.clone(),
                 ComputationUnit {
@@ -91,10 +91,10 @@ fn build(tfs: &[Tf], targets: &[u8]) -> (Environment, Candidates) {
     }
     for (q, _) in targets.iter().enumerate() {
         env.targets.insert(
-            format!("q{q}"),
+            format!("q{q}").into(),
             Target {
-                qid: format!("q{q}"),
-                channel: format!("/target{q}"),
+                qid: format!("q{q}").into(),
+                channel: format!("/target{q}").into(),
             },
         );
     }
@@ -213,7 +213,11 @@ fn matching(edges: &[Vec<usize>], right: usize) -> usize {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 1000, ..ProptestConfig::default() })]
+    // 1000 cases by default; `PROPTEST_CASES=N` runs more (a soak) or fewer.
+    #![proptest_config(ProptestConfig {
+        cases: std::env::var("PROPTEST_CASES").ok().and_then(|n| n.parse().ok()).unwrap_or(1000),
+        ..ProptestConfig::default()
+    })]
 
     #[test]
     fn explore_is_optimal_and_its_change_set_valid((tfs, targets) in case()) {

@@ -62,7 +62,9 @@ fn spawned(actions: &[Action]) -> Vec<(String, String)> {
     actions
         .iter()
         .filter_map(|a| match a {
-            Action::Spawn { cu, transformation } => Some((cu.clone(), transformation.clone())),
+            Action::Spawn { cu, transformation } => {
+                Some((cu.to_string(), transformation.to_string()))
+            }
             _ => None,
         })
         .collect()

@@ -81,7 +81,24 @@ fn parse_rdf_detailed(
         )
         .map_err(OwlConversionError::parse)?;
     let mut unparsed: Vec<String> = Vec::new();
-    unparsed.extend(incomplete.simple.iter().map(|t| format!("{t:?}")));
+    // A document holding several ontologies (the core, DyKnow-ROS, extensions) has several
+    // headers, and horned-owl maps one of them, whichever it meets first: the others' version
+    // IRIs and imports are header triples, not axioms left out, so they are not reported (they
+    // were, one run in two, depending on the order).
+    unparsed.extend(
+        incomplete
+            .simple
+            .iter()
+            .filter(|t| {
+                !matches!(
+                    t.triple()[1],
+                    horned_owl::io::rdf::reader::Term::OWL(
+                        horned_owl::vocab::OWL::VersionIRI | horned_owl::vocab::OWL::Imports
+                    )
+                )
+            })
+            .map(|t| format!("{t:?}")),
+    );
     unparsed.extend(incomplete.bnode.iter().map(|t| format!("{t:?}")));
     unparsed.extend(incomplete.bnode_seq.iter().map(|t| format!("{t:?}")));
     Ok((ontology.into(), unparsed))

@@ -117,8 +117,47 @@ pub mod dkros {
         HAS_SOURCE = "hasSource";
         /// `dkros:hasParam`.
         HAS_PARAM = "hasParam";
-        /// `dkros:hasIndex`, the position of a port or tag in the posted spec.
+        /// `dkros:hasIndex`, the position of a port or tag in the posted spec, or of an action
+        /// in its change set.
         HAS_INDEX = "hasIndex";
+        /// `dkros:Publication`, the binding of a CU's out port to a channel.
+        PUBLICATION = "Publication";
+        /// `dkros:hasPublication`.
+        HAS_PUBLICATION = "hasPublication";
+        /// `dkros:publishesPort`.
+        PUBLISHES_PORT = "publishesPort";
+        /// `dkros:onChannel`.
+        ON_CHANNEL = "onChannel";
+        /// `dkros:isProtected`: change sets never destroy the CU.
+        IS_PROTECTED = "isProtected";
+        /// `dkros:historicalAverageLabour` (seed Eq. 5.8).
+        HISTORICAL_AVERAGE_LABOUR = "historicalAverageLabour";
+        /// `dkros:historicalAverageUpkeep` (seed Eq. 5.9).
+        HISTORICAL_AVERAGE_UPKEEP = "historicalAverageUpkeep";
+        /// `dkros:observationCount`.
+        OBSERVATION_COUNT = "observationCount";
+        /// `dkros:Action`, one action of a change set.
+        ACTION = "Action";
+        /// `dkros:hasAction`.
+        HAS_ACTION = "hasAction";
+        /// `dkros:actionKind` (`spawn`, `connect-in`, …).
+        ACTION_KIND = "actionKind";
+        /// `dkros:cuName`.
+        CU_NAME = "cuName";
+        /// `dkros:transformationLabel`.
+        TRANSFORMATION_LABEL = "transformationLabel";
+        /// `dkros:portName`.
+        PORT_NAME = "portName";
+        /// `dkros:channelName`.
+        CHANNEL_NAME = "channelName";
+        /// `dkros:atTime`, when a change set was made.
+        AT_TIME = "atTime";
+        /// `dkros:totalCost`, a change set's estimated cost.
+        TOTAL_COST = "totalCost";
+        /// `dkros:cause`, why a change set was made.
+        CAUSE = "cause";
+        /// `dkros:changeSetJson`, the whole change set as change set JSON.
+        CHANGE_SET_JSON = "changeSetJson";
     }
 }
 
@@ -175,6 +214,8 @@ pub mod xsd {
         BOOLEAN = "boolean";
         /// `xsd:nonNegativeInteger`.
         NON_NEGATIVE_INTEGER = "nonNegativeInteger";
+        /// `xsd:dateTime`.
+        DATE_TIME = "dateTime";
     }
 }
 

@@ -9,13 +9,12 @@ use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::{Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
+use dyknow_lifecycle::{Executor, LifecycleError, Manager, ModelOnly, Settings};
 use dyknow_store::KnowledgeBase;
 
 use crate::error::ApiError;
 use crate::metrics::Metrics;
-use crate::reconfig::Reconfigurator;
 use crate::routes;
-use dyknow_engine::EngineError;
 
 /// Settings of a running service.
 #[derive(Debug, Clone)]
@@ -53,31 +52,44 @@ pub struct AppState {
     pub config: Arc<ServerConfig>,
     /// Request metrics.
     pub metrics: Arc<Metrics>,
-    /// The configuration life-cycle (reviews, change sets, estimators).
-    pub reconfig: Arc<Reconfigurator>,
+    /// The configuration life-cycle (reviews, Spawn, Destroy, change sets, estimators).
+    pub lifecycle: Arc<Manager>,
 }
 
 impl AppState {
     /// State over a knowledge base with the given settings (reading the recorded change sets
-    /// and learned estimates). The life-cycle loop starts with [`AppState::start_life_cycle`].
-    pub fn new(kb: KnowledgeBase, config: ServerConfig) -> Result<Self, EngineError> {
+    /// and learned estimates), applying change sets to the model only. The life-cycle loop
+    /// starts with [`AppState::start_life_cycle`].
+    pub fn new(kb: KnowledgeBase, config: ServerConfig) -> Result<Self, LifecycleError> {
+        Self::with_executor(kb, config, Arc::new(ModelOnly))
+    }
+
+    /// [`AppState::new`] with change sets applied by `executor`.
+    pub fn with_executor(
+        kb: KnowledgeBase,
+        config: ServerConfig,
+        executor: Arc<dyn Executor>,
+    ) -> Result<Self, LifecycleError> {
         let kb = Arc::new(kb);
-        let reconfig = Arc::new(Reconfigurator::new(
+        let lifecycle = Arc::new(Manager::new(
             kb.clone(),
-            config.horizon,
-            config.time_unit,
+            executor,
+            Settings {
+                horizon: config.horizon,
+                time_unit: config.time_unit,
+            },
         )?);
         Ok(Self {
             kb,
             config: Arc::new(config),
             metrics: Arc::new(Metrics::default()),
-            reconfig,
+            lifecycle,
         })
     }
 
     /// Spawns the life-cycle loop on the current Tokio runtime.
     pub fn start_life_cycle(&self) {
-        tokio::spawn(self.reconfig.clone().run());
+        tokio::spawn(self.lifecycle.clone().run());
     }
 }
 

@@ -56,10 +56,15 @@ pub enum Command {
         #[arg(long, value_name = "FILE", num_args = 1..)]
         ontology: Vec<PathBuf>,
         /// Print the violations of the consistency rules instead of the inferences.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "unsupported")]
         check: bool,
+        /// Print the axioms of the schema that lie outside OWL 2 RL (no rule applies them), in
+        /// the OWL functional syntax, one per line, instead of the inferences; FILEs are
+        /// optional then (without any: those of the built-in ontologies).
+        #[arg(long)]
+        unsupported: bool,
         /// Data files (Turtle, N-Triples, JSON-LD). Their axioms join the schema too.
-        #[arg(required = true, value_name = "FILE")]
+        #[arg(required_unless_present = "unsupported", value_name = "FILE")]
         files: Vec<PathBuf>,
     },
     /// Loads specs, ontology extensions and (optionally) an existing environment (computation
@@ -176,8 +181,15 @@ pub fn main() -> ExitCode {
         Command::Reason {
             ontology,
             check,
+            unsupported,
             files,
-        } => reason(&ontology, &files, check),
+        } => {
+            if unsupported {
+                reason_unsupported(&ontology, &files)
+            } else {
+                reason(&ontology, &files, check)
+            }
+        }
         Command::Explore {
             horizon,
             timeout_ms,
@@ -208,9 +220,11 @@ pub fn main() -> ExitCode {
 fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    // Colours only on a terminal: a pipe or a log file gets plain text.
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }
 
@@ -314,6 +328,23 @@ fn read_triples(path: &Path) -> Result<Vec<dyknow_store::oxigraph::model::Triple
     dyknow_store::parse_triples(&body, format).map_err(|e| syntax_failure(path, &e))
 }
 
+/// `dyknow reason --unsupported`: the axioms of the schema (built-in ontologies, `--ontology`
+/// files and the files' axioms) that no OWL 2 RL rule applies.
+fn reason_unsupported(ontology: &[PathBuf], files: &[PathBuf]) -> Result<(), Failure> {
+    use std::io::Write;
+    let mut schema = dyknow_reasoner::builtin_ontology_triples();
+    for path in ontology.iter().chain(files) {
+        schema.extend(read_triples(path)?);
+    }
+    let tbox = dyknow_reasoner::TBox::from_triples(&schema)?;
+    let mut out = std::io::stdout().lock();
+    for axiom in tbox.unsupported_axioms() {
+        writeln!(out, "{axiom}")?;
+    }
+    out.flush()?;
+    Ok(())
+}
+
 /// `dyknow reason`: the schema is the built-in ontologies, the `--ontology` files and the
 /// axioms of the data files; the data is every triple of the given files.
 fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Failure> {
@@ -363,7 +394,8 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
 /// like `dyknow load` would put it; CUs (and their subscriptions, publications and cost
 /// models) become the environment; then one review.
 fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(), Failure> {
-    use dyknow_engine::{Cause, ChangeSet, ExploreOptions, Ids, knowledge};
+    use dyknow_engine::{Cause, ChangeSet, ChangeSetId, ExploreOptions, Ids};
+    use dyknow_store::{EnvironmentPart, model};
     if !(horizon.is_finite() && horizon >= 0.0) {
         return Err(Failure(
             2,
@@ -374,7 +406,7 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
     let mut environment = Vec::new();
     for path in files {
         let triples = read_triples(path)?;
-        let (cus, rest) = knowledge::split_environment(triples);
+        let (cus, rest) = model::split_environment(triples);
         environment.extend(cus);
         if rest.is_empty() {
             continue;
@@ -384,17 +416,27 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
             .map_err(|e| Failure(2, format!("{}: {e}", path.display())))?;
     }
     if !environment.is_empty() {
-        kb.set_environment(&[("cu:loaded".to_owned(), environment)])?;
+        kb.set_environment(&[(EnvironmentPart::Imported, environment)])?;
     }
-    let loaded = knowledge::load(&kb)?;
+    let loaded = model::load(&kb)?;
     let options = ExploreOptions {
         horizon,
         timeout: timeout_ms.map(Duration::from_millis),
         ..ExploreOptions::default()
     };
-    let reviewed = knowledge::review(&loaded, &options, &mut Ids::after(&loaded.env));
-    let (compiled, delta) = (reviewed.compiled, reviewed.delta);
-    let change_set = ChangeSet::new("cs-1".to_owned(), Cause::Explore, compiled, &delta);
+    let reviewed = dyknow_engine::review(
+        &loaded.env,
+        &loaded.candidates,
+        &options,
+        &mut Ids::after(&loaded.env),
+    );
+    let delta = model::delta(&loaded.env, &reviewed.after, &loaded.iris);
+    let change_set = ChangeSet::new(
+        ChangeSetId::numbered(1),
+        Cause::Explore,
+        reviewed.compiled,
+        delta.ntriples(),
+    );
     println!("{}", serde_json::to_string_pretty(&change_set)?);
     if change_set.unsatisfied_targets.is_empty() {
         Ok(())
@@ -403,7 +445,12 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
             1,
             format!(
                 "no valid configuration: unsatisfied targets {}",
-                change_set.unsatisfied_targets.join(", ")
+                change_set
+                    .unsatisfied_targets
+                    .iter()
+                    .map(|q| q.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         ))
     }
@@ -561,9 +608,19 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     } else {
         open_store(&args.data)?
     };
-    // Axioms the reasoner does not support are named at start-up, never dropped silently.
-    for axiom in kb.unsupported_axioms() {
-        tracing::warn!("reasoner: unsupported axiom (no rule applies it): {axiom}");
+    // Axioms the reasoner does not support are named, never dropped silently: counted at
+    // start-up, each one at debug level.
+    let unsupported = kb.unsupported_axioms();
+    if !unsupported.is_empty() {
+        tracing::info!(
+            "reasoner: {} axioms of the ontology lie outside OWL 2 RL and are not applied \
+             (`dyknow reason --unsupported` lists those of the built-in ontologies; \
+             RUST_LOG=dyknow_server=debug logs each)",
+            unsupported.len()
+        );
+    }
+    for axiom in &unsupported {
+        tracing::debug!("reasoner: unsupported axiom (no rule applies it): {axiom}");
     }
     for file in rdf_files(&args.specs)? {
         tracing::info!("{}", load_file(&kb, &file)?);

@@ -3,7 +3,8 @@
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use dyknow_store::{ExportError, IngestError, SparqlQueryError};
+use dyknow_lifecycle::LifecycleError;
+use dyknow_store::{ExportError, IngestError, ModelReadError, SparqlQueryError};
 use serde::Serialize;
 use serde_json::Value;
 
@@ -163,5 +164,33 @@ impl From<ExportError> for ApiError {
 impl From<dyknow_store::oxigraph::store::StorageError> for ApiError {
     fn from(e: dyknow_store::oxigraph::store::StorageError) -> Self {
         Self::internal(e)
+    }
+}
+
+impl From<ModelReadError> for ApiError {
+    fn from(e: ModelReadError) -> Self {
+        Self::internal(e)
+    }
+}
+
+impl From<LifecycleError> for ApiError {
+    fn from(e: LifecycleError) -> Self {
+        match e {
+            LifecycleError::UnknownCu(_) | LifecycleError::UnknownTransformation(_) => {
+                Self::not_found(e.to_string())
+            }
+            LifecycleError::NameTaken(_) | LifecycleError::Protected(_) => {
+                Self::new(StatusCode::CONFLICT, e.to_string())
+            }
+            LifecycleError::EmptyName | LifecycleError::InvalidCost { .. } => {
+                Self::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string())
+            }
+            // A real fault, but the client needs to know what is recorded: say it.
+            LifecycleError::NotApplied { .. } => {
+                Self::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string())
+            }
+            LifecycleError::Write(w) => w.into(),
+            other => Self::internal(other),
+        }
     }
 }

@@ -6,7 +6,6 @@ mod error;
 mod metrics;
 mod negotiate;
 mod openapi;
-pub mod reconfig;
 pub mod routes;
 
 pub use app::{AppState, ServerConfig, app};

@@ -25,10 +25,11 @@ fn specs(file: &str) -> String {
     .unwrap()
 }
 
-/// A running `dyknow serve` and its base URL.
+/// A running `dyknow serve`, its base URL and what it logged before listening.
 struct Server {
     child: Child,
     url: String,
+    startup: Vec<String>,
 }
 
 impl Server {
@@ -45,16 +46,22 @@ impl Server {
         let stderr = child.stderr.take().unwrap();
         let mut lines = BufReader::new(stderr).lines();
         let deadline = Instant::now() + Duration::from_secs(60);
+        let mut startup = Vec::new();
         let url = loop {
             assert!(Instant::now() < deadline, "server did not start");
             let line = lines.next().expect("server exited").unwrap();
             if let Some(rest) = line.split("listening on ").nth(1) {
                 break rest.split_whitespace().next().unwrap().to_owned();
             }
+            startup.push(line);
         };
         // Keep draining stderr so the server never blocks on a full pipe.
         std::thread::spawn(move || for _ in lines {});
-        Self { child, url }
+        Self {
+            child,
+            url,
+            startup,
+        }
     }
 
     fn kill9(mut self) {
@@ -418,6 +425,49 @@ fn reason_prints_the_inferred_triples_sorted() {
     assert!(
         !stdout
             .contains("<urn:dyknow:example:piff:s3> <http://www.dyknow.eu/ontology/dyknow#fromCU>")
+    );
+}
+
+/// The axioms outside OWL 2 RL are counted in one INFO line at start-up (not one WARN line
+/// each), and `dyknow reason --unsupported` lists as many.
+#[test]
+fn start_up_counts_the_unsupported_axioms_that_reason_lists() {
+    let out = Command::new(BIN)
+        .args(["reason", "--unsupported"])
+        .output()
+        .expect("run dyknow reason --unsupported");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let listed: Vec<String> = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(str::to_owned)
+        .collect();
+    assert!(!listed.is_empty());
+    assert!(
+        listed.iter().all(|a| a.contains('(') && a.ends_with(')')),
+        "OWL functional syntax, one axiom a line: {listed:?}"
+    );
+    let server = Server::start(&["--in-memory"]);
+    let counted: Vec<&String> = server
+        .startup
+        .iter()
+        .filter(|l| l.contains("outside OWL 2 RL"))
+        .collect();
+    assert_eq!(counted.len(), 1, "{:#?}", server.startup);
+    assert!(counted[0].contains(" INFO "), "{}", counted[0]);
+    assert!(
+        counted[0].contains(&format!("{} axioms", listed.len())),
+        "{}",
+        counted[0]
+    );
+    assert!(
+        !server.startup.iter().any(|l| l.contains(" WARN ")),
+        "{:#?}",
+        server.startup
     );
 }
 

@@ -16,9 +16,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use dyknow_reasoner::{Reasoner, TBox, builtin_ontology_triples};
-use dyknow_store::KnowledgeBase;
 use dyknow_store::oxigraph::model::vocab::rdf;
 use dyknow_store::oxigraph::model::{NamedNode, Triple};
+use dyknow_store::{EnvironmentPart, KnowledgeBase};
 
 const DK: &str = "http://www.dyknow.eu/ontology/dyknow#";
 
@@ -32,6 +32,18 @@ fn node(name: &str) -> NamedNode {
 
 /// One CU's graph: its type, and a subscription from each upstream CU. With `direct`, the
 /// upstream links are asserted `dependsOn` edges instead (the closure every peer computes).
+/// The environment part of the CU named `name`.
+fn cu_part(name: &str) -> EnvironmentPart {
+    EnvironmentPart::Cu(name.into())
+}
+
+/// The parts of an environment given by CU name.
+fn parts(env: &[(String, Vec<Triple>)]) -> Vec<(EnvironmentPart, Vec<Triple>)> {
+    env.iter()
+        .map(|(name, triples)| (cu_part(name), triples.clone()))
+        .collect()
+}
+
 fn cu(name: &str, upstream: &[String], direct: bool) -> Vec<Triple> {
     let me = node(name);
     let mut out = vec![Triple::new(me.clone(), rdf::TYPE, dk("ComputationUnit"))];
@@ -245,8 +257,9 @@ fn main() {
         ("(b)", &env_b, vec![format!("c{}", chain_len / 2); 5], 5),
     ] {
         let kb = KnowledgeBase::open(dir.path().join(format!("store-{label}"))).unwrap();
+        let all = parts(env);
         let start = Instant::now();
-        kb.set_environment(env).unwrap();
+        kb.set_environment(&all).unwrap();
         let full = start.elapsed();
         // Add: a new CU subscribing to the last CU of a pipeline (of the chain).
         let mut adds = Vec::new();
@@ -257,20 +270,20 @@ fn main() {
             } else {
                 format!("c{}", chain_len - 1)
             };
-            let part = vec![(name.clone(), cu(&name, &[up], false))];
+            let part = vec![(cu_part(&name), cu(&name, &[up], false))];
             let start = Instant::now();
             kb.set_environment(&part).unwrap();
             adds.push(start.elapsed());
-            kb.set_environment(&[(name, Vec::new())]).unwrap();
+            kb.set_environment(&[(cu_part(&name), Vec::new())]).unwrap();
         }
         // Remove a CU from the middle (and restore it, untimed).
         let mut removes = Vec::new();
         for name in middle.iter().take(runs) {
-            let part = env.iter().find(|(n, _)| n == name).unwrap().clone();
+            let (_, triples) = env.iter().find(|(n, _)| n == name).unwrap().clone();
             let start = Instant::now();
-            kb.set_environment(&[(name.clone(), Vec::new())]).unwrap();
+            kb.set_environment(&[(cu_part(name), Vec::new())]).unwrap();
             removes.push(start.elapsed());
-            kb.set_environment(&[part]).unwrap();
+            kb.set_environment(&[(cu_part(name), triples)]).unwrap();
         }
         let _ = writeln!(
             out,
@@ -324,7 +337,6 @@ fn removal_breakdown(
     dir: &std::path::Path,
 ) -> (Duration, usize, Duration) {
     use dyknow_store::INFERRED_GRAPH;
-    use dyknow_store::graphs::ENVIRONMENT_GRAPH_PREFIX;
     use dyknow_store::oxigraph::model::{GraphName, Quad};
     use dyknow_store::oxigraph::store::Store;
 
@@ -343,14 +355,14 @@ fn removal_breakdown(
 
     let graph = |g: &str| GraphName::from(NamedNode::new_unchecked(g));
     let inferred = graph(INFERRED_GRAPH);
-    let cu_graph = graph(&format!("{ENVIRONMENT_GRAPH_PREFIX}{name}"));
+    let cu_graph = GraphName::from(cu_part(name).graph());
     let store = Store::open(dir.join(format!("oxigraph-{name}"))).unwrap();
     let mut loader = store.bulk_loader();
     loader
         .load_quads(
             env.iter()
                 .flat_map(|(n, ts)| {
-                    let g = graph(&format!("{ENVIRONMENT_GRAPH_PREFIX}{n}"));
+                    let g = GraphName::from(cu_part(n).graph());
                     ts.iter().map(move |t| t.clone().in_graph(g.clone()))
                 })
                 .chain(

@@ -126,3 +126,19 @@ pub enum ExportError {
     #[error("serialisation failed: {0}")]
     Io(#[from] std::io::Error),
 }
+
+/// Reading the DyKnow model (environment, candidate table, estimates, change sets) from the
+/// knowledge base failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ModelReadError {
+    /// The storage failed.
+    #[error(transparent)]
+    Storage(#[from] StorageError),
+    /// One of the model's queries failed.
+    #[error(transparent)]
+    Query(#[from] SparqlQueryError),
+    /// A change-set record does not read as change set JSON.
+    #[error("a recorded change set does not read back: {0}")]
+    ChangeSetRecord(String),
+}

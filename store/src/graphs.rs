@@ -6,11 +6,18 @@
 //! | `urn:dyknow:graph:transformation:<label>` | one transformation spec |
 //! | `urn:dyknow:graph:target:<label>` | one target spec |
 //! | `urn:dyknow:graph:extension:<hash>` | one posted ontology extension |
+//! | `urn:dyknow:graph:environment:cu:<name>` | one computation unit ([`EnvironmentPart::Cu`]) |
+//! | `urn:dyknow:graph:environment:changeset:<id>` | one change set's record |
+//! | `urn:dyknow:graph:environment:statistics` | the learned cost estimates |
+//! | `urn:dyknow:graph:environment:imported` | CUs read from files (`dyknow explore`) |
 //!
 //! Labels are percent-encoded (every byte outside `A–Z a–z 0–9 - . _ ~`). Blank nodes of a
 //! spec are replaced by IRIs under `urn:dyknow:<kind>:<label>` (ports by name) so that every
-//! part of the model can be named in SPARQL and in OWL.
+//! part of the model can be named in SPARQL and in OWL; computation units are
+//! `urn:dyknow:cu:<name>`, channels `urn:dyknow:channel:<name>`, change sets
+//! `urn:dyknow:changeset:<id>`.
 
+use dyknow_engine::{ChangeSetId, Cid};
 use oxigraph::model::NamedNode;
 use percent_encoding::{AsciiSet, NON_ALPHANUMERIC, percent_decode_str, utf8_percent_encode};
 
@@ -54,9 +61,27 @@ pub fn spec_resource(kind: SpecKind, label: &str) -> String {
     format!("urn:dyknow:{}:{}", kind.name(), encode(label))
 }
 
-/// The IRI minted for a channel given as a blank node: channels are identified by name.
+/// Prefix of the IRIs of channels.
+pub const CHANNEL_PREFIX: &str = "urn:dyknow:channel:";
+/// Prefix of the IRIs of computation units.
+pub const CU_PREFIX: &str = "urn:dyknow:cu:";
+/// Prefix of the IRIs of change sets.
+pub const CHANGE_SET_PREFIX: &str = "urn:dyknow:changeset:";
+
+/// The IRI of a channel (minted for a channel given as a blank node, and for the channels of
+/// change sets): channels are identified by name.
 pub fn channel_resource(name: &str) -> String {
-    format!("urn:dyknow:channel:{}", encode(name))
+    format!("{CHANNEL_PREFIX}{}", encode(name))
+}
+
+/// The IRI of computation unit `cid`.
+pub fn cu_resource(cid: &Cid) -> NamedNode {
+    NamedNode::new_unchecked(format!("{CU_PREFIX}{}", encode(cid.as_str())))
+}
+
+/// The IRI of change set `id`.
+pub fn change_set_resource(id: &ChangeSetId) -> NamedNode {
+    NamedNode::new_unchecked(format!("{CHANGE_SET_PREFIX}{}", encode(id.as_str())))
 }
 
 /// The kind and label of a spec graph, if `graph` is one.
@@ -92,9 +117,67 @@ pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
     hash
 }
 
-/// The graph of the environment part named `name` (e.g. a computation unit).
-pub fn environment_graph(name: &str) -> NamedNode {
-    NamedNode::new_unchecked(format!("{ENVIRONMENT_GRAPH_PREFIX}{}", encode(name)))
+/// A part of the running environment, each in its own graph, so that a change set rewrites
+/// only the parts it changes (and `dependsOn` follows, reasoned incrementally).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum EnvironmentPart {
+    /// One computation unit: its types, name, transformation, upkeep, protection, its
+    /// subscriptions and publications with their channels.
+    Cu(Cid),
+    /// The record of one change set (`dyknow:ChangeSet`).
+    ChangeSet(ChangeSetId),
+    /// The learned cost estimates.
+    Statistics,
+    /// Computation units read from files as one part (`dyknow explore --environment`).
+    Imported,
+}
+
+impl EnvironmentPart {
+    /// The part's named graph: `urn:dyknow:graph:environment:cu:<name>`,
+    /// `…:changeset:<id>`, `…:statistics`, `…:imported`.
+    pub fn graph(&self) -> NamedNode {
+        NamedNode::new_unchecked(match self {
+            Self::Cu(cid) => format!("{ENVIRONMENT_GRAPH_PREFIX}cu:{}", encode(cid.as_str())),
+            Self::ChangeSet(id) => {
+                format!(
+                    "{ENVIRONMENT_GRAPH_PREFIX}changeset:{}",
+                    encode(id.as_str())
+                )
+            }
+            Self::Statistics => format!("{ENVIRONMENT_GRAPH_PREFIX}statistics"),
+            Self::Imported => format!("{ENVIRONMENT_GRAPH_PREFIX}imported"),
+        })
+    }
+
+    /// The part a graph holds, if it is an environment graph.
+    pub fn of_graph(graph: &str) -> Option<Self> {
+        let rest = graph.strip_prefix(ENVIRONMENT_GRAPH_PREFIX)?;
+        let decode = |s: &str| Some(percent_decode_str(s).decode_utf8().ok()?.into_owned());
+        if let Some(name) = rest.strip_prefix("cu:") {
+            return Some(Self::Cu(Cid::new(decode(name)?)));
+        }
+        if let Some(id) = rest.strip_prefix("changeset:") {
+            return Some(Self::ChangeSet(ChangeSetId::new(decode(id)?)));
+        }
+        match rest {
+            "statistics" => Some(Self::Statistics),
+            "imported" => Some(Self::Imported),
+            _ => None,
+        }
+    }
+}
+
+/// The new name of an environment graph written by earlier releases, which percent-encoded
+/// the whole part name (`…environment:cu%3Acu-1` for `…environment:cu:cu-1`); `None` for
+/// any other graph. The name after the colon was encoded the same way in both layouts.
+pub(crate) fn renamed_environment_graph(graph: &str) -> Option<NamedNode> {
+    let rest = graph.strip_prefix(ENVIRONMENT_GRAPH_PREFIX)?;
+    ["cu", "changeset"].iter().find_map(|kind| {
+        let name = rest.strip_prefix(kind)?.strip_prefix("%3A")?;
+        Some(NamedNode::new_unchecked(format!(
+            "{ENVIRONMENT_GRAPH_PREFIX}{kind}:{name}"
+        )))
+    })
 }
 
 /// Whether `graph` holds a part of the running environment.
@@ -125,6 +208,49 @@ mod tests {
             "urn:dyknow:graph:transformation:Undistort%28cam1%29"
         );
         assert_eq!(spec_of_graph("urn:dyknow:graph:extension:00"), None);
+    }
+
+    #[test]
+    fn environment_parts_round_trip_through_graph_names() {
+        for part in [
+            EnvironmentPart::Cu("cu-1".into()),
+            EnvironmentPart::Cu("a b:c/ü".into()),
+            EnvironmentPart::ChangeSet(ChangeSetId::numbered(7)),
+            EnvironmentPart::Statistics,
+            EnvironmentPart::Imported,
+        ] {
+            let g = part.graph();
+            assert!(is_environment_graph(g.as_str()));
+            assert_eq!(EnvironmentPart::of_graph(g.as_str()), Some(part));
+        }
+        assert_eq!(
+            EnvironmentPart::Cu("cu-1".into()).graph().as_str(),
+            "urn:dyknow:graph:environment:cu:cu-1"
+        );
+        assert_eq!(
+            EnvironmentPart::of_graph("urn:dyknow:graph:environment:x"),
+            None
+        );
+    }
+
+    #[test]
+    fn environment_graphs_of_the_old_layout_are_renamed() {
+        let old = format!("{ENVIRONMENT_GRAPH_PREFIX}{}", encode("cu:a b"));
+        assert_eq!(
+            renamed_environment_graph(&old),
+            Some(EnvironmentPart::Cu("a b".into()).graph())
+        );
+        let old = format!("{ENVIRONMENT_GRAPH_PREFIX}{}", encode("changeset:cs-2"));
+        assert_eq!(
+            renamed_environment_graph(&old),
+            Some(EnvironmentPart::ChangeSet(ChangeSetId::numbered(2)).graph())
+        );
+        for current in [
+            EnvironmentPart::Cu("cu-1".into()).graph(),
+            EnvironmentPart::Statistics.graph(),
+        ] {
+            assert_eq!(renamed_environment_graph(current.as_str()), None);
+        }
     }
 
     #[test]

@@ -4,15 +4,17 @@ mod error;
 mod export;
 pub mod graphs;
 mod knowledge_base;
+pub mod model;
 mod rdf_input;
 mod sparql;
 pub mod spec;
 
 pub use error::{
-    ExportError, IngestError, SparqlQueryError, SpecParseError, SpecValidationError,
-    StoreOpenError, SyntaxErrorDetail, Violation,
+    ExportError, IngestError, ModelReadError, SparqlQueryError, SpecParseError,
+    SpecValidationError, StoreOpenError, SyntaxErrorDetail, Violation,
 };
 pub use export::{ExportedModel, INFERRED_GRAPH, MODEL_ONTOLOGY_IRI, ModelFormat, serialize};
+pub use graphs::EnvironmentPart;
 pub use knowledge_base::{
     ExtensionInfo, ExtensionReport, KnowledgeBase, LoadReport, PostReport, StoreStatistics,
 };

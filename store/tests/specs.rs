@@ -2278,7 +2278,11 @@ mod generated {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(300))]
+        // 300 cases by default; `PROPTEST_CASES=N` runs more (a soak) or fewer.
+        #![proptest_config(ProptestConfig {
+            cases: std::env::var("PROPTEST_CASES").ok().and_then(|n| n.parse().ok()).unwrap_or(300),
+            ..ProptestConfig::default()
+        })]
 
         /// Ports are compared per direction as multisets (see `ports_come_back_in_document_order`).
         #[test]
@@ -2288,7 +2292,11 @@ mod generated {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(300))]
+        // 300 cases by default; `PROPTEST_CASES=N` runs more (a soak) or fewer.
+        #![proptest_config(ProptestConfig {
+            cases: std::env::var("PROPTEST_CASES").ok().and_then(|n| n.parse().ok()).unwrap_or(300),
+            ..ProptestConfig::default()
+        })]
 
         /// The same with ports (and tags) compared in document order, as `TransformationSpec`
         /// documents. Fails today.

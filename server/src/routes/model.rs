@@ -13,6 +13,7 @@ use utoipa::ToSchema;
 use crate::app::{AppState, blocking, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::negotiate;
+use crate::routes::reconfig::{CuJson, cu_json};
 use crate::routes::specs::spec_json;
 
 pub(crate) fn router() -> Router<AppState> {
@@ -47,7 +48,7 @@ pub struct ModelJson {
     /// Target specs (as `GET /targets`).
     pub targets: Vec<serde_json::Value>,
     /// Computation units (as `GET /cus`).
-    pub cus: Vec<serde_json::Value>,
+    pub cus: Vec<CuJson>,
     /// Channels.
     pub channels: Vec<ChannelJson>,
 }
@@ -64,6 +65,7 @@ const OFFERS: [&str; 7] = [
 
 /// Builds the DyKnow JSON model.
 pub fn model_json(kb: &KnowledgeBase) -> Result<ModelJson, ApiError> {
+    let loaded = dyknow_store::model::load(kb)?;
     let mut channels = Vec::new();
     for (name, targets) in kb.channels()? {
         let producer = kb.channel_producer(&name)?;
@@ -84,7 +86,12 @@ pub fn model_json(kb: &KnowledgeBase) -> Result<ModelJson, ApiError> {
             .into_iter()
             .map(|s| spec_json(kb, s))
             .collect::<Result<_, _>>()?,
-        cus: Vec::new(),
+        cus: loaded
+            .env
+            .cus
+            .values()
+            .map(|cu| cu_json(cu, &loaded.env))
+            .collect(),
         channels,
     })
 }

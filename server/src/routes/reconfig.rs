@@ -10,15 +10,14 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use dyknow_engine::knowledge::{self, Estimate};
-use dyknow_engine::{ComputationUnit, Ids};
+use dyknow_engine::{ChangeSet, ComputationUnit, Invalidity};
+use dyknow_lifecycle::{Observation, Perturbation, Phase, SpawnRequest};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking, typed};
 use crate::error::ApiError;
 use crate::negotiate::negotiate;
-use crate::reconfig::{Perturbation, Phase};
 
 pub(crate) fn router() -> Router<AppState> {
     Router::new()
@@ -31,13 +30,6 @@ pub(crate) fn router() -> Router<AppState> {
         .route("/statistics", post(post_statistics))
         .route("/review", post(post_review))
         .route("/environment", get(get_environment))
-}
-
-fn engine_error(e: dyknow_engine::EngineError) -> ApiError {
-    match e {
-        dyknow_engine::EngineError::Ingest(i) => i.into(),
-        other => ApiError::internal(other),
-    }
 }
 
 /// A computation unit.
@@ -57,29 +49,32 @@ pub struct CuJson {
     pub upkeep: f64,
 }
 
-fn cu_json(cu: &ComputationUnit, upkeep: f64) -> CuJson {
+/// The JSON of a CU, with the upkeep estimate of its transformation in `env`.
+pub(crate) fn cu_json(cu: &ComputationUnit, env: &dyknow_engine::Environment) -> CuJson {
+    let channels = |ports: &BTreeMap<String, Option<dyknow_engine::Channel>>| {
+        ports
+            .iter()
+            .map(|(p, c)| (p.clone(), c.as_ref().map(ToString::to_string)))
+            .collect()
+    };
     CuJson {
-        name: cu.cid.clone(),
-        transformation: cu.tid.clone(),
-        inputs: cu.inputs.clone(),
-        outputs: cu.outputs.clone(),
+        name: cu.cid.to_string(),
+        transformation: cu.tid.to_string(),
+        inputs: channels(&cu.inputs),
+        outputs: channels(&cu.outputs),
         protected: cu.protected,
-        upkeep,
+        upkeep: env.library.get(&cu.tid).map_or(0.0, |t| t.upkeep),
     }
 }
 
-fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
-    let loaded = state.reconfig.load().map_err(engine_error)?;
+/// The computation units, sorted by name (`GET /cus`, and the `cus` of the JSON model).
+pub(crate) fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
+    let loaded = state.lifecycle.load()?;
     Ok(loaded
         .env
         .cus
         .values()
-        .map(|cu| {
-            cu_json(
-                cu,
-                loaded.env.library.get(&cu.tid).map_or(0.0, |t| t.upkeep),
-            )
-        })
+        .map(|cu| cu_json(cu, &loaded.env))
         .collect())
 }
 
@@ -131,74 +126,15 @@ pub async fn spawn_cu(
     let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let s = state.clone();
     let cu = blocking(move || {
-        let loaded = s.reconfig.load().map_err(engine_error)?;
-        let Some(tf) = loaded.env.library.get(&body.transformation) else {
-            return Err(ApiError::not_found(format!(
-                "no transformation labelled {:?}",
-                body.transformation
-            )));
-        };
-        let name = match body.name {
-            Some(n) if n.trim().is_empty() => {
-                return Err(ApiError::new(
-                    StatusCode::UNPROCESSABLE_ENTITY,
-                    "a computation unit's name must not be empty",
-                ));
-            }
-            Some(n) if loaded.env.cus.contains_key(&n) => {
-                return Err(ApiError::new(
-                    StatusCode::CONFLICT,
-                    format!("a computation unit named {n:?} exists"),
-                ));
-            }
-            Some(n) => n,
-            None => {
-                let mut ids = Ids::after(&loaded.env);
-                ids.next_cu = s.reconfig.peek_next_cu();
-                ids.cu()
-            }
-        };
-        let cu = ComputationUnit {
-            cid: name.clone(),
-            tid: tf.tid.clone(),
-            inputs: tf.inputs.iter().map(|p| (p.clone(), None)).collect(),
-            outputs: tf.outputs.iter().map(|p| (p.clone(), None)).collect(),
+        let cu = s.lifecycle.spawn(SpawnRequest {
+            transformation: body.transformation.into(),
+            name: body.name.map(Into::into),
             protected: body.protected,
-        };
-        let mut after = loaded.env.clone();
-        after.cus.insert(name.clone(), cu.clone());
-        let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
-        knowledge::write(&s.kb, &delta).map_err(engine_error)?;
-        s.reconfig.reserve_cu(&name);
-        Ok(cu_json(&cu, tf.upkeep))
+        })?;
+        Ok(cu_json(&cu, &s.lifecycle.load()?.env))
     })
     .await?;
     Ok((StatusCode::CREATED, Json(cu)).into_response())
-}
-
-fn lose_cu(state: &AppState, name: &str, crashed: bool) -> Result<(), ApiError> {
-    let loaded = state.reconfig.load().map_err(engine_error)?;
-    let Some(cu) = loaded.env.cus.get(name) else {
-        return Err(ApiError::not_found(format!(
-            "no computation unit named {name:?}"
-        )));
-    };
-    if cu.protected && !crashed {
-        return Err(ApiError::new(
-            StatusCode::CONFLICT,
-            format!("computation unit {name:?} is protected"),
-        ));
-    }
-    let mut after = loaded.env.clone();
-    after.cus.remove(name);
-    let delta = knowledge::delta(&loaded.env, &after, &loaded.iris);
-    knowledge::write(&state.kb, &delta).map_err(engine_error)?;
-    state.reconfig.perturbed(Perturbation::CuLost {
-        cu: name.to_owned(),
-        transformation: cu.tid.clone(),
-        crashed,
-    });
-    Ok(())
 }
 
 /// Destroy: removes a CU (409 if protected). A perturbation: a review starts at once.
@@ -210,7 +146,7 @@ pub async fn destroy_cu(
     Path(name): Path<String>,
 ) -> Result<StatusCode, ApiError> {
     let s = state.clone();
-    blocking(move || lose_cu(&s, &name, false)).await?;
+    blocking(move || Ok(s.lifecycle.destroy(&name.into())?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -224,11 +160,15 @@ pub struct Since {
 #[utoipa::path(get, path = "/changesets", tag = "reconfiguration",
     params(("since" = Option<String>, Query, description = "only change sets after this id")),
     responses((status = 200, description = "change set JSON list (see docs/cli.md)")))]
-pub async fn list_change_sets(
-    State(state): State<AppState>,
-    Query(q): Query<Since>,
-) -> Json<Vec<serde_json::Value>> {
-    Json(state.reconfig.change_sets(q.since.as_deref()))
+pub async fn list_change_sets(State(state): State<AppState>, Query(q): Query<Since>) -> Response {
+    let change_sets = state.lifecycle.change_sets(q.since.as_deref());
+    Json(
+        change_sets
+            .iter()
+            .map(|cs| &**cs)
+            .collect::<Vec<&ChangeSet>>(),
+    )
+    .into_response()
 }
 
 /// One change set; `Accept: application/n-triples` or `text/turtle` gives its RDF delta.
@@ -245,29 +185,24 @@ pub async fn get_change_set(
         &["application/json", "application/n-triples", "text/turtle"],
     )?;
     let cs = state
-        .reconfig
+        .lifecycle
         .change_set(&id)
         .ok_or_else(|| ApiError::not_found(format!("no change set {id:?}")))?;
     if media == "application/json" {
-        return Ok(Json(cs).into_response());
+        return Ok(Json(&*cs).into_response());
     }
     // The delta as RDF: the inserted triples, and the deleted ones in a comment block (N-Triples
     // and Turtle have no syntax for removals).
-    let part = |k: &str| {
-        cs.get("delta")
-            .and_then(|d| d.get(k))
-            .and_then(|v| v.as_str())
-            .unwrap_or("")
-            .to_owned()
-    };
-    let deleted: String = part("delete")
+    let deleted: String = cs
+        .delta
+        .delete
         .lines()
         .map(|l| format!("# delete: {l}\n"))
         .collect();
     Ok(typed(
         StatusCode::OK,
         media,
-        format!("{deleted}{}", part("insert")),
+        format!("{deleted}{}", cs.delta.insert),
     ))
 }
 
@@ -277,12 +212,15 @@ pub async fn get_change_set(
 pub async fn change_set_stream(
     State(state): State<AppState>,
 ) -> Sse<impl futures_core::Stream<Item = Result<Event, Infallible>>> {
-    let mut rx = state.reconfig.subscribe();
+    let mut rx = state.lifecycle.subscribe();
     let stream = async_stream_lite(move |tx| async move {
         loop {
             match rx.recv().await {
                 Ok(cs) => {
-                    let event = Event::default().event("changeset").data(cs.to_string());
+                    let Ok(json) = serde_json::to_string(&*cs) else {
+                        continue;
+                    };
+                    let event = Event::default().event("changeset").data(json);
                     if tx.send(Ok(event)).await.is_err() {
                         return;
                     }
@@ -321,9 +259,8 @@ mod tokio_stream_lite {
     }
 }
 
-/// A perturbation report.
+/// A perturbation report: `{"kind": "cu-crashed", "cu": "<name>"}`.
 #[derive(Debug, Deserialize, ToSchema)]
-#[serde(deny_unknown_fields)]
 pub struct PerturbationJson {
     /// `cu-crashed`.
     pub kind: String,
@@ -337,20 +274,32 @@ pub struct PerturbationJson {
     responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
 pub async fn post_perturbation(
     State(state): State<AppState>,
-    body: Result<Json<PerturbationJson>, axum::extract::rejection::JsonRejection>,
+    body: Result<Json<serde_json::Value>, axum::extract::rejection::JsonRejection>,
 ) -> Result<StatusCode, ApiError> {
     let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
-    if body.kind != "cu-crashed" {
+    let kind = body
+        .get("kind")
+        .and_then(serde_json::Value::as_str)
+        .unwrap_or_default()
+        .to_owned();
+    if !kind.is_empty() && !Perturbation::KINDS.contains(&kind.as_str()) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("unknown perturbation kind {kind:?} (known: cu-crashed)"),
+        ));
+    }
+    let perturbation: Perturbation = serde_json::from_value(body)
+        .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
+    if !perturbation.is_external() {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
             format!(
-                "unknown perturbation kind {:?} (known: cu-crashed)",
-                body.kind
+                "perturbations of kind {kind:?} are the service's own (known from outside: cu-crashed)"
             ),
         ));
     }
     let s = state.clone();
-    blocking(move || lose_cu(&s, &body.cu, true)).await?;
+    blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
@@ -377,78 +326,41 @@ pub async fn post_statistics(
     body: Result<Json<StatisticsJson>, axum::extract::rejection::JsonRejection>,
 ) -> Result<StatusCode, ApiError> {
     let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
-    let cost = |v: f64, what: &str| {
-        if v.is_finite() && v >= 0.0 {
-            Ok(v)
-        } else {
-            Err(ApiError::new(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("{what} must be a finite non-negative number"),
-            ))
+    let observation = match body {
+        StatisticsJson {
+            cu: Some(cu),
+            upkeep: Some(value),
+            transformation: None,
+            labour: None,
+        } => Observation::Upkeep {
+            cu: cu.into(),
+            value,
+        },
+        StatisticsJson {
+            cu: None,
+            upkeep: None,
+            transformation: Some(t),
+            labour: Some(value),
+        } => Observation::Labour {
+            transformation: t.into(),
+            value,
+        },
+        _ => {
+            return Err(ApiError::bad_request(
+                "give {\"cu\", \"upkeep\"} or {\"transformation\", \"labour\"}",
+            ));
         }
     };
     let s = state.clone();
-    blocking(move || {
-        let loaded = s.reconfig.load().map_err(engine_error)?;
-        let (tid, value, upkeep) = match body {
-            StatisticsJson {
-                cu: Some(cu),
-                upkeep: Some(u),
-                transformation: None,
-                labour: None,
-            } => {
-                let u = cost(u, "upkeep")?;
-                let Some(cu) = loaded.env.cus.get(&cu) else {
-                    return Err(ApiError::not_found(format!(
-                        "no computation unit named {cu:?}"
-                    )));
-                };
-                (cu.tid.clone(), u, true)
-            }
-            StatisticsJson {
-                cu: None,
-                upkeep: None,
-                transformation: Some(t),
-                labour: Some(l),
-            } => {
-                let l = cost(l, "labour")?;
-                if !loaded.env.library.contains_key(&t) {
-                    return Err(ApiError::not_found(format!(
-                        "no transformation labelled {t:?}"
-                    )));
-                }
-                (t, l, false)
-            }
-            _ => {
-                return Err(ApiError::bad_request(
-                    "give {\"cu\", \"upkeep\"} or {\"transformation\", \"labour\"}",
-                ));
-            }
-        };
-        s.reconfig
-            .observe(|learned| {
-                let map = if upkeep {
-                    &mut learned.upkeep
-                } else {
-                    &mut learned.labour
-                };
-                let e = map.entry(tid).or_insert(Estimate {
-                    average: 0.0,
-                    count: 0,
-                });
-                *e = e.observe(value);
-            })
-            .map_err(engine_error)
-    })
-    .await?;
+    blocking(move || Ok(s.lifecycle.observe(observation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
 /// Starts a review interval now. 202.
 #[utoipa::path(post, path = "/review", tag = "reconfiguration", responses((status = 202)))]
-pub async fn post_review(State(state): State<AppState>) -> StatusCode {
-    state.reconfig.perturbed(Perturbation::ReviewRequested);
-    StatusCode::ACCEPTED
+pub async fn post_review(State(state): State<AppState>) -> Result<StatusCode, ApiError> {
+    state.lifecycle.report(Perturbation::ReviewRequested)?;
+    Ok(StatusCode::ACCEPTED)
 }
 
 /// The environment's cost.
@@ -482,7 +394,7 @@ pub struct EnvironmentJson {
     pub last_review_error: Option<String>,
     /// Every reason the environment is invalid.
     #[schema(value_type = Vec<Object>)]
-    pub invalidities: Vec<dyknow_engine::Invalidity>,
+    pub invalidities: Vec<Invalidity>,
 }
 
 /// The environment: validity, unsatisfied targets, cost, life-cycle phase.
@@ -492,20 +404,15 @@ pub async fn get_environment(
 ) -> Result<Json<EnvironmentJson>, ApiError> {
     // The life-cycle's state first: the environment read after it is at least as new, so a
     // client that sees a review counted also sees its change set applied.
-    let life = state.reconfig.status();
+    let life = state.lifecycle.status();
     let s = state.clone();
-    let (loaded, horizon) = blocking(move || {
-        Ok((
-            s.reconfig.load().map_err(engine_error)?,
-            s.reconfig.horizon(),
-        ))
-    })
-    .await?;
+    let loaded = blocking(move || Ok(s.lifecycle.load()?)).await?;
+    let horizon = state.lifecycle.settings().horizon;
     let invalidities = loaded.env.invalidities(&loaded.candidates);
     let unsatisfied_targets = invalidities
         .iter()
         .filter_map(|i| match i {
-            dyknow_engine::Invalidity::UnsatisfiedTarget { target } => Some(target.clone()),
+            Invalidity::UnsatisfiedTarget { target } => Some(target.to_string()),
             _ => None,
         })
         .collect();

@@ -7,6 +7,7 @@ use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
+use dyknow_lifecycle::Perturbation;
 use dyknow_store::oxigraph::io::RdfFormat;
 use dyknow_store::spec::{Port, Spec, SpecKind, Tag};
 use dyknow_store::{InputFormat, KnowledgeBase, serialize};
@@ -16,7 +17,6 @@ use utoipa::ToSchema;
 use crate::app::{AppState, blocking, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
-use crate::reconfig::Perturbation;
 
 /// The RDF media types accepted in request bodies.
 pub const RDF_INPUTS: [&str; 3] = [
@@ -181,12 +181,14 @@ async fn post_specs(
     match kind {
         SpecKind::Target => {
             for label in &report.labels {
-                state
-                    .reconfig
-                    .perturbed(Perturbation::TargetAdded(label.clone()));
+                state.lifecycle.report(Perturbation::TargetAdded {
+                    target: label.into(),
+                })?;
             }
         }
-        SpecKind::Transformation => state.reconfig.perturbed(Perturbation::Registered),
+        SpecKind::Transformation => state.lifecycle.report(Perturbation::Registered {
+            transformations: report.labels.iter().map(Into::into).collect(),
+        })?,
     }
     Ok((
         StatusCode::CREATED,
@@ -261,26 +263,17 @@ async fn delete_spec(
 ) -> Result<StatusCode, ApiError> {
     let kb = state.kb.clone();
     let label2 = label.clone();
-    let in_use = blocking(move || {
-        // A transformation is in use when a CU instantiates it (looked up before it goes).
-        let in_use = kind == SpecKind::Transformation
-            && !kb
-                .select(&format!(
-                    "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#>
-                     PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#>
-                     SELECT ?cu WHERE {{ ?cu dyknow:instanceOf ?tf . ?tf rdfs:label {} }} LIMIT 1",
-                    dyknow_store::oxigraph::model::Literal::new_simple_literal(&label2)
-                ))
-                .map_err(ApiError::internal)?
-                .is_empty();
-        kb.remove_spec(kind, &label2)?;
-        Ok(in_use)
-    })
-    .await?;
-    state.reconfig.perturbed(match kind {
-        SpecKind::Target => Perturbation::TargetReleased(label),
-        SpecKind::Transformation => Perturbation::Deregistered { in_use },
-    });
+    blocking(move || Ok(kb.remove_spec(kind, &label2)?)).await?;
+    // Whether a review follows at once is the life-cycle's call: a released target always, a
+    // deregistered transformation when CUs of it are left invalid.
+    state.lifecycle.report(match kind {
+        SpecKind::Target => Perturbation::TargetReleased {
+            target: label.into(),
+        },
+        SpecKind::Transformation => Perturbation::Deregistered {
+            transformation: label.into(),
+        },
+    })?;
     Ok(StatusCode::NO_CONTENT)
 }
 

@@ -3,14 +3,12 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::time::Duration;
 
 use axum::body::Body;
 use axum::http::{Method, header};
-use common::*;
-use oxigraph::io::RdfFormat;
+use dyknow_acceptance::oxigraph::io::RdfFormat;
+use dyknow_acceptance::*;
 use serde_json::{Value, json};
 
 const DYKNOW_ONTOLOGY: &str = "http://www.dyknow.eu/ontology/dyknow";

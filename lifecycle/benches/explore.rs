@@ -1,5 +1,6 @@
 //! Reconfiguration benchmark (issue: engine): `cargo bench --workspace --bench explore`
-//! (`./dev bench engine`).
+//! (`./dev bench engine`). It lives with the life-cycle because a review reads and writes the
+//! knowledge base; EXPLORE itself is `dyknow-engine`'s.
 //!
 //! 1. The seed's Chapter 6 segmenter crash (Piff's seven CUs running, the segmenter crashed):
 //!    EXPLORE alone (in memory), and a whole review on the on-disk store (read the environment
@@ -17,11 +18,11 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use dyknow_engine::knowledge;
 use dyknow_engine::{
     Candidates, Environment, ExploreOptions, Ids, Target, Transformation, explore,
 };
-use dyknow_store::{InputFormat, KnowledgeBase};
+use dyknow_store::model;
+use dyknow_store::{EnvironmentPart, InputFormat, KnowledgeBase};
 
 fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
@@ -40,15 +41,16 @@ fn load_specs(kb: &KnowledgeBase, files: &[&str]) {
     }
 }
 
-/// One review on the knowledge base: load, EXPLORE, COMPILE, write.
-fn review(kb: &KnowledgeBase, prefer: Vec<String>, ids: &mut Ids) -> f64 {
-    let loaded = knowledge::load(kb).unwrap();
+/// One review on the knowledge base: load, EXPLORE, COMPILE, write the graph delta.
+fn review(kb: &KnowledgeBase, prefer: Vec<dyknow_engine::Tid>, ids: &mut Ids) -> f64 {
+    let loaded = model::load(kb).unwrap();
     let options = ExploreOptions {
         prefer,
         ..ExploreOptions::default()
     };
-    let reviewed = knowledge::review(&loaded, &options, ids);
-    knowledge::write(kb, &reviewed.delta).unwrap();
+    let reviewed = dyknow_engine::review(&loaded.env, &loaded.candidates, &options, ids);
+    let delta = model::delta(&loaded.env, &reviewed.after, &loaded.iris);
+    kb.set_environment(&delta.parts).unwrap();
     reviewed.compiled.cost.total
 }
 
@@ -57,7 +59,7 @@ fn segmenter_crash(out: &mut impl Write, dir: &std::path::Path, runs: usize) {
     load_specs(&kb, &["ch6-target.ttl", "ch6-piff.ttl"]);
     let mut ids = Ids::default();
     review(&kb, Vec::new(), &mut ids);
-    let loaded = knowledge::load(&kb).unwrap();
+    let loaded = model::load(&kb).unwrap();
     let segmenter = loaded
         .env
         .cus
@@ -83,7 +85,7 @@ fn segmenter_crash(out: &mut impl Write, dir: &std::path::Path, runs: usize) {
     // A whole review on the on-disk store: crash (untimed), review (timed), restore (untimed).
     let mut reviews = Vec::new();
     for _ in 0..runs {
-        let now = knowledge::load(&kb).unwrap();
+        let now = model::load(&kb).unwrap();
         let seg = now
             .env
             .cus
@@ -92,7 +94,7 @@ fn segmenter_crash(out: &mut impl Write, dir: &std::path::Path, runs: usize) {
             .unwrap()
             .cid
             .clone();
-        kb.set_environment(&[(knowledge::cu_part(&seg), Vec::new())])
+        kb.set_environment(&[(EnvironmentPart::Cu(seg), Vec::new())])
             .unwrap();
         let start = Instant::now();
         let cost = review(&kb, vec!["segmenter(piff)".into()], &mut ids);
@@ -152,9 +154,9 @@ fn generated(transformations: usize, targets: usize, seed: u64) -> (Environment,
                         .collect()
                 };
                 env.library.insert(
-                    tid.clone(),
+                    tid.as_str().into(),
                     Transformation {
-                        tid: tid.clone(),
+                        tid: tid.as_str().into(),
                         inputs: (0..inputs.len()).map(|i| format!("in{i}")).collect(),
                         outputs: vec!["out".into()],
                         labour: rng.cost(0.5, 2.0),
@@ -172,10 +174,10 @@ fn generated(transformations: usize, targets: usize, seed: u64) -> (Environment,
     for q in 0..targets {
         let qid = format!("q{q}");
         env.targets.insert(
-            qid.clone(),
+            qid.as_str().into(),
             Target {
-                qid: qid.clone(),
-                channel: format!("/target{q}"),
+                qid: qid.as_str().into(),
+                channel: format!("/target{q}").into(),
             },
         );
         target_tags.push((qid, format!("L{top_level}-{}", rng.below(per_level))));

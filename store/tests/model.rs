@@ -1,13 +1,16 @@
-//! The engine over the knowledge base: Example 12 from the Turtle specs of `specs/turtle/`,
-//! the candidate table by SPARQL, change sets written back as graph deltas, and `dependsOn`
-//! in the store matching the engine's configuration after every change set.
+//! The DyKnow model in the knowledge base (`dyknow_store::model`): Example 12 from the Turtle
+//! specs of `specs/turtle/`, the candidate table by SPARQL, change sets written back as graph
+//! deltas, and `dependsOn` in the store matching the engine's configuration after every change
+//! set; change-set records read back as they were written.
 #![expect(clippy::unwrap_used, reason = "tests")]
 
 use std::collections::BTreeSet;
 
-use dyknow_engine::knowledge::{self, Loaded};
-use dyknow_engine::{Environment, ExploreOptions, Ids, Provider};
-use dyknow_store::{InputFormat, KnowledgeBase};
+use dyknow_engine::{
+    Cause, ChangeSet, ChangeSetId, ChangeSetStatus, Environment, ExploreOptions, Ids, Provider,
+};
+use dyknow_store::model::{self, Loaded};
+use dyknow_store::{EnvironmentPart, InputFormat, KnowledgeBase};
 
 fn load_specs(kb: &KnowledgeBase, files: &[&str]) {
     for f in files {
@@ -15,6 +18,20 @@ fn load_specs(kb: &KnowledgeBase, files: &[&str]) {
         kb.load_document(&std::fs::read(&path).unwrap(), InputFormat::Turtle)
             .unwrap();
     }
+}
+
+/// A knowledge base with Example 12's transformations, similarity and targets.
+fn example_12() -> KnowledgeBase {
+    let kb = KnowledgeBase::in_memory().unwrap();
+    load_specs(
+        &kb,
+        &[
+            "example-12.ttl",
+            "example-12-similarity.ttl",
+            "example-12-targets.ttl",
+        ],
+    );
+    kb
 }
 
 /// The `dependsOn` pairs in the store, by CU name.
@@ -48,7 +65,7 @@ fn expected_depends_on(env: &Environment) -> BTreeSet<(String, String)> {
                 .filter_map(|ch| publishers.get(ch.as_str()))
                 .flat_map(|p| {
                     p.iter()
-                        .map(|(from, _)| ((cu.cid.clone()), (*from).to_owned()))
+                        .map(|(from, _)| (cu.cid.to_string(), (*from).to_owned()))
                 })
                 .collect::<Vec<_>>()
         })
@@ -73,19 +90,17 @@ fn expected_depends_on(env: &Environment) -> BTreeSet<(String, String)> {
 }
 
 fn review(kb: &KnowledgeBase, loaded: &Loaded, options: &ExploreOptions, ids: &mut Ids) -> f64 {
-    let knowledge::Reviewed {
-        compiled,
-        after,
-        delta,
-    } = knowledge::review(loaded, options, ids);
-    knowledge::write(kb, &delta).unwrap();
+    let dyknow_engine::Reviewed { compiled, after } =
+        dyknow_engine::review(&loaded.env, &loaded.candidates, options, ids);
+    let delta = model::delta(&loaded.env, &after, &loaded.iris);
+    kb.set_environment(&delta.parts).unwrap();
     let (extra, missing) = kb.materialisation_drift().unwrap();
     assert!(
         extra.is_empty() && missing.is_empty(),
         "extra {extra:?}\nmissing {missing:?}"
     );
     // What the store says now is what the engine chose.
-    let reloaded = knowledge::load(kb).unwrap();
+    let reloaded = model::load(kb).unwrap();
     assert_eq!(reloaded.env.cus, after.cus);
     assert_eq!(depends_on(kb), expected_depends_on(&after));
     compiled.cost.total
@@ -93,16 +108,8 @@ fn review(kb: &KnowledgeBase, loaded: &Loaded, options: &ExploreOptions, ids: &m
 
 #[test]
 fn example_12_through_the_knowledge_base() {
-    let kb = KnowledgeBase::in_memory().unwrap();
-    load_specs(
-        &kb,
-        &[
-            "example-12.ttl",
-            "example-12-similarity.ttl",
-            "example-12-targets.ttl",
-        ],
-    );
-    let loaded = knowledge::load(&kb).unwrap();
+    let kb = example_12();
+    let loaded = model::load(&kb).unwrap();
     assert_eq!(loaded.env.library.len(), 5);
     assert_eq!(loaded.env.targets.len(), 2);
     let p = |tid: &str| Provider {
@@ -125,7 +132,7 @@ fn example_12_through_the_knowledge_base() {
     assert_eq!(review(&kb, &loaded, &options, &mut ids), 33.0);
 
     // tid2's CU crashes; tid4's upkeep is observed as 3.0.
-    let mut loaded = knowledge::load(&kb).unwrap();
+    let mut loaded = model::load(&kb).unwrap();
     let crashed = loaded
         .env
         .cus
@@ -134,9 +141,9 @@ fn example_12_through_the_knowledge_base() {
         .unwrap()
         .cid
         .clone();
-    kb.set_environment(&[(knowledge::cu_part(&crashed), Vec::new())])
+    kb.set_environment(&[(EnvironmentPart::Cu(crashed.clone()), Vec::new())])
         .unwrap();
-    let mut reloaded = knowledge::load(&kb).unwrap();
+    let mut reloaded = model::load(&kb).unwrap();
     assert!(!reloaded.env.cus.contains_key(&crashed));
     reloaded.env.library.get_mut("tid4").unwrap().upkeep = 3.0;
     loaded = reloaded;
@@ -145,7 +152,7 @@ fn example_12_through_the_knowledge_base() {
         ..ExploreOptions::default()
     };
     assert_eq!(review(&kb, &loaded, &options, &mut ids), 43.0);
-    let now = knowledge::load(&kb).unwrap();
+    let now = model::load(&kb).unwrap();
     let tids: BTreeSet<&str> = now.env.cus.values().map(|c| c.tid.as_str()).collect();
     assert_eq!(tids, BTreeSet::from(["tid1", "tid2", "tid3", "tid5"]));
 }
@@ -157,9 +164,9 @@ fn chapter_6_through_the_knowledge_base() {
     load_specs(&kb, &["ch6-target.ttl", "ch6-piff.ttl"]);
     let options = ExploreOptions::default();
     let mut ids = Ids::default();
-    review(&kb, &knowledge::load(&kb).unwrap(), &options, &mut ids);
+    review(&kb, &model::load(&kb).unwrap(), &options, &mut ids);
     load_specs(&kb, &["ch6-puff.ttl"]);
-    review(&kb, &knowledge::load(&kb).unwrap(), &options, &mut ids);
+    review(&kb, &model::load(&kb).unwrap(), &options, &mut ids);
     for label in [
         "pose(piff)",
         "bottom_cam(piff)",
@@ -170,9 +177,54 @@ fn chapter_6_through_the_knowledge_base() {
         "circle_monitor(ball)",
     ] {
         kb.remove_spec(SpecKind::Transformation, label).unwrap();
-        review(&kb, &knowledge::load(&kb).unwrap(), &options, &mut ids);
+        review(&kb, &model::load(&kb).unwrap(), &options, &mut ids);
     }
     kb.remove_spec(SpecKind::Target, "target1").unwrap();
-    review(&kb, &knowledge::load(&kb).unwrap(), &options, &mut ids);
+    review(&kb, &model::load(&kb).unwrap(), &options, &mut ids);
     assert!(depends_on(&kb).is_empty());
+}
+
+#[test]
+fn change_set_records_read_back_as_written() {
+    let kb = example_12();
+    let loaded = model::load(&kb).unwrap();
+    let reviewed = dyknow_engine::review(
+        &loaded.env,
+        &loaded.candidates,
+        &ExploreOptions::default(),
+        &mut Ids::default(),
+    );
+    let delta = model::delta(&loaded.env, &reviewed.after, &loaded.iris);
+    let mut written = Vec::new();
+    for n in [2, 1, 10] {
+        let mut cs = ChangeSet::new(
+            ChangeSetId::numbered(n),
+            Cause::TargetAdded {
+                target: "qid1".into(),
+            },
+            reviewed.compiled.clone(),
+            delta.ntriples(),
+        );
+        cs.status = ChangeSetStatus::Applied;
+        kb.set_environment(&[(
+            EnvironmentPart::ChangeSet(cs.id.clone()),
+            model::change_set_triples(&cs),
+        )])
+        .unwrap();
+        written.push(cs);
+    }
+    // Oldest first, by number (cs-10 after cs-2), each exactly as written.
+    written.sort_by_key(|cs| cs.id.number());
+    assert_eq!(model::change_sets(&kb).unwrap(), written);
+    // The record names each action in RDF too.
+    let rows = kb
+        .select(
+            "PREFIX dkros: <http://www.dyknow.eu/ontology/dyknow-ros#>
+             SELECT ?kind WHERE { <urn:dyknow:changeset:cs-1> dkros:hasAction ?a . ?a dkros:actionKind ?kind ; dkros:hasIndex 0 }",
+        )
+        .unwrap();
+    assert_eq!(rows.len(), 1, "{rows:?}");
+    assert!(
+        matches!(&rows[0][0], Some(dyknow_store::oxigraph::model::Term::Literal(l)) if l.value() == "spawn")
+    );
 }

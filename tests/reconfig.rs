@@ -1,23 +1,12 @@
 //! Reconfiguration over HTTP with the life-cycle running: the seed's Example 12, the
 //! Chapter 6 case study, and bad input.
-#![expect(clippy::expect_used, reason = "tests")]
-
-mod common;
 
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-use common::Api;
+use dyknow_acceptance::{Api, spec};
 use dyknow_server::ServerConfig;
 use serde_json::{Value, json};
-
-fn spec(file: &str) -> String {
-    std::fs::read_to_string(format!(
-        "{}/../specs/turtle/{file}",
-        env!("CARGO_MANIFEST_DIR")
-    ))
-    .expect("spec file")
-}
 
 /// A service whose scheduled reviews never fire during a test (time unit of an hour): only
 /// perturbations and `POST /review` start reviews.
@@ -129,8 +118,9 @@ async fn depends_on(api: &Api) -> BTreeSet<(String, String)> {
         .collect()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn example_12_over_http() {
+/// A service with Example 12's similarity, transformations and targets, after the review the
+/// targets started; returns it with the environment then.
+async fn example_12() -> (Api, Value) {
     let api = api();
     api.post_turtle("/ontology", spec("example-12-similarity.ttl"))
         .await
@@ -143,6 +133,12 @@ async fn example_12_over_http() {
         .await
         .expect(201);
     let env = settle(&api, before + 1).await;
+    (api, env)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn example_12_over_http() {
+    let (api, env) = example_12().await;
     assert_eq!(env["valid"], true, "{env}");
     let sets = change_sets(&api).await;
     assert_eq!(sets.len(), 1);
@@ -152,6 +148,20 @@ async fn example_12_over_http() {
         json!({"kind": "target-added", "target": "qid1"})
     );
     assert_eq!(spawned(&sets[0]), ["tid1", "tid4", "tid2"]);
+    // The JSON model lists the CUs as `GET /cus` does, and names each channel's producer.
+    let model = api.get("/model?format=dyknow").await.expect(200).json();
+    assert_eq!(model["cus"].as_array().map(Vec::len), Some(3));
+    assert_eq!(model["cus"], api.get("/cus").await.expect(200).json());
+    let producers: BTreeSet<String> = model["channels"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|c| c["producer"].as_str().map(str::to_owned))
+        .collect();
+    assert_eq!(
+        producers,
+        BTreeSet::from([cu_of(&api, "tid1").await, cu_of(&api, "tid2").await])
+    );
     let (c1, c2, c4) = (
         cu_of(&api, "tid1").await,
         cu_of(&api, "tid2").await,
@@ -504,4 +514,90 @@ async fn change_sets_are_streamed_as_server_sent_events() {
     let cs: Value = serde_json::from_str(data).expect("change set JSON");
     assert_eq!(cs["id"], "cs-1");
     assert_eq!(cs["cost"]["total"], 33.0);
+}
+
+/// Spawn racing reviews (issue 12): while crashes make reviews spawn replacements, many
+/// concurrent `POST /cus` ask for CUs. Every name is handed out once, no spawned CU is lost
+/// (they are protected, so no review may destroy them), and the model stays valid.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spawns_racing_reviews_get_unique_names_and_no_cu_is_lost() {
+    let (api, _) = example_12().await;
+    let mut manual: Vec<String> = Vec::new();
+    for _round in 0..8 {
+        let victim = cus(&api)
+            .await
+            .iter()
+            .find(|c| c["protected"] == false && c["transformation"] != "tid3")
+            .and_then(|c| c["name"].as_str().map(str::to_owned))
+            .expect("an unprotected CU to crash");
+        let n = reviews(&api).await;
+        let crash = {
+            let api = api.clone();
+            tokio::spawn(async move {
+                api.post(
+                    "/perturbations",
+                    "application/json",
+                    json!({"kind": "cu-crashed", "cu": victim}).to_string(),
+                )
+                .await
+                .status
+            })
+        };
+        let spawns: Vec<_> = (0..6)
+            .map(|_| {
+                let api = api.clone();
+                tokio::spawn(async move {
+                    api.post(
+                        "/cus",
+                        "application/json",
+                        json!({"transformation": "tid3", "protected": true}).to_string(),
+                    )
+                    .await
+                })
+            })
+            .collect();
+        for spawn in spawns {
+            let answer = spawn.await.expect("the spawn task");
+            answer.expect(201);
+            manual.push(answer.json()["name"].as_str().expect("a name").to_owned());
+        }
+        assert_eq!(crash.await.expect("the crash task"), 202);
+        settle(&api, n + 1).await;
+    }
+    let names: BTreeSet<&String> = manual.iter().collect();
+    assert_eq!(
+        names.len(),
+        manual.len(),
+        "a name handed out twice: {manual:?}"
+    );
+    let now = cus(&api).await;
+    for name in &manual {
+        let cu = now
+            .iter()
+            .find(|c| c["name"] == name.as_str())
+            .unwrap_or_else(|| panic!("spawned CU {name} is lost: {now:?}"));
+        assert_eq!(cu["transformation"], "tid3", "{cu}");
+        assert_eq!(cu["protected"], true, "{cu}");
+    }
+    // No change set of a review hands out a name a Spawn got, and none twice.
+    let mut by_reviews = BTreeSet::new();
+    for cs in change_sets(&api).await {
+        if cs["cause"]["kind"] == "manual" {
+            continue;
+        }
+        for cu in action_field(&cs, "spawn", "cu") {
+            assert!(
+                !names.contains(&cu),
+                "{cu} was spawned on request and by {}",
+                cs["id"]
+            );
+            assert!(by_reviews.insert(cu.clone()), "{cu} spawned twice");
+        }
+    }
+    let n = reviews(&api).await;
+    api.post("/review", "application/json", "")
+        .await
+        .expect(202);
+    let env = settle(&api, n + 1).await;
+    assert_eq!(env["valid"], true, "{env}");
 }

@@ -1,0 +1,305 @@
+//! Identities of the DyKnow model (seed Table 4.1): transformations (*tid*), computation units
+//! (*cid*), targets (*qid*), channels and change sets, one type each, and [`Ids`], the one
+//! place that mints fresh names (`cu-N`, `ch-N`, `cs-N`) and reads their numbers back.
+
+use std::borrow::Borrow;
+use std::collections::BTreeSet;
+use std::fmt;
+
+use serde::{Deserialize, Serialize};
+
+macro_rules! identity {
+    ($(#[$doc:meta])* $name:ident) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+        #[serde(transparent)]
+        pub struct $name(String);
+
+        impl $name {
+            /// The identity named `name`.
+            pub fn new(name: impl Into<String>) -> Self {
+                Self(name.into())
+            }
+
+            /// The name.
+            pub fn as_str(&self) -> &str {
+                &self.0
+            }
+
+            /// The name, owned.
+            pub fn into_string(self) -> String {
+                self.0
+            }
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(&self.0)
+            }
+        }
+
+        impl std::ops::Deref for $name {
+            type Target = str;
+
+            fn deref(&self) -> &str {
+                &self.0
+            }
+        }
+
+        impl Borrow<str> for $name {
+            fn borrow(&self) -> &str {
+                &self.0
+            }
+        }
+
+        impl AsRef<str> for $name {
+            fn as_ref(&self) -> &str {
+                &self.0
+            }
+        }
+
+        impl From<&str> for $name {
+            fn from(name: &str) -> Self {
+                Self(name.to_owned())
+            }
+        }
+
+        impl From<String> for $name {
+            fn from(name: String) -> Self {
+                Self(name)
+            }
+        }
+
+        impl From<&String> for $name {
+            fn from(name: &String) -> Self {
+                Self(name.clone())
+            }
+        }
+
+        impl From<$name> for String {
+            fn from(id: $name) -> Self {
+                id.0
+            }
+        }
+
+        impl PartialEq<str> for $name {
+            fn eq(&self, other: &str) -> bool {
+                self.0 == other
+            }
+        }
+
+        impl PartialEq<&str> for $name {
+            fn eq(&self, other: &&str) -> bool {
+                self.0 == *other
+            }
+        }
+
+        impl PartialEq<String> for $name {
+            fn eq(&self, other: &String) -> bool {
+                &self.0 == other
+            }
+        }
+    };
+}
+
+identity! {
+    /// A transformation's identifier, its label (the seed's *tid*, Def. 17).
+    Tid
+}
+
+identity! {
+    /// A computation unit's name (the seed's *cid*, Def. 18). The service mints `cu-N`
+    /// ([`Ids::cu`]); a Spawn may give any other name.
+    Cid
+}
+
+identity! {
+    /// A target's identifier, its label (the seed's *qid*, Def. 19).
+    Qid
+}
+
+identity! {
+    /// A channel, by name (a ROS topic in the seed: `/result`, `101`). The service mints
+    /// `ch-N` ([`Ids::channel`]).
+    Channel
+}
+
+identity! {
+    /// A change set's identifier, `cs-N`: N counts the change sets of one knowledge base.
+    ChangeSetId
+}
+
+/// The prefixes of minted names.
+const CU_PREFIX: &str = "cu-";
+const CHANNEL_PREFIX: &str = "ch-";
+const CHANGE_SET_PREFIX: &str = "cs-";
+
+/// N of a minted name `<prefix>N`, if `name` is one.
+fn number(name: &str, prefix: &str) -> Option<u64> {
+    let digits = name.strip_prefix(prefix)?;
+    // `cu-007` is not minted (minted numbers have no leading zero), so it reserves nothing.
+    if digits.starts_with('0') || !digits.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    digits.parse().ok()
+}
+
+impl Cid {
+    /// N, when this is a minted name `cu-N`.
+    pub fn minted_number(&self) -> Option<u64> {
+        number(&self.0, CU_PREFIX)
+    }
+}
+
+impl Channel {
+    /// N, when this is a minted name `ch-N`.
+    pub fn minted_number(&self) -> Option<u64> {
+        number(&self.0, CHANNEL_PREFIX)
+    }
+}
+
+impl ChangeSetId {
+    /// Change set number `n`: `cs-n`.
+    pub fn numbered(n: u64) -> Self {
+        Self(format!("{CHANGE_SET_PREFIX}{n}"))
+    }
+
+    /// N of `cs-N`, if this is one.
+    pub fn number(&self) -> Option<u64> {
+        number(&self.0, CHANGE_SET_PREFIX)
+    }
+}
+
+/// Fresh names for CUs and channels, never handed out before: `cu-N` and `ch-N` with N above
+/// every number seen, skipping names in use (a CU or channel named `cu-5` by a client).
+///
+/// Invariant: `next_cu` (`next_channel`) is at least every N of a `cu-N` (`ch-N`) handed out
+/// or observed, and `taken` holds every name observed, reserved or handed out.
+#[derive(Debug, Clone, Default)]
+pub struct Ids {
+    next_cu: u64,
+    next_channel: u64,
+    taken: BTreeSet<String>,
+}
+
+impl Ids {
+    /// Identifiers after every CU and channel name the environment uses.
+    pub fn after(env: &crate::Environment) -> Self {
+        let mut ids = Self::default();
+        ids.observe(env);
+        ids
+    }
+
+    /// Makes sure no CU or channel name the environment uses is handed out.
+    pub fn observe(&mut self, env: &crate::Environment) {
+        for cu in env.cus.values() {
+            self.reserve_cu(&cu.cid);
+            for ch in cu.inputs.values().chain(cu.outputs.values()).flatten() {
+                self.reserve_channel(ch);
+            }
+        }
+        for t in env.targets.values() {
+            self.reserve_channel(&t.channel);
+        }
+    }
+
+    /// Makes sure no name a change set used is handed out again (the CUs it spawned and the
+    /// channels it connected may be gone since).
+    pub fn observe_actions(&mut self, actions: &[crate::Action]) {
+        for action in actions {
+            if let Some(cu) = action.cu() {
+                self.reserve_cu(cu);
+            }
+            if let Some(channel) = action.channel() {
+                self.reserve_channel(channel);
+            }
+        }
+    }
+
+    /// Marks a CU name as used.
+    pub fn reserve_cu(&mut self, cid: &Cid) {
+        if let Some(n) = cid.minted_number() {
+            self.next_cu = self.next_cu.max(n);
+        }
+        self.taken.insert(cid.0.clone());
+    }
+
+    /// Marks a channel name as used.
+    pub fn reserve_channel(&mut self, channel: &Channel) {
+        if let Some(n) = channel.minted_number() {
+            self.next_channel = self.next_channel.max(n);
+        }
+        self.taken.insert(channel.0.clone());
+    }
+
+    /// Whether `name` was observed, reserved or handed out (as a CU or a channel).
+    pub fn is_taken(&self, name: &str) -> bool {
+        self.taken.contains(name)
+    }
+
+    fn fresh(&mut self, prefix: &str, counter: fn(&mut Self) -> &mut u64) -> String {
+        loop {
+            let n = {
+                let c = counter(self);
+                *c += 1;
+                *c
+            };
+            let id = format!("{prefix}{n}");
+            if self.taken.insert(id.clone()) {
+                return id;
+            }
+        }
+    }
+
+    /// A CU name never used.
+    pub fn cu(&mut self) -> Cid {
+        Cid(self.fresh(CU_PREFIX, |s| &mut s.next_cu))
+    }
+
+    /// A channel name never used.
+    pub fn channel(&mut self) -> Channel {
+        Channel(self.fresh(CHANNEL_PREFIX, |s| &mut s.next_channel))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn minted_names_read_back_their_numbers() {
+        let mut ids = Ids::default();
+        let cu = ids.cu();
+        assert_eq!(cu, "cu-1");
+        assert_eq!(cu.minted_number(), Some(1));
+        assert_eq!(ids.channel().minted_number(), Some(1));
+        assert_eq!(ChangeSetId::numbered(12).number(), Some(12));
+        for not_minted in ["cu-", "cu-x", "cu-007", "cu--1", "cu-+1", "ch-1", "camera"] {
+            assert_eq!(Cid::from(not_minted).minted_number(), None, "{not_minted}");
+        }
+        assert_eq!(Channel::from("cu-3").minted_number(), None);
+        assert_eq!(ChangeSetId::from("cs-1x").number(), None);
+    }
+
+    #[test]
+    fn fresh_names_skip_every_name_seen() {
+        let mut ids = Ids::default();
+        ids.reserve_cu(&Cid::from("cu-4"));
+        ids.reserve_cu(&Cid::from("cu-6"));
+        ids.reserve_channel(&Channel::from("ch-2"));
+        assert_eq!(ids.cu(), "cu-7");
+        assert_eq!(ids.channel(), "ch-3");
+        // A CU named like a channel (or the reverse) is never handed out as either.
+        ids.reserve_cu(&Cid::from("ch-4"));
+        assert_eq!(ids.channel(), "ch-5");
+        assert!(ids.is_taken("cu-4") && ids.is_taken("ch-4") && !ids.is_taken("cu-5"));
+    }
+
+    #[test]
+    fn identities_serialise_as_their_names() {
+        let cid = Cid::from("cu-3");
+        let json = serde_json::to_string(&cid).expect("serialise");
+        assert_eq!(json, "\"cu-3\"");
+        assert_eq!(serde_json::from_str::<Cid>(&json).expect("parse"), cid);
+    }
+}

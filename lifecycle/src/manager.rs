@@ -1,0 +1,519 @@
+//! The manager's daemon (seed Ch. 4.3 and 5.3.2, Def. 36): reviews run EXPLORE on the live
+//! environment and apply the change set they choose through the [`Executor`]; Spawn, Destroy
+//! and crashes change the configuration too. All of them go through one lock, the
+//! *configuration lock*, held from reading the environment to recording the outcome, so two
+//! of them never hand out the same name or undo each other.
+
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock};
+use std::time::Duration;
+
+use dyknow_engine::{
+    Action, Cause, ChangeSet, ChangeSetStatus, Cid, Compiled, ComputationUnit, CostKind,
+    CostSummary, Environment, ExploreOptions, Ids, Invalidity, Learned, Tid,
+};
+use dyknow_store::model::{self, Loaded, SpecCache};
+use dyknow_store::{EnvironmentPart, KnowledgeBase};
+use tokio::sync::{Notify, broadcast};
+
+use crate::error::LifecycleError;
+use crate::executor::Executor;
+use crate::history::History;
+use crate::perturbation::Perturbation;
+use crate::schedule::{Schedule, Status};
+
+/// The life-cycle's settings.
+#[derive(Debug, Clone, Copy)]
+pub struct Settings {
+    /// The horizon H (seed Def. 34), in time units.
+    pub horizon: f64,
+    /// The length of one time unit; the stable interval lasts H time units.
+    pub time_unit: Duration,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            horizon: 10.0,
+            time_unit: Duration::from_secs(1),
+        }
+    }
+}
+
+/// A Spawn request: a CU of `transformation`, ports unbound.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SpawnRequest {
+    /// The transformation to instantiate.
+    pub transformation: Tid,
+    /// The CU's name; a fresh `cu-N` when absent.
+    pub name: Option<Cid>,
+    /// Whether change sets may destroy it.
+    pub protected: bool,
+}
+
+/// An observed cost (seed Ch. 5.3.2), in the unit of the estimates.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Observation {
+    /// The upkeep of a running CU for one time unit (attributed to its transformation).
+    Upkeep {
+        /// The CU.
+        cu: Cid,
+        /// The upkeep observed.
+        value: f64,
+    },
+    /// The labour of spawning one CU of a transformation.
+    Labour {
+        /// The transformation.
+        transformation: Tid,
+        /// The labour observed.
+        value: f64,
+    },
+}
+
+/// What the configuration lock guards: the minting of names. (The history is appended under
+/// it too, but kept apart so that reads never wait for a review.)
+#[derive(Debug)]
+struct Configuration {
+    ids: Ids,
+}
+
+/// A recorded change set and the environment it left in the model.
+struct Committed {
+    change_set: Arc<ChangeSet>,
+    after: Environment,
+}
+
+/// The life-cycle manager: owns the configuration of one knowledge base, driven by
+/// [`Manager::run`] and by the service's requests.
+pub struct Manager {
+    kb: Arc<KnowledgeBase>,
+    executor: Arc<dyn Executor>,
+    settings: Settings,
+    /// The spec-derived part of the environment, cached between reads.
+    specs: SpecCache,
+    /// The configuration lock (see the module documentation).
+    configuration: Mutex<Configuration>,
+    history: RwLock<History>,
+    learned: RwLock<Learned>,
+    schedule: Mutex<Schedule>,
+    wake: Notify,
+    events: broadcast::Sender<Arc<ChangeSet>>,
+}
+
+impl std::fmt::Debug for Manager {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Manager")
+            .field("settings", &self.settings)
+            .finish_non_exhaustive()
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding a lock leaves no half-done write behind (the knowledge base
+    // writes atomically), so poisoning carries no information.
+    mutex.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+impl Manager {
+    /// A manager over `kb`, reading the recorded change sets and learned estimates; change
+    /// sets are applied through `executor`. The loop starts with [`Manager::run`].
+    pub fn new(
+        kb: Arc<KnowledgeBase>,
+        executor: Arc<dyn Executor>,
+        settings: Settings,
+    ) -> Result<Self, LifecycleError> {
+        let history = History::new(model::change_sets(&kb)?);
+        let learned = model::learned(&kb)?;
+        let specs = SpecCache::default();
+        let loaded = specs.load(&kb, Some(&learned))?;
+        let mut ids = Ids::after(&loaded.env);
+        history.reserve_names(&mut ids);
+        let (events, _) = broadcast::channel(256);
+        Ok(Self {
+            executor,
+            settings,
+            specs,
+            configuration: Mutex::new(Configuration { ids }),
+            history: RwLock::new(history),
+            learned: RwLock::new(learned),
+            schedule: Mutex::new(Schedule::new(settings)),
+            wake: Notify::new(),
+            events,
+            kb,
+        })
+    }
+
+    /// The knowledge base.
+    pub fn knowledge_base(&self) -> &Arc<KnowledgeBase> {
+        &self.kb
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> Settings {
+        self.settings
+    }
+
+    /// The environment, candidate table and IRIs now, with the learned estimates.
+    pub fn load(&self) -> Result<Loaded, LifecycleError> {
+        let learned = self.learned();
+        Ok(self.specs.load(&self.kb, Some(&learned))?)
+    }
+
+    /// The learned estimates.
+    pub fn learned(&self) -> Learned {
+        self.learned
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    /// The recorded change sets, oldest first; those after `since` when given.
+    pub fn change_sets(&self, since: Option<&str>) -> Vec<Arc<ChangeSet>> {
+        self.history
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .since(since)
+    }
+
+    /// A recorded change set by id.
+    pub fn change_set(&self, id: &str) -> Option<Arc<ChangeSet>> {
+        self.history
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(id)
+    }
+
+    /// New change sets, as they are recorded.
+    pub fn subscribe(&self) -> broadcast::Receiver<Arc<ChangeSet>> {
+        self.events.subscribe()
+    }
+
+    /// The life-cycle's state now.
+    pub fn status(&self) -> Status {
+        lock(&self.schedule).status()
+    }
+
+    /// Records a perturbation. A crash removes the CU from the model first (an error if no
+    /// CU has that name); a short-term negative perturbation starts a review at once.
+    pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
+        if let Perturbation::CuCrashed { cu } = &perturbation {
+            self.remove_crashed(cu)?;
+        }
+        lock(&self.schedule).perturbed(&perturbation);
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// A crashed CU leaves the model (not a change set: nobody decided it). Its transformation
+    /// is tried first by the next review.
+    fn remove_crashed(&self, cid: &Cid) -> Result<(), LifecycleError> {
+        let _configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let Some(cu) = loaded.env.cus.get(cid) else {
+            return Err(LifecycleError::UnknownCu(cid.clone()));
+        };
+        let mut after = loaded.env.clone();
+        after.cus.remove(cid);
+        let delta = model::delta(&loaded.env, &after, &loaded.iris);
+        self.kb.set_environment(&delta.parts)?;
+        lock(&self.schedule).prefer(cu.tid.clone());
+        Ok(())
+    }
+
+    /// Spawn: a CU of a transformation with its ports unbound, recorded as a change set
+    /// (cause `manual`) and applied by the executor. Reviews may wire it, or destroy it unless
+    /// it is protected. Returns the CU as the model has it now.
+    pub fn spawn(&self, request: SpawnRequest) -> Result<ComputationUnit, LifecycleError> {
+        let mut configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let Some(tf) = loaded.env.library.get(&request.transformation) else {
+            return Err(LifecycleError::UnknownTransformation(
+                request.transformation,
+            ));
+        };
+        let mut ids = configuration.ids.clone();
+        let cid = match request.name {
+            Some(name) if name.trim().is_empty() => return Err(LifecycleError::EmptyName),
+            Some(name) if loaded.env.cus.contains_key(&name) => {
+                return Err(LifecycleError::NameTaken(name));
+            }
+            Some(name) => {
+                ids.reserve_cu(&name);
+                name
+            }
+            None => ids.cu(),
+        };
+        let actions = vec![Action::Spawn {
+            cu: cid.clone(),
+            transformation: tf.tid.clone(),
+        }];
+        let committed = self.commit_manual(
+            &mut configuration,
+            ids,
+            &loaded,
+            actions,
+            tf.labour,
+            |after| {
+                if let Some(cu) = after.cus.get_mut(&cid) {
+                    cu.protected = request.protected;
+                }
+            },
+        )?;
+        if let Some(failure) = committed.change_set.failures.first() {
+            return Err(LifecycleError::NotApplied {
+                change_set: committed.change_set.id.clone(),
+                cu: failure.cu.clone(),
+                reason: failure.reason.clone(),
+            });
+        }
+        committed
+            .after
+            .cus
+            .get(&cid)
+            .cloned()
+            .ok_or(LifecycleError::UnknownCu(cid))
+    }
+
+    /// Destroy: removes a CU, as a change set (cause `manual`) the executor applies; protected
+    /// CUs are refused. A perturbation: a review starts at once, trying the CU's
+    /// transformation first.
+    pub fn destroy(&self, cid: &Cid) -> Result<(), LifecycleError> {
+        let tid = {
+            let mut configuration = lock(&self.configuration);
+            let loaded = self.load()?;
+            let Some(cu) = loaded.env.cus.get(cid) else {
+                return Err(LifecycleError::UnknownCu(cid.clone()));
+            };
+            if cu.protected {
+                return Err(LifecycleError::Protected(cid.clone()));
+            }
+            let actions = vec![Action::Destroy { cu: cid.clone() }];
+            let ids = configuration.ids.clone();
+            self.commit_manual(&mut configuration, ids, &loaded, actions, 0.0, |_| {})?;
+            cu.tid.clone()
+        };
+        let mut schedule = lock(&self.schedule);
+        schedule.prefer(tid);
+        schedule.urgent();
+        drop(schedule);
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// Commits a change set no search made (cause `manual`): `actions` applied to the
+    /// environment, then `adjust`ed (what no action says, such as protection); its cost spends
+    /// `labour`, and it lists the targets the result leaves unsatisfied.
+    fn commit_manual(
+        &self,
+        configuration: &mut Configuration,
+        ids: Ids,
+        loaded: &Loaded,
+        actions: Vec<Action>,
+        labour: f64,
+        adjust: impl FnOnce(&mut Environment),
+    ) -> Result<Committed, LifecycleError> {
+        let mut after = loaded.env.clone();
+        after.apply(&actions);
+        adjust(&mut after);
+        let compiled = Compiled {
+            actions,
+            cost: CostSummary::of(&after, self.settings.horizon, labour),
+            unsatisfied_targets: after
+                .invalidities(&loaded.candidates)
+                .into_iter()
+                .filter_map(|i| match i {
+                    Invalidity::UnsatisfiedTarget { target } => Some(target),
+                    _ => None,
+                })
+                .collect(),
+            optimal: false,
+        };
+        self.commit(configuration, ids, loaded, Cause::Manual, compiled, after)
+    }
+
+    /// One review interval: EXPLORE on the current environment, COMPILE, and the change set
+    /// applied by the executor, written to the model and recorded. Returns the change set,
+    /// if there was anything to change.
+    pub fn review(&self) -> Result<Option<Arc<ChangeSet>>, LifecycleError> {
+        let mut configuration = lock(&self.configuration);
+        let (causes, prefer) = lock(&self.schedule).review_starts();
+        let result = self.review_locked(&mut configuration, &causes, prefer);
+        drop(configuration);
+        lock(&self.schedule).review_ends(causes, result.as_ref().err().map(ToString::to_string));
+        result
+    }
+
+    /// The review, under the configuration lock.
+    fn review_locked(
+        &self,
+        configuration: &mut Configuration,
+        causes: &[Cause],
+        prefer: Vec<Tid>,
+    ) -> Result<Option<Arc<ChangeSet>>, LifecycleError> {
+        let loaded = self.load()?;
+        let options = ExploreOptions {
+            horizon: self.settings.horizon,
+            prefer,
+            ..ExploreOptions::default()
+        };
+        let mut ids = configuration.ids.clone();
+        let reviewed = dyknow_engine::review(&loaded.env, &loaded.candidates, &options, &mut ids);
+        if reviewed.compiled.actions.is_empty() {
+            return Ok(None);
+        }
+        let cause = causes.first().cloned().unwrap_or(Cause::Review);
+        let committed = self.commit(
+            configuration,
+            ids,
+            &loaded,
+            cause,
+            reviewed.compiled,
+            reviewed.after,
+        )?;
+        Ok(Some(committed.change_set))
+    }
+
+    /// Applies a change set from `loaded.env` to `after` through the executor, then writes the
+    /// model and the change set's record in one atomic write and records it (history, event).
+    /// The CUs of failed actions are treated as crashed: they are not written to the model,
+    /// and a review follows at once. `ids` (the names minted for it) become the
+    /// configuration's once it is recorded.
+    fn commit(
+        &self,
+        configuration: &mut Configuration,
+        ids: Ids,
+        loaded: &Loaded,
+        cause: Cause,
+        compiled: Compiled,
+        mut after: Environment,
+    ) -> Result<Committed, LifecycleError> {
+        let planned = model::delta(&loaded.env, &after, &loaded.iris);
+        let id = self
+            .history
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .next_id();
+        let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
+        let applied = self.executor.apply(&change_set);
+        // The CUs of failed actions, with their transformations (tried first when replanning).
+        let mut crashed: Vec<(Cid, Tid)> = Vec::new();
+        let written = if applied.failures.is_empty() {
+            change_set.status = ChangeSetStatus::Applied;
+            planned
+        } else {
+            change_set.status = ChangeSetStatus::Failed;
+            for failure in &applied.failures {
+                tracing::warn!(
+                    "{}: action {} on {} failed: {}",
+                    change_set.id,
+                    failure.action,
+                    failure.cu,
+                    failure.reason
+                );
+                if let Some(cu) = after.cus.remove(&failure.cu) {
+                    crashed.push((cu.cid, cu.tid));
+                }
+            }
+            change_set.failures = applied.failures;
+            model::delta(&loaded.env, &after, &loaded.iris)
+        };
+        let mut parts = written.parts;
+        parts.push((
+            EnvironmentPart::ChangeSet(id),
+            model::change_set_triples(&change_set),
+        ));
+        self.kb.set_environment(&parts)?;
+        configuration.ids = ids;
+        let change_set = Arc::new(change_set);
+        self.history
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(change_set.clone());
+        let _ = self.events.send(change_set.clone());
+        if !crashed.is_empty() {
+            let mut schedule = lock(&self.schedule);
+            for (cu, tid) in crashed {
+                schedule.prefer(tid);
+                schedule.perturbed(&Perturbation::CuCrashed { cu });
+            }
+            drop(schedule);
+            self.wake.notify_one();
+        }
+        Ok(Committed { change_set, after })
+    }
+
+    /// Records an observed cost: the historical average of its transformation is updated and
+    /// written into the store (the next review uses it). Starts no review.
+    pub fn observe(&self, observation: Observation) -> Result<(), LifecycleError> {
+        let (kind, value) = match &observation {
+            Observation::Upkeep { value, .. } => (CostKind::Upkeep, *value),
+            Observation::Labour { value, .. } => (CostKind::Labour, *value),
+        };
+        if !(value.is_finite() && value >= 0.0) {
+            return Err(LifecycleError::InvalidCost {
+                what: match kind {
+                    CostKind::Labour => "labour",
+                    CostKind::Upkeep => "upkeep",
+                },
+                value,
+            });
+        }
+        let _configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let tid = match observation {
+            Observation::Upkeep { cu, .. } => match loaded.env.cus.get(&cu) {
+                Some(cu) => cu.tid.clone(),
+                None => return Err(LifecycleError::UnknownCu(cu)),
+            },
+            Observation::Labour { transformation, .. } => {
+                if !loaded.env.library.contains_key(&transformation) {
+                    return Err(LifecycleError::UnknownTransformation(transformation));
+                }
+                transformation
+            }
+        };
+        let mut learned = self.learned();
+        learned.observe(tid, kind, value);
+        let triples = model::statistics_triples(&self.kb, &learned, &loaded.iris)?;
+        self.kb
+            .set_environment(&[(EnvironmentPart::Statistics, triples)])?;
+        *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
+        Ok(())
+    }
+
+    /// Whether a review is due now because a registration or deregistration left the
+    /// environment invalid (a CU of a deregistered transformation, a target a new
+    /// transformation could satisfy).
+    fn invalid_now(&self) -> Result<bool, LifecycleError> {
+        let loaded = self.load()?;
+        Ok(!loaded.env.invalidities(&loaded.candidates).is_empty())
+    }
+
+    /// The life-cycle loop: waits for an urgent perturbation or the end of the stable
+    /// interval, then reviews. Runs until the task is dropped.
+    pub async fn run(self: Arc<Self>) {
+        loop {
+            let wait = lock(&self.schedule).wait();
+            tokio::select! {
+                () = self.wake.notified() => {}
+                () = tokio::time::sleep(wait) => {}
+            }
+            let (due, check) = lock(&self.schedule).due();
+            if !due && !check {
+                continue;
+            }
+            let me = self.clone();
+            let result = tokio::task::spawn_blocking(move || {
+                if !due && !me.invalid_now()? {
+                    return Ok(None);
+                }
+                me.review()
+            })
+            .await;
+            match result {
+                Ok(Ok(_)) => {}
+                Ok(Err(e)) => tracing::error!("review failed: {e}"),
+                Err(e) => tracing::error!("review panicked: {e}"),
+            }
+        }
+    }
+}

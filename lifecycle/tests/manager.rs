@@ -1,0 +1,260 @@
+//! The life-cycle without HTTP: change sets through the `Executor` seam (an executor that fails
+//! an action, one that records what it is given), and names never handed out twice across a
+//! restart of the manager.
+#![expect(clippy::unwrap_used, reason = "tests")]
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex};
+
+use dyknow_engine::{Action, ActionFailure, Cause, ChangeSet, ChangeSetStatus, Cid};
+use dyknow_lifecycle::{
+    Applied, Executor, LifecycleError, Manager, ModelOnly, Perturbation, Settings, SpawnRequest,
+};
+use dyknow_store::{InputFormat, KnowledgeBase};
+
+fn example_12() -> Arc<KnowledgeBase> {
+    let kb = KnowledgeBase::in_memory().unwrap();
+    for f in [
+        "example-12-similarity.ttl",
+        "example-12.ttl",
+        "example-12-targets.ttl",
+    ] {
+        let path = format!("{}/../specs/turtle/{f}", env!("CARGO_MANIFEST_DIR"));
+        kb.load_document(&std::fs::read(path).unwrap(), InputFormat::Turtle)
+            .unwrap();
+    }
+    Arc::new(kb)
+}
+
+/// Records every change set it is given; fails the first spawn of `fail_once`, if any.
+#[derive(Default)]
+struct Recording {
+    seen: Mutex<Vec<ChangeSet>>,
+    fail_once: Mutex<Option<String>>,
+}
+
+impl Executor for Recording {
+    fn apply(&self, change_set: &ChangeSet) -> Applied {
+        self.seen.lock().unwrap().push(change_set.clone());
+        let mut fail = self.fail_once.lock().unwrap();
+        let failures: Vec<ActionFailure> = change_set
+            .actions
+            .iter()
+            .enumerate()
+            .filter_map(|(k, a)| match a {
+                Action::Spawn { cu, transformation }
+                    if fail.as_deref() == Some(transformation.as_str()) =>
+                {
+                    Some(ActionFailure {
+                        action: k,
+                        cu: cu.clone(),
+                        reason: "the test executor refuses it".to_owned(),
+                    })
+                }
+                _ => None,
+            })
+            .collect();
+        if !failures.is_empty() {
+            *fail = None;
+        }
+        Applied { failures }
+    }
+}
+
+fn cu_of(manager: &Manager, tid: &str) -> Option<Cid> {
+    manager
+        .load()
+        .unwrap()
+        .env
+        .cus
+        .values()
+        .find(|c| c.tid == tid)
+        .map(|c| c.cid.clone())
+}
+
+#[test]
+fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
+    let executor = Arc::new(Recording {
+        fail_once: Mutex::new(Some("tid2".to_owned())),
+        ..Recording::default()
+    });
+    let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    let first = manager.review().unwrap().expect("a change set");
+    assert_eq!(first.status, ChangeSetStatus::Failed);
+    assert_eq!(first.failures.len(), 1);
+    let failed = &first.failures[0];
+    assert!(
+        matches!(&first.actions[failed.action], Action::Spawn { cu, transformation } if *cu == failed.cu && transformation == "tid2")
+    );
+    // The failed CU is not in the model; the others are; a review is due at once, as after a
+    // crash, with the crash as its cause.
+    assert_eq!(cu_of(&manager, "tid2"), None);
+    assert!(cu_of(&manager, "tid1").is_some() && cu_of(&manager, "tid4").is_some());
+    assert!(manager.status().review_pending);
+    let repair = manager.review().unwrap().expect("a repair");
+    assert_eq!(repair.status, ChangeSetStatus::Applied);
+    assert_eq!(
+        repair.cause,
+        Cause::CuCrashed {
+            cu: failed.cu.clone()
+        }
+    );
+    let loaded = manager.load().unwrap();
+    assert!(loaded.env.invalidities(&loaded.candidates).is_empty());
+    // The repair spawned a new tid2 CU under a fresh name.
+    let repaired = cu_of(&manager, "tid2").expect("tid2 runs again");
+    assert_ne!(repaired, failed.cu);
+    // The executor saw both change sets, the history holds both, the record reads back.
+    let seen: Vec<_> = executor
+        .seen
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|c| c.id.clone())
+        .collect();
+    assert_eq!(seen, [first.id.clone(), repair.id.clone()]);
+    let recorded = dyknow_store::model::change_sets(manager.knowledge_base()).unwrap();
+    assert_eq!(recorded[0], *first);
+    assert_eq!(recorded[1], *repair);
+}
+
+#[test]
+fn spawn_and_destroy_are_change_sets_the_executor_applies() {
+    let executor = Arc::new(Recording::default());
+    let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
+    let cu = manager
+        .spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: None,
+            protected: false,
+        })
+        .unwrap();
+    assert_eq!(cu.tid, "tid3");
+    manager.destroy(&cu.cid).unwrap();
+    let seen = executor.seen.lock().unwrap().clone();
+    assert_eq!(seen.len(), 2);
+    assert_eq!(seen[0].cause, Cause::Manual);
+    assert_eq!(
+        seen[0].actions,
+        [Action::Spawn {
+            cu: cu.cid.clone(),
+            transformation: "tid3".into()
+        }]
+    );
+    assert_eq!(seen[1].actions, [Action::Destroy { cu: cu.cid.clone() }]);
+    assert_eq!(manager.change_sets(None).len(), 2);
+    // Bad requests change nothing.
+    let before = manager.change_sets(None).len();
+    assert!(matches!(
+        manager.destroy(&cu.cid),
+        Err(LifecycleError::UnknownCu(_))
+    ));
+    assert!(matches!(
+        manager.spawn(SpawnRequest {
+            transformation: "nope".into(),
+            name: None,
+            protected: false
+        }),
+        Err(LifecycleError::UnknownTransformation(_))
+    ));
+    assert!(matches!(
+        manager.spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: Some(" ".into()),
+            protected: false
+        }),
+        Err(LifecycleError::EmptyName)
+    ));
+    assert!(matches!(
+        manager.report(Perturbation::CuCrashed { cu: "nope".into() }),
+        Err(LifecycleError::UnknownCu(_))
+    ));
+    assert_eq!(manager.change_sets(None).len(), before);
+    assert_eq!(executor.seen.lock().unwrap().len(), 2);
+}
+
+#[test]
+fn a_spawn_the_executor_refuses_is_an_error_and_recorded() {
+    let executor = Arc::new(Recording {
+        fail_once: Mutex::new(Some("tid3".to_owned())),
+        ..Recording::default()
+    });
+    let manager = Manager::new(example_12(), executor, Settings::default()).unwrap();
+    let refused = manager.spawn(SpawnRequest {
+        transformation: "tid3".into(),
+        name: Some("camera".into()),
+        protected: true,
+    });
+    let Err(LifecycleError::NotApplied { change_set, cu, .. }) = refused else {
+        panic!("{refused:?}");
+    };
+    assert_eq!(cu, "camera");
+    let recorded = manager.change_set(&change_set).expect("recorded");
+    assert_eq!(recorded.status, ChangeSetStatus::Failed);
+    assert_eq!(cu_of(&manager, "tid3"), None);
+    // The executor fails only once: asking again with the same name works, the CU never ran.
+    let again = manager
+        .spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: Some("camera".into()),
+            protected: true,
+        })
+        .unwrap();
+    assert_eq!(again.cid, "camera");
+    assert!(again.protected);
+    let statuses: Vec<_> = manager.change_sets(None).iter().map(|c| c.status).collect();
+    assert_eq!(
+        statuses,
+        [ChangeSetStatus::Failed, ChangeSetStatus::Applied]
+    );
+}
+
+#[test]
+fn names_are_never_handed_out_twice_across_a_restart() {
+    let kb = example_12();
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    manager.review().unwrap().expect("a change set");
+    // A CU crashes and is replaced: its name is gone from the model, not from the history.
+    let crashed = cu_of(&manager, "tid2").unwrap();
+    manager
+        .report(Perturbation::CuCrashed {
+            cu: crashed.clone(),
+        })
+        .unwrap();
+    manager.review().unwrap().expect("a repair");
+    let used: BTreeSet<Cid> = manager
+        .change_sets(None)
+        .iter()
+        .flat_map(|cs| cs.actions.iter().filter_map(|a| a.cu().cloned()))
+        .collect();
+    assert!(used.contains(&crashed));
+    drop(manager);
+    // A new manager over the same knowledge base (a restart) reads the history back.
+    let restarted = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
+    assert_eq!(restarted.change_sets(None).len(), 2);
+    let cu = restarted
+        .spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: None,
+            protected: true,
+        })
+        .unwrap();
+    assert!(!used.contains(&cu.cid), "{} was handed out before", cu.cid);
+    assert!(
+        cu.cid.minted_number().unwrap() > used.iter().filter_map(Cid::minted_number).max().unwrap()
+    );
+    assert_eq!(
+        restarted.change_sets(None).last().unwrap().id.number(),
+        Some(3)
+    );
+}

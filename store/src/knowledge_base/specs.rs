@@ -1,0 +1,208 @@
+//! AddTransformation, AddTarget, RemoveTransformation, RemoveTarget (seed Ch. 5.3), loading
+//! mixed documents, and reading specs back.
+
+use std::collections::BTreeMap;
+
+use dyknow_ontology::vocab::rdfs;
+use oxigraph::model::{GraphNameRef, NamedNode, NamedNodeRef, NamedOrBlankNodeRef, Triple};
+use oxigraph::store::StorageError;
+use serde::Serialize;
+
+use super::KnowledgeBase;
+use crate::error::{IngestError, SpecValidationError, Violation};
+use crate::graphs::{extension_graph, fnv1a, spec_graph, spec_of_graph};
+use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
+use crate::spec::{ExtractedSpec, Spec, SpecKind, extract_specs, spec_from_graph};
+
+/// What a spec POST did.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct PostReport {
+    /// The labels of the specs written, in document order.
+    pub labels: Vec<String>,
+    /// Those of them that replaced an existing spec.
+    pub replaced: Vec<String>,
+}
+
+/// What loading a mixed document did (offline `load`, `serve --specs`).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct LoadReport {
+    /// Transformation specs written.
+    pub transformations: PostReport,
+    /// Target specs written.
+    pub targets: PostReport,
+    /// The extension graph written for the remaining triples, if any.
+    pub extension: Option<String>,
+}
+
+impl KnowledgeBase {
+    /// AddTransformation / AddTarget: writes the specs of `kind` in `body`, atomically. A spec
+    /// whose label exists replaces it.
+    pub fn post_specs(
+        &self,
+        body: &[u8],
+        format: InputFormat,
+        kind: SpecKind,
+    ) -> Result<PostReport, IngestError> {
+        let triples = parse_triples(body, format)?;
+        let doc = extract_specs(&triples, &self.classes(), Some(kind))?;
+        let mut reasoner = self.lock();
+        self.check_identities(&doc.specs)?;
+        let graphs: Vec<(&NamedNode, &[Triple])> = doc
+            .specs
+            .iter()
+            .map(|s| (&s.graph, s.triples.as_slice()))
+            .collect();
+        let replaced = self.commit(&mut reasoner, &graphs, &[])?;
+        Ok(PostReport {
+            labels: doc
+                .specs
+                .iter()
+                .map(|s| s.spec.label().to_owned())
+                .collect(),
+            replaced: doc
+                .specs
+                .iter()
+                .zip(replaced)
+                .filter(|(_, r)| *r)
+                .map(|(s, _)| s.spec.label().to_owned())
+                .collect(),
+        })
+    }
+
+    /// Loads a document holding any mix of transformation specs, target specs and vocabulary
+    /// (the latter becomes one ontology extension), atomically.
+    pub fn load_document(
+        &self,
+        body: &[u8],
+        format: InputFormat,
+    ) -> Result<LoadReport, IngestError> {
+        let triples = parse_triples(body, format)?;
+        let doc = extract_specs(&triples, &self.classes(), None)?;
+        let mut reasoner = self.lock();
+        self.check_identities(&doc.specs)?;
+        let extension = (!doc.rest.is_empty())
+            .then(|| (extension_graph(fnv1a(body)), fresh_blank_nodes(&doc.rest)));
+        let mut graphs: Vec<(&NamedNode, &[Triple])> = doc
+            .specs
+            .iter()
+            .map(|s| (&s.graph, s.triples.as_slice()))
+            .collect();
+        if let Some((graph, triples)) = &extension {
+            graphs.push((graph, triples.as_slice()));
+        }
+        let replaced = self.commit(&mut reasoner, &graphs, &[])?;
+        let mut report = LoadReport {
+            extension: extension.as_ref().map(|(g, _)| g.as_str().to_owned()),
+            ..LoadReport::default()
+        };
+        for (spec, replaced) in doc.specs.iter().zip(replaced) {
+            let part = match spec.spec.kind() {
+                SpecKind::Transformation => &mut report.transformations,
+                SpecKind::Target => &mut report.targets,
+            };
+            part.labels.push(spec.spec.label().to_owned());
+            if replaced {
+                part.replaced.push(spec.spec.label().to_owned());
+            }
+        }
+        drop(reasoner);
+        if report.extension.is_some() {
+            self.refresh_classes()?;
+        }
+        Ok(report)
+    }
+
+    /// A spec given by IRI must not be the resource of another spec already.
+    pub(super) fn check_identities(&self, specs: &[ExtractedSpec]) -> Result<(), IngestError> {
+        let mut violations = Vec::new();
+        for spec in specs {
+            let Some(iri) = &spec.given_iri else { continue };
+            for quad in self.store.quads_for_pattern(
+                Some(NamedOrBlankNodeRef::from(iri.as_ref())),
+                Some(rdfs::LABEL),
+                None,
+                None,
+            ) {
+                let quad = quad?;
+                let oxigraph::model::GraphName::NamedNode(g) = &quad.graph_name else {
+                    continue;
+                };
+                if let Some((kind, label)) = spec_of_graph(g.as_str())
+                    && (kind != spec.spec.kind() || label != spec.spec.label())
+                {
+                    violations.push(Violation::new(
+                        format!(
+                            "one resource describes one spec: <{}> is already the {} labelled {label:?}",
+                            iri.as_str(),
+                            kind.name()
+                        ),
+                        spec.spec.label(),
+                    ));
+                }
+            }
+        }
+        if violations.is_empty() {
+            Ok(())
+        } else {
+            Err(SpecValidationError(violations).into())
+        }
+    }
+
+    /// RemoveTransformation / RemoveTarget.
+    pub fn remove_spec(&self, kind: SpecKind, label: &str) -> Result<(), IngestError> {
+        let graph = spec_graph(kind, label);
+        let mut reasoner = self.lock();
+        if !self.store.contains_named_graph(&graph)? {
+            return Err(IngestError::NotFound(format!(
+                "no {} labelled {label:?}",
+                kind.name()
+            )));
+        }
+        self.commit(&mut reasoner, &[], &[&graph])?;
+        Ok(())
+    }
+
+    /// The triples of a named graph.
+    pub fn graph_triples(&self, graph: NamedNodeRef<'_>) -> Result<Vec<Triple>, StorageError> {
+        self.store
+            .quads_for_pattern(None, None, None, Some(GraphNameRef::from(graph)))
+            .map(|q| q.map(Triple::from))
+            .collect()
+    }
+
+    /// The spec of `kind` labelled `label`.
+    pub fn spec(&self, kind: SpecKind, label: &str) -> Result<Option<Spec>, StorageError> {
+        let graph = spec_graph(kind, label);
+        let triples = self.graph_triples(graph.as_ref())?;
+        Ok(if triples.is_empty() {
+            None
+        } else {
+            spec_from_graph(&triples, kind)
+        })
+    }
+
+    /// The names of the graphs holding specs of `kind`, with their labels, sorted by label.
+    pub fn spec_graphs(&self, kind: SpecKind) -> Result<Vec<(String, NamedNode)>, StorageError> {
+        let mut out = BTreeMap::new();
+        for graph in self.store.named_graphs() {
+            if let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph?
+                && let Some((k, label)) = spec_of_graph(g.as_str())
+                && k == kind
+            {
+                out.insert(label, g);
+            }
+        }
+        Ok(out.into_iter().collect())
+    }
+
+    /// All specs of `kind`, sorted by label.
+    pub fn specs(&self, kind: SpecKind) -> Result<Vec<Spec>, StorageError> {
+        let mut out = Vec::new();
+        for (_, graph) in self.spec_graphs(kind)? {
+            if let Some(spec) = spec_from_graph(&self.graph_triples(graph.as_ref())?, kind) {
+                out.push(spec);
+            }
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,15 @@
+//! The DyKnow model (`dyknow-engine`'s types) in the knowledge base: the environment ⟨CU, F,
+//! T⟩ and the candidate table read with SPARQL ([`load`], [`SpecCache`]), computation units
+//! written as one graph each ([`cu_triples`], [`delta`]) so `dependsOn` follows every change
+//! set, change-set records ([`change_set_triples`], [`change_sets`]) and learned cost
+//! estimates ([`statistics_triples`], [`learned`]). Every SPARQL query of the domain is in
+//! [`queries`].
+
+pub(crate) mod queries;
+mod read;
+mod triples;
+
+pub use read::{Iris, Loaded, SpecCache, candidates, change_sets, learned, load};
+pub use triples::{
+    Delta, change_set_triples, cu_triples, delta, split_environment, statistics_triples,
+};

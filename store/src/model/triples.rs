@@ -1,0 +1,350 @@
+//! Writing the DyKnow model into the knowledge base: the triples of each computation unit
+//! (`specs.md`, "Computation units in the model"), the graph delta between two environments,
+//! change-set records and the learned statistics.
+
+use std::collections::{BTreeMap, BTreeSet, HashSet};
+
+use dyknow_engine::{
+    Action, ChangeSet, ComputationUnit, CostKind, Environment, Learned, NTriplesDelta, Tid,
+};
+use dyknow_ontology::vocab::{dkros, dyknow, rdf, rdfs, xsd};
+use oxigraph::model::{Literal, NamedNode, NamedOrBlankNode, Term, Triple};
+
+use super::queries;
+use super::read::{Iris, cost_kind, literal, named};
+use crate::error::ModelReadError;
+use crate::graphs::{
+    CHANNEL_PREFIX, EnvironmentPart, change_set_resource, channel_resource, cu_resource, encode,
+};
+use crate::knowledge_base::KnowledgeBase;
+
+fn channel_iri(name: &str) -> NamedNode {
+    NamedNode::new_unchecked(channel_resource(name))
+}
+
+fn double(v: f64) -> Literal {
+    Literal::new_typed_literal(format!("{v:?}"), xsd::DOUBLE)
+}
+
+fn count(n: impl ToString) -> Literal {
+    Literal::new_typed_literal(n.to_string(), xsd::NON_NEGATIVE_INTEGER)
+}
+
+/// The triples of one CU: its types, name, transformation, upkeep, protection, one
+/// subscription per bound in port (with the CU and out port that publish on the channel, so
+/// the reasoner derives `dependsOn`) and one publication per bound out port.
+pub fn cu_triples(cu: &ComputationUnit, env: &Environment, iris: &Iris) -> Vec<Triple> {
+    let me = cu_resource(&cu.cid);
+    let mut out = vec![
+        Triple::new(me.clone(), rdf::TYPE, dyknow::COMPUTATION_UNIT),
+        Triple::new(me.clone(), rdf::TYPE, dkros::NODELET),
+        Triple::new(
+            me.clone(),
+            dyknow::HAS_NAME,
+            Literal::new_simple_literal(cu.cid.as_str()),
+        ),
+    ];
+    if let Some(tf) = iris.transformations.get(&cu.tid) {
+        out.push(Triple::new(me.clone(), dyknow::INSTANCE_OF, tf.clone()));
+    }
+    if cu.protected {
+        out.push(Triple::new(
+            me.clone(),
+            dkros::IS_PROTECTED,
+            Literal::new_typed_literal("true", xsd::BOOLEAN),
+        ));
+    }
+    if let Some(tf) = env.library.get(&cu.tid) {
+        let cost = NamedNode::new_unchecked(format!("{}/upkeep", me.as_str()));
+        out.push(Triple::new(
+            me.clone(),
+            dyknow::HAS_COST_MODEL,
+            cost.clone(),
+        ));
+        out.push(Triple::new(
+            cost.clone(),
+            rdf::TYPE,
+            dyknow::UPKEEP_COST_MODEL,
+        ));
+        out.push(Triple::new(cost, dyknow::HAS_VALUE, double(tf.upkeep)));
+    }
+    let publishers = env.publishers();
+    for (port, channel) in &cu.inputs {
+        let Some(channel) = channel else { continue };
+        let s = NamedNode::new_unchecked(format!("{}/in/{}", me.as_str(), encode(port)));
+        out.push(Triple::new(me.clone(), dyknow::HAS_SUBSCRIPTION, s.clone()));
+        out.push(Triple::new(s.clone(), rdf::TYPE, dyknow::SUBSCRIPTION));
+        out.push(Triple::new(s.clone(), dyknow::TO_CU, me.clone()));
+        if let Some(p) = iris.in_ports.get(&(cu.tid.clone(), port.clone())) {
+            out.push(Triple::new(s.clone(), dyknow::TO_PORT, p.clone()));
+        }
+        out.push(Triple::new(
+            s.clone(),
+            dyknow::HAS_CHANNEL,
+            channel_iri(channel.as_str()),
+        ));
+        out.extend(channel_triples(channel.as_str()));
+        if let Some((from, from_port)) = publishers.get(channel.as_str()).and_then(|p| p.first()) {
+            let from_cu = &env.cus[*from];
+            out.push(Triple::new(
+                s.clone(),
+                dyknow::FROM_CU,
+                cu_resource(&from_cu.cid),
+            ));
+            if let Some(p) = iris
+                .out_ports
+                .get(&(from_cu.tid.clone(), (*from_port).to_owned()))
+            {
+                out.push(Triple::new(s.clone(), dyknow::FROM_PORT, p.clone()));
+            }
+        }
+    }
+    for (port, channel) in &cu.outputs {
+        let Some(channel) = channel else { continue };
+        let p = NamedNode::new_unchecked(format!("{}/out/{}", me.as_str(), encode(port)));
+        out.push(Triple::new(me.clone(), dkros::HAS_PUBLICATION, p.clone()));
+        out.push(Triple::new(p.clone(), rdf::TYPE, dkros::PUBLICATION));
+        if let Some(port) = iris.out_ports.get(&(cu.tid.clone(), port.clone())) {
+            out.push(Triple::new(p.clone(), dkros::PUBLISHES_PORT, port.clone()));
+        }
+        out.push(Triple::new(
+            p,
+            dkros::ON_CHANNEL,
+            channel_iri(channel.as_str()),
+        ));
+        out.extend(channel_triples(channel.as_str()));
+    }
+    out.sort_by_cached_key(ToString::to_string);
+    out.dedup();
+    out
+}
+
+fn channel_triples(channel: &str) -> [Triple; 2] {
+    let c = channel_iri(channel);
+    [
+        Triple::new(c.clone(), rdf::TYPE, dyknow::CHANNEL),
+        Triple::new(
+            c,
+            dyknow::HAS_CHANNEL_NAME,
+            Literal::new_simple_literal(channel),
+        ),
+    ]
+}
+
+/// The RDF delta between two environments: the triples of every CU graph that differ.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Delta {
+    /// Triples to insert.
+    pub insert: Vec<Triple>,
+    /// Triples to delete.
+    pub delete: Vec<Triple>,
+    /// The CU graphs to write: (part, triples), an empty list removing the part.
+    pub parts: Vec<(EnvironmentPart, Vec<Triple>)>,
+}
+
+impl Delta {
+    /// Whether nothing changes.
+    pub fn is_empty(&self) -> bool {
+        self.parts.is_empty()
+    }
+
+    /// The delta as change set JSON gives it: sorted N-Triples.
+    pub fn ntriples(&self) -> NTriplesDelta {
+        NTriplesDelta {
+            insert: ntriples(&self.insert),
+            delete: ntriples(&self.delete),
+        }
+    }
+}
+
+fn ntriples(triples: &[Triple]) -> String {
+    let mut lines: Vec<String> = triples.iter().map(|t| format!("{t} .\n")).collect();
+    lines.sort();
+    lines.dedup();
+    lines.concat()
+}
+
+/// The delta from `before` to `after` (every CU graph whose triples differ).
+pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
+    let mut out = Delta::default();
+    let names: BTreeSet<_> = before.cus.keys().chain(after.cus.keys()).collect();
+    for name in names {
+        let old: HashSet<Triple> = before
+            .cus
+            .get(name)
+            .map(|c| cu_triples(c, before, iris))
+            .unwrap_or_default()
+            .into_iter()
+            .collect();
+        let new: Vec<Triple> = after
+            .cus
+            .get(name)
+            .map(|c| cu_triples(c, after, iris))
+            .unwrap_or_default();
+        let new_set: HashSet<Triple> = new.iter().cloned().collect();
+        if old == new_set {
+            continue;
+        }
+        out.delete.extend(old.difference(&new_set).cloned());
+        out.insert.extend(new_set.difference(&old).cloned());
+        out.parts.push((EnvironmentPart::Cu(name.clone()), new));
+    }
+    out.delete.sort_by_cached_key(ToString::to_string);
+    out.insert.sort_by_cached_key(ToString::to_string);
+    out
+}
+
+/// Splits triples into those describing computation units (each CU, its subscriptions,
+/// publications and cost models, and the channel resources) and the rest (specs,
+/// vocabulary). Derived `dependsOn` links are dropped: the reasoner derives them again.
+pub fn split_environment(triples: Vec<Triple>) -> (Vec<Triple>, Vec<Triple>) {
+    let cu_types: [Term; 2] = [dyknow::COMPUTATION_UNIT.into(), dkros::NODELET.into()];
+    let mut owned: HashSet<Term> = triples
+        .iter()
+        .filter(|t| t.predicate == rdf::TYPE && cu_types.contains(&t.object))
+        .map(|t| Term::from(t.subject.clone()))
+        .collect();
+    let links = [
+        dyknow::HAS_SUBSCRIPTION,
+        dkros::HAS_PUBLICATION,
+        dyknow::HAS_COST_MODEL,
+    ];
+    let cus = owned.clone();
+    for t in &triples {
+        if cus.contains(&Term::from(t.subject.clone())) && links.contains(&t.predicate.as_ref()) {
+            owned.insert(t.object.clone());
+        }
+    }
+    let (mut env, mut rest) = (Vec::new(), Vec::new());
+    for t in triples {
+        let subject = Term::from(t.subject.clone());
+        let channel = matches!(&t.subject, NamedOrBlankNode::NamedNode(n) if n.as_str().starts_with(CHANNEL_PREFIX));
+        if t.predicate == dyknow::DEPENDS_ON {
+            continue;
+        }
+        if channel {
+            // Channels are shared: a target's spec names its channel too.
+            env.push(t.clone());
+            rest.push(t);
+        } else if owned.contains(&subject) {
+            env.push(t);
+        } else {
+            rest.push(t);
+        }
+    }
+    (env, rest)
+}
+
+/// The triples recording a change set as a `dyknow:ChangeSet` resource: id, time, cause,
+/// cost, each action with its fields, and the whole change set JSON (what the history is read
+/// back from).
+pub fn change_set_triples(change_set: &ChangeSet) -> Vec<Triple> {
+    let me = change_set_resource(&change_set.id);
+    let string = |v: &str| Literal::new_simple_literal(v);
+    let mut out = vec![
+        Triple::new(me.clone(), rdf::TYPE, dyknow::CHANGE_SET),
+        Triple::new(me.clone(), rdfs::LABEL, string(change_set.id.as_str())),
+        Triple::new(
+            me.clone(),
+            dkros::AT_TIME,
+            Literal::new_typed_literal(&change_set.at, xsd::DATE_TIME),
+        ),
+        Triple::new(me.clone(), dkros::TOTAL_COST, double(change_set.cost.total)),
+        Triple::new(me.clone(), dkros::CAUSE, string(change_set.cause.kind())),
+    ];
+    if let Ok(json) = serde_json::to_string(change_set) {
+        out.push(Triple::new(
+            me.clone(),
+            dkros::CHANGE_SET_JSON,
+            string(&json),
+        ));
+    }
+    for (k, action) in change_set.actions.iter().enumerate() {
+        let a = NamedNode::new_unchecked(format!("{}/action/{k}", me.as_str()));
+        out.push(Triple::new(me.clone(), dkros::HAS_ACTION, a.clone()));
+        out.push(Triple::new(a.clone(), rdf::TYPE, dkros::ACTION));
+        out.push(Triple::new(a.clone(), dkros::HAS_INDEX, count(k)));
+        out.push(Triple::new(
+            a.clone(),
+            dkros::ACTION_KIND,
+            string(action.kind()),
+        ));
+        let mut field =
+            |property, value: &str| out.push(Triple::new(a.clone(), property, string(value)));
+        match action {
+            Action::Register { transformation } | Action::Deregister { transformation } => {
+                field(dkros::TRANSFORMATION_LABEL, transformation.as_str());
+            }
+            // The target's spec records it; the ontology has no property for its label here.
+            Action::Query { .. } | Action::Release { .. } => {}
+            Action::Spawn { cu, transformation } => {
+                field(dkros::CU_NAME, cu.as_str());
+                field(dkros::TRANSFORMATION_LABEL, transformation.as_str());
+            }
+            Action::Destroy { cu } => field(dkros::CU_NAME, cu.as_str()),
+            Action::ConnectIn { cu, port, channel } | Action::ConnectOut { cu, port, channel } => {
+                field(dkros::CU_NAME, cu.as_str());
+                field(dkros::PORT_NAME, port);
+                field(dkros::CHANNEL_NAME, channel.as_str());
+            }
+            Action::DisconnectIn { cu, port } | Action::DisconnectOut { cu, port } => {
+                field(dkros::CU_NAME, cu.as_str());
+                field(dkros::PORT_NAME, port);
+            }
+        }
+    }
+    out
+}
+
+/// The triples of the statistics part: each learned estimate on the transformation's cost
+/// model (`dkros:historicalAverage*`, `dkros:observationCount`), with a cost model minted for
+/// a spec that gave none.
+pub fn statistics_triples(
+    kb: &KnowledgeBase,
+    learned: &Learned,
+    iris: &Iris,
+) -> Result<Vec<Triple>, ModelReadError> {
+    let mut models: BTreeMap<(Tid, String), NamedNode> = BTreeMap::new();
+    for r in kb.select(&queries::COST_MODELS)? {
+        if let (Some(tid), Some(kind), Some(model)) = (literal(&r[0]), literal(&r[1]), named(&r[2]))
+        {
+            models.insert((Tid::new(tid), kind), model);
+        }
+    }
+    let mut out = Vec::new();
+    for (map, kind) in [
+        (&learned.labour, CostKind::Labour),
+        (&learned.upkeep, CostKind::Upkeep),
+    ] {
+        let (name, class, property) = match kind {
+            CostKind::Labour => (
+                "labour",
+                dyknow::LABOUR_COST_MODEL,
+                dkros::HISTORICAL_AVERAGE_LABOUR,
+            ),
+            CostKind::Upkeep => (
+                "upkeep",
+                dyknow::UPKEEP_COST_MODEL,
+                dkros::HISTORICAL_AVERAGE_UPKEEP,
+            ),
+        };
+        debug_assert_eq!(cost_kind(name), kind);
+        for (tid, e) in map {
+            let Some(tf) = iris.transformations.get(tid) else {
+                continue;
+            };
+            let model = match models.get(&(tid.clone(), name.to_owned())) {
+                Some(m) => m.clone(),
+                None => {
+                    let m = NamedNode::new_unchecked(format!("{}/learned/{name}", tf.as_str()));
+                    out.push(Triple::new(tf.clone(), dyknow::HAS_COST_MODEL, m.clone()));
+                    out.push(Triple::new(m.clone(), rdf::TYPE, class));
+                    m
+                }
+            };
+            out.push(Triple::new(model.clone(), property, double(e.average)));
+            out.push(Triple::new(model, dkros::OBSERVATION_COUNT, count(e.count)));
+        }
+    }
+    Ok(out)
+}
