@@ -11,9 +11,16 @@ use serde::{Deserialize, Serialize};
 macro_rules! identity {
     ($(#[$doc:meta])* $name:ident) => {
         $(#[$doc])*
-        #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+        #[derive(Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
         #[serde(transparent)]
         pub struct $name(String);
+
+        /// As the name in quotes (`"cu-9"`), so messages read as before identities were types.
+        impl fmt::Debug for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                fmt::Debug::fmt(&self.0, f)
+            }
+        }
 
         impl $name {
             /// The identity named `name`.
@@ -134,6 +141,10 @@ const CU_PREFIX: &str = "cu-";
 const CHANNEL_PREFIX: &str = "ch-";
 const CHANGE_SET_PREFIX: &str = "cs-";
 
+/// The largest N a minted name can have. A client may name a CU `cu-18446744073709551615`;
+/// counting on from there would overflow, so larger numbers only reserve their own name.
+const MAX_MINTED: u64 = 1 << 53;
+
 /// N of a minted name `<prefix>N`, if `name` is one.
 fn number(name: &str, prefix: &str) -> Option<u64> {
     let digits = name.strip_prefix(prefix)?;
@@ -141,7 +152,7 @@ fn number(name: &str, prefix: &str) -> Option<u64> {
     if digits.starts_with('0') || !digits.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
-    digits.parse().ok()
+    digits.parse().ok().filter(|n| *n <= MAX_MINTED)
 }
 
 impl Cid {
@@ -293,6 +304,24 @@ mod tests {
         ids.reserve_cu(&Cid::from("ch-4"));
         assert_eq!(ids.channel(), "ch-5");
         assert!(ids.is_taken("cu-4") && ids.is_taken("ch-4") && !ids.is_taken("cu-5"));
+    }
+
+    #[test]
+    fn huge_numbers_reserve_their_name_only() {
+        let mut ids = Ids::default();
+        let huge = Cid::from("cu-18446744073709551615");
+        assert_eq!(huge.minted_number(), None);
+        ids.reserve_cu(&huge);
+        ids.reserve_cu(&Cid::from("cu-9007199254740992"));
+        // 2^53 is the largest number counted on from.
+        assert_eq!(ids.cu(), "cu-9007199254740993");
+        assert!(ids.is_taken("cu-18446744073709551615"));
+    }
+
+    #[test]
+    fn identities_print_as_quoted_names() {
+        assert_eq!(format!("{:?}", Cid::from("cu-9")), "\"cu-9\"");
+        assert_eq!(Cid::from("cu-9").to_string(), "cu-9");
     }
 
     #[test]

@@ -15,11 +15,14 @@ pub(crate) struct History {
 }
 
 impl History {
-    /// The history of these change sets (oldest first).
-    pub(crate) fn new(change_sets: Vec<ChangeSet>) -> Self {
+    /// The history of these change sets (oldest first); `unreadable` are the ids of records
+    /// that could not be read, whose numbers are not given again either.
+    pub(crate) fn new(change_sets: Vec<ChangeSet>, unreadable: &[ChangeSetId]) -> Self {
         let next = change_sets
             .iter()
-            .filter_map(|cs| cs.id.number())
+            .map(|cs| &cs.id)
+            .chain(unreadable)
+            .filter_map(ChangeSetId::number)
             .max()
             .unwrap_or(0)
             + 1;
@@ -29,12 +32,14 @@ impl History {
         }
     }
 
-    /// The id the next change set gets.
-    pub(crate) fn next_id(&self) -> ChangeSetId {
-        ChangeSetId::numbered(self.next)
+    /// The id of the next change set, never given again (even if it is never recorded).
+    pub(crate) fn take_id(&mut self) -> ChangeSetId {
+        let id = ChangeSetId::numbered(self.next);
+        self.next += 1;
+        id
     }
 
-    /// Records a change set (with the id [`History::next_id`] gave).
+    /// Records a change set (with an id [`History::take_id`] gave).
     pub(crate) fn push(&mut self, change_set: Arc<ChangeSet>) {
         self.next = self.next.max(change_set.id.number().unwrap_or(0) + 1);
         self.change_sets.push(change_set);

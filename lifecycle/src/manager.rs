@@ -28,6 +28,11 @@ pub struct Settings {
     pub horizon: f64,
     /// The length of one time unit; the stable interval lasts H time units.
     pub time_unit: Duration,
+    /// How long a review's EXPLORE may search before it settles for the best change set found
+    /// (the any-time extension, Ch. 4.3.3; `"optimal": false` then). A review holds the
+    /// configuration lock, so this also bounds how long Spawn, Destroy and crash reports wait.
+    /// `None`: until optimality is proven.
+    pub explore_timeout: Option<Duration>,
 }
 
 impl Default for Settings {
@@ -35,6 +40,7 @@ impl Default for Settings {
         Self {
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
+            explore_timeout: Some(Duration::from_secs(1)),
         }
     }
 }
@@ -121,7 +127,17 @@ impl Manager {
         executor: Arc<dyn Executor>,
         settings: Settings,
     ) -> Result<Self, LifecycleError> {
-        let history = History::new(model::change_sets(&kb)?);
+        let records = model::change_sets(&kb)?;
+        let mut unreadable = Vec::new();
+        for record in records.unreadable {
+            tracing::warn!(
+                "change set {} is recorded but does not read back, so the history leaves it out: {}",
+                record.id.as_ref().map_or("without an id", |id| id.as_str()),
+                record.error
+            );
+            unreadable.extend(record.id);
+        }
+        let history = History::new(records.change_sets, &unreadable);
         let learned = model::learned(&kb)?;
         let specs = SpecCache::default();
         let loaded = specs.load(&kb, Some(&learned))?;
@@ -197,14 +213,16 @@ impl Manager {
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
+        } else {
+            lock(&self.schedule).perturbed(&perturbation);
         }
-        lock(&self.schedule).perturbed(&perturbation);
         self.wake.notify_one();
         Ok(())
     }
 
-    /// A crashed CU leaves the model (not a change set: nobody decided it). Its transformation
-    /// is tried first by the next review.
+    /// A crashed CU leaves the model (not a change set: nobody decided it), and the next
+    /// review, with the crash as its cause, tries its transformation first. The schedule learns
+    /// of it under the configuration lock, so a review waiting for the lock sees it.
     fn remove_crashed(&self, cid: &Cid) -> Result<(), LifecycleError> {
         let _configuration = lock(&self.configuration);
         let loaded = self.load()?;
@@ -215,7 +233,9 @@ impl Manager {
         after.cus.remove(cid);
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
         self.kb.set_environment(&delta.parts)?;
-        lock(&self.schedule).prefer(cu.tid.clone());
+        let mut schedule = lock(&self.schedule);
+        schedule.prefer(cu.tid.clone());
+        schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
         Ok(())
     }
 
@@ -277,24 +297,32 @@ impl Manager {
     /// CUs are refused. A perturbation: a review starts at once, trying the CU's
     /// transformation first.
     pub fn destroy(&self, cid: &Cid) -> Result<(), LifecycleError> {
-        let tid = {
-            let mut configuration = lock(&self.configuration);
-            let loaded = self.load()?;
-            let Some(cu) = loaded.env.cus.get(cid) else {
-                return Err(LifecycleError::UnknownCu(cid.clone()));
-            };
-            if cu.protected {
-                return Err(LifecycleError::Protected(cid.clone()));
-            }
-            let actions = vec![Action::Destroy { cu: cid.clone() }];
-            let ids = configuration.ids.clone();
-            self.commit_manual(&mut configuration, ids, &loaded, actions, 0.0, |_| {})?;
-            cu.tid.clone()
+        let mut configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let Some(cu) = loaded.env.cus.get(cid) else {
+            return Err(LifecycleError::UnknownCu(cid.clone()));
         };
+        if cu.protected {
+            return Err(LifecycleError::Protected(cid.clone()));
+        }
+        let actions = vec![Action::Destroy { cu: cid.clone() }];
+        let ids = configuration.ids.clone();
+        let committed =
+            self.commit_manual(&mut configuration, ids, &loaded, actions, 0.0, |_| {})?;
+        if let Some(failure) = committed.change_set.failures.first() {
+            // Treated as crashed by the commit: gone from the model, a review follows.
+            return Err(LifecycleError::NotApplied {
+                change_set: committed.change_set.id.clone(),
+                cu: failure.cu.clone(),
+                reason: failure.reason.clone(),
+            });
+        }
+        // Under the configuration lock, so a review waiting for it replans with it.
         let mut schedule = lock(&self.schedule);
-        schedule.prefer(tid);
+        schedule.prefer(cu.tid.clone());
         schedule.urgent();
         drop(schedule);
+        drop(configuration);
         self.wake.notify_one();
         Ok(())
     }
@@ -352,6 +380,7 @@ impl Manager {
         let loaded = self.load()?;
         let options = ExploreOptions {
             horizon: self.settings.horizon,
+            timeout: self.settings.explore_timeout,
             prefer,
             ..ExploreOptions::default()
         };
@@ -374,9 +403,11 @@ impl Manager {
 
     /// Applies a change set from `loaded.env` to `after` through the executor, then writes the
     /// model and the change set's record in one atomic write and records it (history, event).
-    /// The CUs of failed actions are treated as crashed: they are not written to the model,
-    /// and a review follows at once. `ids` (the names minted for it) become the
-    /// configuration's once it is recorded.
+    /// The CUs of failed actions are treated as crashed: they are not written to the model (the
+    /// record's delta is what was written), and a review follows once the failure back-off
+    /// allows. The names minted for it (`ids`) and its number are the configuration's from
+    /// the moment the executor is asked, so a write that fails after it never hands them out
+    /// again.
     fn commit(
         &self,
         configuration: &mut Configuration,
@@ -389,13 +420,13 @@ impl Manager {
         let planned = model::delta(&loaded.env, &after, &loaded.iris);
         let id = self
             .history
-            .read()
+            .write()
             .unwrap_or_else(PoisonError::into_inner)
-            .next_id();
+            .take_id();
+        configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
         let applied = self.executor.apply(&change_set);
-        // The CUs of failed actions, with their transformations (tried first when replanning).
-        let mut crashed: Vec<(Cid, Tid)> = Vec::new();
+        let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;
             planned
@@ -409,31 +440,42 @@ impl Manager {
                     failure.cu,
                     failure.reason
                 );
-                if let Some(cu) = after.cus.remove(&failure.cu) {
-                    crashed.push((cu.cid, cu.tid));
-                }
+                // Gone from the model whether the action spawned, rewired or destroyed it.
+                after.cus.remove(&failure.cu);
+                crashed.push(failure.cu.clone());
             }
             change_set.failures = applied.failures;
-            model::delta(&loaded.env, &after, &loaded.iris)
+            let written = model::delta(&loaded.env, &after, &loaded.iris);
+            change_set.delta = written.ntriples();
+            written
         };
         let mut parts = written.parts;
         parts.push((
             EnvironmentPart::ChangeSet(id),
             model::change_set_triples(&change_set),
         ));
-        self.kb.set_environment(&parts)?;
-        configuration.ids = ids;
+        if let Err(e) = self.kb.set_environment(&parts) {
+            // The executor may have applied what the model now lacks: replan from the model.
+            tracing::error!("{}: applied but not recorded: {e}", change_set.id);
+            lock(&self.schedule).urgent();
+            self.wake.notify_one();
+            return Err(e.into());
+        }
         let change_set = Arc::new(change_set);
         self.history
             .write()
             .unwrap_or_else(PoisonError::into_inner)
             .push(change_set.clone());
         let _ = self.events.send(change_set.clone());
-        if !crashed.is_empty() {
-            let mut schedule = lock(&self.schedule);
-            for (cu, tid) in crashed {
-                schedule.prefer(tid);
-                schedule.perturbed(&Perturbation::CuCrashed { cu });
+        let mut schedule = lock(&self.schedule);
+        if crashed.is_empty() {
+            schedule.applied();
+        } else {
+            // Not their transformations first: they may fail again. A repeated failure waits
+            // longer (the back-off), so an executor that cannot run something is not asked
+            // again and again.
+            for cu in crashed {
+                schedule.failed(cu);
             }
             drop(schedule);
             self.wake.notify_one();
@@ -498,12 +540,17 @@ impl Manager {
                 () = tokio::time::sleep(wait) => {}
             }
             let (due, check) = lock(&self.schedule).due();
-            if !due && !check {
+            if !due && check.is_none() {
                 continue;
             }
             let me = self.clone();
             let result = tokio::task::spawn_blocking(move || {
-                if !due && !me.invalid_now()? {
+                // A check that cannot read the environment reviews (which records the error),
+                // so the loop never spins on it.
+                if let (false, Some(upto)) = (due, check)
+                    && matches!(me.invalid_now(), Ok(false))
+                {
+                    lock(&me.schedule).checked(upto);
                     return Ok(None);
                 }
                 me.review()

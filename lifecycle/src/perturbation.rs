@@ -49,6 +49,9 @@ impl Perturbation {
         matches!(self, Self::CuCrashed { .. })
     }
 
+    /// The `kind` names clients may report ([`Perturbation::is_external`]).
+    pub const EXTERNAL_KINDS: [&'static str; 1] = ["cu-crashed"];
+
     /// The `kind` names of the perturbations, as JSON spells them.
     pub const KINDS: [&'static str; 6] = [
         "cu-crashed",
@@ -70,6 +73,7 @@ mod tests {
             serde_json::from_str(r#"{"kind": "cu-crashed", "cu": "cu-3"}"#).expect("parse");
         assert_eq!(p, Perturbation::CuCrashed { cu: "cu-3".into() });
         assert!(p.is_external());
+        assert_eq!(Perturbation::EXTERNAL_KINDS, ["cu-crashed"]);
         for p in [
             Perturbation::TargetAdded { target: "q".into() },
             Perturbation::Registered {

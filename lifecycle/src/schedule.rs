@@ -2,7 +2,9 @@
 //! of H time units; a short-term negative perturbation (a target added or released, a CU lost)
 //! ends the stable interval at once; a registration or deregistration does when it leaves the
 //! environment invalid. Perturbations arriving during a review are queued: another review
-//! follows.
+//! follows. After a change set an executor could not apply, the next review waits a little,
+//! longer after each failure in a row (from 100 ms, doubling, at most the stable interval), so
+//! an executor that cannot run something is not asked again and again.
 
 use std::time::{Duration, SystemTime};
 
@@ -45,8 +47,10 @@ pub(crate) struct Schedule {
     next_review_at: SystemTime,
     /// A review is due at once.
     urgent: bool,
-    /// A registration or deregistration asks whether the environment is still valid.
-    check: bool,
+    /// Registrations and deregistrations asking whether the environment is still valid:
+    /// how many were reported, and up to which one the answer is known (a review answers all).
+    checks_asked: u64,
+    checks_done: u64,
     /// What perturbed the environment since the last review (the first one is the next
     /// change set's cause).
     causes: Vec<Cause>,
@@ -54,7 +58,13 @@ pub(crate) struct Schedule {
     prefer: Vec<Tid>,
     reviews: u64,
     last_error: Option<String>,
+    /// Change sets in a row with failed actions.
+    failures_in_a_row: u32,
 }
+
+/// The wait before the review after the first failed change set; it doubles with each one in
+/// a row.
+const FIRST_RETRY: Duration = Duration::from_millis(100);
 
 impl Schedule {
     pub(crate) fn new(settings: Settings) -> Self {
@@ -63,19 +73,25 @@ impl Schedule {
             phase: Phase::Stable,
             next_review_at: SystemTime::now() + settings.time_unit.mul_f64(settings.horizon),
             urgent: false,
-            check: false,
+            checks_asked: 0,
+            checks_done: 0,
             causes: Vec::new(),
             prefer: Vec::new(),
             reviews: 0,
             last_error: None,
+            failures_in_a_row: 0,
         }
+    }
+
+    fn stable_interval(&self) -> Duration {
+        self.settings.time_unit.mul_f64(self.settings.horizon)
     }
 
     pub(crate) fn status(&self) -> Status {
         Status {
             phase: self.phase,
             next_review_at: self.next_review_at,
-            review_pending: self.urgent,
+            review_pending: self.urgent || self.checks_asked > self.checks_done,
             reviews: self.reviews,
             last_error: self.last_error.clone(),
         }
@@ -94,7 +110,7 @@ impl Schedule {
             }),
             Perturbation::ReviewRequested => Some(Cause::Review),
             Perturbation::Registered { .. } | Perturbation::Deregistered { .. } => {
-                self.check = true;
+                self.checks_asked += 1;
                 return;
             }
         };
@@ -107,6 +123,22 @@ impl Schedule {
         self.urgent = true;
     }
 
+    /// A change set was applied in full: failures no longer count.
+    pub(crate) fn applied(&mut self) {
+        self.failures_in_a_row = 0;
+    }
+
+    /// An executor could not apply an action on `cu`, which is treated as crashed: the next
+    /// review has the crash as its cause and comes after the back-off.
+    pub(crate) fn failed(&mut self, cu: dyknow_engine::Cid) {
+        self.causes.push(Cause::CuCrashed { cu });
+        self.failures_in_a_row = self.failures_in_a_row.saturating_add(1);
+        let wait = FIRST_RETRY
+            .saturating_mul(1 << self.failures_in_a_row.saturating_sub(1).min(20))
+            .min(self.stable_interval());
+        self.next_review_at = self.next_review_at.min(SystemTime::now() + wait);
+    }
+
     /// Tries `tid` first at the next review.
     pub(crate) fn prefer(&mut self, tid: Tid) {
         self.prefer.push(tid);
@@ -114,7 +146,7 @@ impl Schedule {
 
     /// How long the loop may sleep.
     pub(crate) fn wait(&self) -> Duration {
-        if self.urgent || self.check {
+        if self.urgent || self.checks_asked > self.checks_done {
             Duration::ZERO
         } else {
             self.next_review_at
@@ -123,17 +155,23 @@ impl Schedule {
         }
     }
 
-    /// Whether a review is due (urgent, or the stable interval is over), and whether the
-    /// environment's validity is to be checked; clears the check.
-    pub(crate) fn due(&mut self) -> (bool, bool) {
+    /// Whether a review is due (urgent, or the stable interval is over), and, if the
+    /// environment's validity is to be checked, up to which check ([`Schedule::checked`]).
+    pub(crate) fn due(&self) -> (bool, Option<u64>) {
         let due = self.urgent || SystemTime::now() >= self.next_review_at;
-        (due, std::mem::take(&mut self.check))
+        let check = (self.checks_asked > self.checks_done).then_some(self.checks_asked);
+        (due, check)
+    }
+
+    /// The checks up to `upto` found the environment valid: no review.
+    pub(crate) fn checked(&mut self, upto: u64) {
+        self.checks_done = self.checks_done.max(upto);
     }
 
     /// A review starts: takes what perturbed the environment.
     pub(crate) fn review_starts(&mut self) -> (Vec<Cause>, Vec<Tid>) {
         self.urgent = false;
-        self.check = false;
+        self.checks_done = self.checks_asked;
         self.phase = Phase::Review;
         (
             std::mem::take(&mut self.causes),
@@ -145,13 +183,87 @@ impl Schedule {
     pub(crate) fn review_ends(&mut self, causes: Vec<Cause>, error: Option<String>) {
         self.phase = Phase::Stable;
         self.reviews += 1;
-        self.next_review_at =
-            SystemTime::now() + self.settings.time_unit.mul_f64(self.settings.horizon);
+        // A review the failure back-off scheduled (set while it ran) keeps its time.
+        self.next_review_at = self
+            .next_review_at
+            .max(SystemTime::now())
+            .min(SystemTime::now() + self.stable_interval());
         if error.is_some() {
             let mut kept = causes;
             kept.append(&mut self.causes);
             self.causes = kept;
         }
         self.last_error = error;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn schedule() -> Schedule {
+        Schedule::new(Settings {
+            horizon: 10.0,
+            time_unit: Duration::from_secs(1),
+            explore_timeout: None,
+        })
+    }
+
+    #[test]
+    fn failures_in_a_row_back_off_up_to_the_stable_interval() {
+        let mut s = schedule();
+        let waits: Vec<Duration> = (0..10)
+            .map(|_| {
+                s.next_review_at = SystemTime::now() + Duration::from_secs(3600);
+                s.failed("cu-1".into());
+                s.wait()
+            })
+            .collect();
+        assert!(!s.urgent, "a failure is not urgent: it waits");
+        // About 100, 200, 400 ms, ..., then the stable interval (10 s).
+        for (k, wait) in waits.iter().enumerate() {
+            let expected = (FIRST_RETRY * (1 << k)).min(Duration::from_secs(10));
+            assert!(
+                *wait <= expected && *wait + Duration::from_millis(50) >= expected,
+                "failure {k}: {wait:?}, expected {expected:?}"
+            );
+        }
+        // An applied change set starts the count again.
+        s.applied();
+        s.next_review_at = SystemTime::now() + Duration::from_secs(3600);
+        s.failed("cu-2".into());
+        assert!(s.wait() <= FIRST_RETRY);
+        let (causes, _) = s.review_starts();
+        assert_eq!(causes.len(), 11, "every failed CU is a cause");
+    }
+
+    #[test]
+    fn a_check_is_a_pending_review_until_it_is_decided() {
+        let mut s = schedule();
+        s.perturbed(&Perturbation::Registered {
+            transformations: vec!["t".into()],
+        });
+        assert!(s.status().review_pending);
+        assert_eq!(s.wait(), Duration::ZERO);
+        let (due, check) = s.due();
+        assert_eq!((due, check), (false, Some(1)));
+        // Still pending while the check runs; a registration arriving meanwhile is checked
+        // again after the first check found the environment valid.
+        assert!(s.status().review_pending);
+        s.perturbed(&Perturbation::Deregistered {
+            transformation: "t".into(),
+        });
+        s.checked(1);
+        assert!(s.status().review_pending);
+        assert_eq!(s.due(), (false, Some(2)));
+        s.checked(2);
+        assert!(!s.status().review_pending);
+        assert_eq!(s.due(), (false, None));
+        // A review answers every check.
+        s.perturbed(&Perturbation::Registered {
+            transformations: vec![],
+        });
+        s.review_starts();
+        assert_eq!(s.due().1, None);
     }
 }

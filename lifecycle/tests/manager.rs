@@ -5,6 +5,7 @@
 
 use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
 
 use dyknow_engine::{Action, ActionFailure, Cause, ChangeSet, ChangeSetStatus, Cid};
 use dyknow_lifecycle::{
@@ -95,7 +96,13 @@ fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
     // crash, with the crash as its cause.
     assert_eq!(cu_of(&manager, "tid2"), None);
     assert!(cu_of(&manager, "tid1").is_some() && cu_of(&manager, "tid4").is_some());
-    assert!(manager.status().review_pending);
+    // The review that repairs it is scheduled soon (the failure back-off starts at 100 ms),
+    // not at the end of the 10 s stable interval.
+    assert!(
+        manager.status().next_review_at <= SystemTime::now() + Duration::from_millis(100),
+        "{:?}",
+        manager.status()
+    );
     let repair = manager.review().unwrap().expect("a repair");
     assert_eq!(repair.status, ChangeSetStatus::Applied);
     assert_eq!(
@@ -118,7 +125,9 @@ fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
         .map(|c| c.id.clone())
         .collect();
     assert_eq!(seen, [first.id.clone(), repair.id.clone()]);
-    let recorded = dyknow_store::model::change_sets(manager.knowledge_base()).unwrap();
+    let recorded = dyknow_store::model::change_sets(manager.knowledge_base())
+        .unwrap()
+        .change_sets;
     assert_eq!(recorded[0], *first);
     assert_eq!(recorded[1], *repair);
 }
@@ -232,16 +241,29 @@ fn names_are_never_handed_out_twice_across_a_restart() {
         })
         .unwrap();
     manager.review().unwrap().expect("a repair");
+    // The newest CU is destroyed: no CU in the model has its number any more.
+    let newest = manager
+        .load()
+        .unwrap()
+        .env
+        .cus
+        .keys()
+        .max_by_key(|c| c.minted_number())
+        .unwrap()
+        .clone();
+    manager.destroy(&newest).unwrap();
     let used: BTreeSet<Cid> = manager
         .change_sets(None)
         .iter()
         .flat_map(|cs| cs.actions.iter().filter_map(|a| a.cu().cloned()))
         .collect();
-    assert!(used.contains(&crashed));
+    assert!(used.contains(&crashed) && used.contains(&newest));
+    let highest_used = used.iter().filter_map(Cid::minted_number).max().unwrap();
+    assert_eq!(newest.minted_number(), Some(highest_used));
     drop(manager);
     // A new manager over the same knowledge base (a restart) reads the history back.
     let restarted = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
-    assert_eq!(restarted.change_sets(None).len(), 2);
+    assert_eq!(restarted.change_sets(None).len(), 3);
     let cu = restarted
         .spawn(SpawnRequest {
             transformation: "tid3".into(),
@@ -250,11 +272,87 @@ fn names_are_never_handed_out_twice_across_a_restart() {
         })
         .unwrap();
     assert!(!used.contains(&cu.cid), "{} was handed out before", cu.cid);
-    assert!(
-        cu.cid.minted_number().unwrap() > used.iter().filter_map(Cid::minted_number).max().unwrap()
-    );
+    assert!(cu.cid.minted_number().unwrap() > highest_used);
     assert_eq!(
         restarted.change_sets(None).last().unwrap().id.number(),
-        Some(3)
+        Some(4)
     );
+}
+
+/// Fails every destroy.
+struct RefusesDestroy;
+
+impl Executor for RefusesDestroy {
+    fn apply(&self, change_set: &ChangeSet) -> Applied {
+        Applied {
+            failures: change_set
+                .actions
+                .iter()
+                .enumerate()
+                .filter_map(|(k, a)| match a {
+                    Action::Destroy { cu } => Some(ActionFailure {
+                        action: k,
+                        cu: cu.clone(),
+                        reason: "the CU does not answer".to_owned(),
+                    }),
+                    _ => None,
+                })
+                .collect(),
+        }
+    }
+}
+
+#[test]
+fn a_destroy_the_executor_refuses_is_an_error_and_recorded() {
+    let manager =
+        Manager::new(example_12(), Arc::new(RefusesDestroy), Settings::default()).unwrap();
+    let cu = manager
+        .spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: None,
+            protected: false,
+        })
+        .unwrap();
+    let refused = manager.destroy(&cu.cid);
+    assert!(
+        matches!(&refused, Err(LifecycleError::NotApplied { cu: c, .. }) if *c == cu.cid),
+        "{refused:?}"
+    );
+    // Recorded as failed; the CU is treated as crashed (out of the model), and the next
+    // review has the crash as its cause.
+    let last = manager.change_sets(None).last().cloned().unwrap();
+    assert_eq!(last.status, ChangeSetStatus::Failed);
+    assert_eq!(cu_of(&manager, "tid3"), None);
+    assert!(manager.status().next_review_at <= SystemTime::now() + Duration::from_millis(100));
+}
+
+#[test]
+fn an_unreadable_change_set_record_is_left_out_and_its_number_kept() {
+    let kb = example_12();
+    // A record that a later release (or damage) made unreadable: cs-7.
+    let bad = dyknow_store::parse_triples(
+        br#"<urn:dyknow:changeset:cs-7> a <http://www.dyknow.eu/ontology/dyknow#ChangeSet> ;
+              <http://www.w3.org/2000/01/rdf-schema#label> "cs-7" ;
+              <http://www.dyknow.eu/ontology/dyknow-ros#changeSetJson> "{\"id\": \"cs-7\", \"cause\": {\"kind\": \"meteor\"}}" ."#,
+        InputFormat::Turtle,
+    )
+    .unwrap();
+    kb.set_environment(&[(dyknow_store::EnvironmentPart::ChangeSet("cs-7".into()), bad)])
+        .unwrap();
+    let records = dyknow_store::model::change_sets(&kb).unwrap();
+    assert!(records.change_sets.is_empty());
+    assert_eq!(records.unreadable.len(), 1);
+    assert_eq!(records.unreadable[0].id, Some("cs-7".into()));
+    // The service starts, and never numbers a change set cs-7 again.
+    let manager = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
+    assert!(manager.change_sets(None).is_empty());
+    let cu = manager
+        .spawn(SpawnRequest {
+            transformation: "tid3".into(),
+            name: None,
+            protected: false,
+        })
+        .unwrap();
+    assert_eq!(cu.tid, "tid3");
+    assert_eq!(manager.change_sets(None)[0].id, "cs-8");
 }

@@ -29,6 +29,8 @@ pub struct ServerConfig {
     pub horizon: f64,
     /// The length of one time unit (the stable interval lasts H time units).
     pub time_unit: Duration,
+    /// How long a review's EXPLORE may search (the any-time extension); `None`: to the proof.
+    pub explore_timeout: Option<Duration>,
 }
 
 impl Default for ServerConfig {
@@ -39,6 +41,7 @@ impl Default for ServerConfig {
             query_timeout: Duration::from_secs(30),
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
+            explore_timeout: Settings::default().explore_timeout,
         }
     }
 }
@@ -77,6 +80,7 @@ impl AppState {
             Settings {
                 horizon: config.horizon,
                 time_unit: config.time_unit,
+                explore_timeout: config.explore_timeout,
             },
         )?);
         Ok(Self {

@@ -147,6 +147,11 @@ pub struct ServeArgs {
     /// The length of one time unit in seconds; the stable interval lasts H time units.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
     pub time_unit: f64,
+    /// How long a review's search may run, in milliseconds, before it settles for the best
+    /// change set found (the any-time extension; `"optimal": false` then); 0 searches until
+    /// optimality is proven. Spawn, Destroy and crash reports wait for a running review.
+    #[arg(long, value_name = "MS", default_value_t = 1000)]
+    pub explore_timeout_ms: u64,
     /// Turtle specs and ontology extensions (files or directories) to load at start-up.
     #[arg(long, value_name = "FILE_OR_DIR", num_args = 1..)]
     pub specs: Vec<PathBuf>,
@@ -631,6 +636,8 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         query_timeout: Duration::from_secs_f64(args.query_timeout),
         horizon: args.horizon,
         time_unit: Duration::from_secs_f64(args.time_unit),
+        explore_timeout: (args.explore_timeout_ms > 0)
+            .then(|| Duration::from_millis(args.explore_timeout_ms)),
     };
     let state = AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?;
     let kb = state.kb.clone();

@@ -138,7 +138,4 @@ pub enum ModelReadError {
     /// One of the model's queries failed.
     #[error(transparent)]
     Query(#[from] SparqlQueryError),
-    /// A change-set record does not read as change set JSON.
-    #[error("a recorded change set does not read back: {0}")]
-    ChangeSetRecord(String),
 }

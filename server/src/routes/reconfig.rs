@@ -280,17 +280,14 @@ pub async fn post_perturbation(
     let kind = body
         .get("kind")
         .and_then(serde_json::Value::as_str)
-        .unwrap_or_default()
-        .to_owned();
-    if !kind.is_empty() && !Perturbation::KINDS.contains(&kind.as_str()) {
+        .unwrap_or_default();
+    if !kind.is_empty() && !Perturbation::KINDS.contains(&kind) {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
             format!("unknown perturbation kind {kind:?} (known: cu-crashed)"),
         ));
     }
-    let perturbation: Perturbation = serde_json::from_value(body)
-        .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
-    if !perturbation.is_external() {
+    if !kind.is_empty() && !Perturbation::EXTERNAL_KINDS.contains(&kind) {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
             format!(
@@ -298,6 +295,8 @@ pub async fn post_perturbation(
             ),
         ));
     }
+    let perturbation: Perturbation = serde_json::from_value(body)
+        .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
     let s = state.clone();
     blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::ACCEPTED)

@@ -244,31 +244,44 @@ mod tests {
 
     #[test]
     fn environment_graphs_of_earlier_releases_are_renamed_at_open() {
-        let kb = kb();
-        let old = NamedNode::new_unchecked("urn:dyknow:graph:environment:cu%3Acu-1");
+        // A store as an earlier release left it: a CU and a change-set record under names
+        // with the colon percent-encoded.
+        let store = Store::new().expect("store");
+        let name = |s: &str| oxigraph::model::Literal::new_simple_literal(s);
         let cu = NamedNode::new_unchecked("urn:dyknow:cu:cu-1");
-        kb.store()
-            .insert(oxigraph::model::QuadRef::new(
+        let cs = NamedNode::new_unchecked("urn:dyknow:changeset:cs-1");
+        let old_cu = NamedNode::new_unchecked("urn:dyknow:graph:environment:cu%3Acu-1");
+        let old_cs = NamedNode::new_unchecked("urn:dyknow:graph:environment:changeset%3Acs-1");
+        for (s, o, g) in [(&cu, name("cu-1"), &old_cu), (&cs, name("cs-1"), &old_cs)] {
+            store
+                .insert(oxigraph::model::QuadRef::new(s, dyknow::HAS_NAME, &o, g))
+                .expect("insert");
+        }
+        let kb = KnowledgeBase::with_store(store, None).expect("open");
+        for (old, new, subject, value) in [
+            (
+                &old_cu,
+                crate::EnvironmentPart::Cu("cu-1".into()),
                 &cu,
-                dyknow::HAS_NAME,
-                oxigraph::model::LiteralRef::new_simple_literal("cu-1"),
-                &old,
-            ))
-            .expect("insert");
-        kb.migrate_environment_graph_names().expect("migrate");
-        let new = crate::EnvironmentPart::Cu("cu-1".into()).graph();
-        assert!(!kb.store().contains_named_graph(&old).expect("storage"));
-        assert_eq!(
-            kb.graph_triples(new.as_ref()).expect("storage"),
-            [Triple::new(
-                cu,
-                dyknow::HAS_NAME,
-                oxigraph::model::Literal::new_simple_literal("cu-1")
-            )]
-        );
+                "cu-1",
+            ),
+            (
+                &old_cs,
+                crate::EnvironmentPart::ChangeSet("cs-1".into()),
+                &cs,
+                "cs-1",
+            ),
+        ] {
+            assert!(!kb.store().contains_named_graph(old).expect("storage"));
+            assert_eq!(
+                kb.graph_triples(new.graph().as_ref()).expect("storage"),
+                [Triple::new(subject.clone(), dyknow::HAS_NAME, name(value))]
+            );
+        }
         // Nothing left to rename: a second pass changes nothing.
+        let before = kb.store().len().expect("storage");
         kb.migrate_environment_graph_names().expect("migrate");
-        assert!(kb.store().contains_named_graph(&new).expect("storage"));
+        assert_eq!(kb.store().len().expect("storage"), before);
     }
 
     /// The ontologies are read as one document with two headers, and horned-owl maps one of

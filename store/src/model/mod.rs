@@ -9,7 +9,10 @@ pub(crate) mod queries;
 mod read;
 mod triples;
 
-pub use read::{Iris, Loaded, SpecCache, candidates, change_sets, learned, load};
+pub use read::{
+    ChangeSetRecords, Iris, Loaded, SpecCache, UnreadableRecord, candidates, change_sets, learned,
+    load,
+};
 pub use triples::{
     Delta, change_set_triples, cu_triples, delta, split_environment, statistics_triples,
 };

@@ -114,9 +114,12 @@ pub static LEARNED: LazyLock<String> = LazyLock::new(|| {
     )
 });
 
-/// The recorded change sets, as their JSON. Column: json.
+/// The recorded change sets: their id and their JSON. Columns: label, json.
 pub static CHANGE_SETS: LazyLock<String> = LazyLock::new(|| {
-    prefixed("SELECT ?json WHERE { ?cs a dyknow:ChangeSet ; dkros:changeSetJson ?json }")
+    prefixed(
+        "SELECT ?label ?json WHERE { ?cs a dyknow:ChangeSet . \
+         OPTIONAL { ?cs rdfs:label ?label } OPTIONAL { ?cs dkros:changeSetJson ?json } }",
+    )
 });
 
 /// The CU publishing on the channel named `channel`, first by name. Column: name.

@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 use std::sync::{Mutex, PoisonError};
 
 use dyknow_engine::{
-    Candidates, ChangeSet, Cid, ComputationUnit, CostKind, Environment, Estimate, Learned,
-    Provider, Target, Tid, Transformation,
+    Candidates, ChangeSet, ChangeSetId, Cid, ComputationUnit, CostKind, Environment, Estimate,
+    Learned, Provider, Target, Tid, Transformation,
 };
 use oxigraph::model::{NamedNode, Term};
 
@@ -261,19 +261,40 @@ pub(crate) fn cost_kind(kind: &str) -> CostKind {
     }
 }
 
-/// The change sets recorded in the knowledge base, oldest first. A record whose JSON does not
-/// read as a change set is an error: the history must not lose entries silently.
-pub fn change_sets(kb: &KnowledgeBase) -> Result<Vec<ChangeSet>, ModelReadError> {
-    let mut out = Vec::new();
+/// A change-set record that does not read back as a change set.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnreadableRecord {
+    /// Its id (`rdfs:label`), when it has one.
+    pub id: Option<ChangeSetId>,
+    /// Why it does not read.
+    pub error: String,
+}
+
+/// The change sets recorded in the knowledge base.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ChangeSetRecords {
+    /// Those that read back, oldest first.
+    pub change_sets: Vec<ChangeSet>,
+    /// Those that do not (written by a later release, or damaged): the service starts without
+    /// them, but their numbers stay taken.
+    pub unreadable: Vec<UnreadableRecord>,
+}
+
+/// The change sets recorded in the knowledge base, oldest first, and the records that do not
+/// read back as change sets.
+pub fn change_sets(kb: &KnowledgeBase) -> Result<ChangeSetRecords, ModelReadError> {
+    let mut out = ChangeSetRecords::default();
     for row in kb.select(&queries::CHANGE_SETS)? {
-        let Some(json) = literal(&row[0]) else {
-            continue;
-        };
-        out.push(
-            serde_json::from_str::<ChangeSet>(&json)
-                .map_err(|e| ModelReadError::ChangeSetRecord(e.to_string()))?,
-        );
+        let id = literal(&row[0]).map(ChangeSetId::new);
+        let read = literal(&row[1])
+            .ok_or_else(|| "it has no dkros:changeSetJson".to_owned())
+            .and_then(|json| serde_json::from_str::<ChangeSet>(&json).map_err(|e| e.to_string()));
+        match read {
+            Ok(change_set) => out.change_sets.push(change_set),
+            Err(error) => out.unreadable.push(UnreadableRecord { id, error }),
+        }
     }
-    out.sort_by_key(|cs| (cs.id.number().unwrap_or(0), cs.id.clone()));
+    out.change_sets
+        .sort_by_key(|cs| (cs.id.number().unwrap_or(0), cs.id.clone()));
     Ok(out)
 }
