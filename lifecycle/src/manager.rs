@@ -56,6 +56,32 @@ pub struct SpawnRequest {
     pub protected: bool,
 }
 
+impl SpawnRequest {
+    /// A CU of `transformation`, named by the service, not protected.
+    pub fn new(transformation: impl Into<Tid>) -> Self {
+        Self {
+            transformation: transformation.into(),
+            name: None,
+            protected: false,
+        }
+    }
+
+    /// The same, named `name`.
+    #[must_use]
+    pub fn named(self, name: impl Into<Cid>) -> Self {
+        Self {
+            name: Some(name.into()),
+            ..self
+        }
+    }
+
+    /// The same, protected or not.
+    #[must_use]
+    pub fn protected(self, protected: bool) -> Self {
+        Self { protected, ..self }
+    }
+}
+
 /// An observed cost (seed Ch. 5.3.2), in the unit of the estimates.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Observation {

@@ -136,13 +136,7 @@ fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
 fn spawn_and_destroy_are_change_sets_the_executor_applies() {
     let executor = Arc::new(Recording::default());
     let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
-    let cu = manager
-        .spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: None,
-            protected: false,
-        })
-        .unwrap();
+    let cu = manager.spawn(SpawnRequest::new("tid3")).unwrap();
     assert_eq!(cu.tid, "tid3");
     manager.destroy(&cu.cid).unwrap();
     let seen = executor.seen.lock().unwrap().clone();
@@ -164,19 +158,11 @@ fn spawn_and_destroy_are_change_sets_the_executor_applies() {
         Err(LifecycleError::UnknownCu(_))
     ));
     assert!(matches!(
-        manager.spawn(SpawnRequest {
-            transformation: "nope".into(),
-            name: None,
-            protected: false
-        }),
+        manager.spawn(SpawnRequest::new("nope")),
         Err(LifecycleError::UnknownTransformation(_))
     ));
     assert!(matches!(
-        manager.spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: Some(" ".into()),
-            protected: false
-        }),
+        manager.spawn(SpawnRequest::new("tid3").named(" ")),
         Err(LifecycleError::EmptyName)
     ));
     assert!(matches!(
@@ -194,11 +180,7 @@ fn a_spawn_the_executor_refuses_is_an_error_and_recorded() {
         ..Recording::default()
     });
     let manager = Manager::new(example_12(), executor, Settings::default()).unwrap();
-    let refused = manager.spawn(SpawnRequest {
-        transformation: "tid3".into(),
-        name: Some("camera".into()),
-        protected: true,
-    });
+    let refused = manager.spawn(SpawnRequest::new("tid3").named("camera").protected(true));
     let Err(LifecycleError::NotApplied { change_set, cu, .. }) = refused else {
         panic!("{refused:?}");
     };
@@ -208,11 +190,7 @@ fn a_spawn_the_executor_refuses_is_an_error_and_recorded() {
     assert_eq!(cu_of(&manager, "tid3"), None);
     // The executor fails only once: asking again with the same name works, the CU never ran.
     let again = manager
-        .spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: Some("camera".into()),
-            protected: true,
-        })
+        .spawn(SpawnRequest::new("tid3").named("camera").protected(true))
         .unwrap();
     assert_eq!(again.cid, "camera");
     assert!(again.protected);
@@ -265,11 +243,7 @@ fn names_are_never_handed_out_twice_across_a_restart() {
     let restarted = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
     assert_eq!(restarted.change_sets(None).len(), 3);
     let cu = restarted
-        .spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: None,
-            protected: true,
-        })
+        .spawn(SpawnRequest::new("tid3").protected(true))
         .unwrap();
     assert!(!used.contains(&cu.cid), "{} was handed out before", cu.cid);
     assert!(cu.cid.minted_number().unwrap() > highest_used);
@@ -306,13 +280,7 @@ impl Executor for RefusesDestroy {
 fn a_destroy_the_executor_refuses_is_an_error_and_recorded() {
     let manager =
         Manager::new(example_12(), Arc::new(RefusesDestroy), Settings::default()).unwrap();
-    let cu = manager
-        .spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: None,
-            protected: false,
-        })
-        .unwrap();
+    let cu = manager.spawn(SpawnRequest::new("tid3")).unwrap();
     let refused = manager.destroy(&cu.cid);
     assert!(
         matches!(&refused, Err(LifecycleError::NotApplied { cu: c, .. }) if *c == cu.cid),
@@ -346,13 +314,7 @@ fn an_unreadable_change_set_record_is_left_out_and_its_number_kept() {
     // The service starts, and never numbers a change set cs-7 again.
     let manager = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
     assert!(manager.change_sets(None).is_empty());
-    let cu = manager
-        .spawn(SpawnRequest {
-            transformation: "tid3".into(),
-            name: None,
-            protected: false,
-        })
-        .unwrap();
+    let cu = manager.spawn(SpawnRequest::new("tid3")).unwrap();
     assert_eq!(cu.tid, "tid3");
     assert_eq!(manager.change_sets(None)[0].id, "cs-8");
 }
