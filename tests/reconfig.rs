@@ -12,7 +12,10 @@ use serde_json::{Value, json};
 /// perturbations and `POST /review` start reviews.
 fn api() -> Api {
     Api::with_life_cycle(ServerConfig {
-        time_unit: Duration::from_secs(3600),
+        lifecycle: dyknow_lifecycle::Settings {
+            time_unit: Duration::from_secs(3600),
+            ..dyknow_lifecycle::Settings::default()
+        },
         ..ServerConfig::default()
     })
 }

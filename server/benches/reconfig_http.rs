@@ -95,7 +95,10 @@ fn main() {
         let state = AppState::new(
             kb,
             ServerConfig {
-                time_unit: Duration::from_secs(3600),
+                lifecycle: dyknow_lifecycle::Settings {
+                    time_unit: Duration::from_secs(3600),
+                    ..dyknow_lifecycle::Settings::default()
+                },
                 ..ServerConfig::default()
             },
         )

@@ -25,12 +25,9 @@ pub struct ServerConfig {
     pub max_body_bytes: usize,
     /// How long a SPARQL query may run.
     pub query_timeout: Duration,
-    /// The review horizon H (seed Def. 34), in time units; used by the engine.
-    pub horizon: f64,
-    /// The length of one time unit (the stable interval lasts H time units).
-    pub time_unit: Duration,
-    /// How long a review's EXPLORE may search (the any-time extension); `None`: to the proof.
-    pub explore_timeout: Option<Duration>,
+    /// The configuration life-cycle's settings: the horizon H, the time unit, how long a
+    /// review's search may run.
+    pub lifecycle: Settings,
 }
 
 impl Default for ServerConfig {
@@ -39,9 +36,7 @@ impl Default for ServerConfig {
             token: None,
             max_body_bytes: 16 * 1024 * 1024,
             query_timeout: Duration::from_secs(30),
-            horizon: 10.0,
-            time_unit: Duration::from_secs(1),
-            explore_timeout: Settings::default().explore_timeout,
+            lifecycle: Settings::default(),
         }
     }
 }
@@ -74,15 +69,7 @@ impl AppState {
         executor: Arc<dyn Executor>,
     ) -> Result<Self, LifecycleError> {
         let kb = Arc::new(kb);
-        let lifecycle = Arc::new(Manager::new(
-            kb.clone(),
-            executor,
-            Settings {
-                horizon: config.horizon,
-                time_unit: config.time_unit,
-                explore_timeout: config.explore_timeout,
-            },
-        )?);
+        let lifecycle = Arc::new(Manager::new(kb.clone(), executor, config.lifecycle)?);
         Ok(Self {
             kb,
             config: Arc::new(config),

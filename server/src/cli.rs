@@ -634,10 +634,12 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         token: args.token,
         max_body_bytes: args.max_body,
         query_timeout: Duration::from_secs_f64(args.query_timeout),
-        horizon: args.horizon,
-        time_unit: Duration::from_secs_f64(args.time_unit),
-        explore_timeout: (args.explore_timeout_ms > 0)
-            .then(|| Duration::from_millis(args.explore_timeout_ms)),
+        lifecycle: dyknow_lifecycle::Settings {
+            horizon: args.horizon,
+            time_unit: Duration::from_secs_f64(args.time_unit),
+            explore_timeout: (args.explore_timeout_ms > 0)
+                .then(|| Duration::from_millis(args.explore_timeout_ms)),
+        },
     };
     let state = AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?;
     let kb = state.kb.clone();
