@@ -1,0 +1,173 @@
+//! Where things live on Zenoh (`executors.md`, *Channels on Zenoh*): a channel `/ball/position`
+//! is the key expression `<namespace>/channel/ball/position`; control keys live under the
+//! hermetic prefix `<namespace>/@dyknow/...`, which no wildcard subscription on the namespace
+//! matches (`docs/executor-protocol.md`).
+
+use crate::error::KeyError;
+
+/// The namespace of a DyKnow deployment: the first chunks of every key (`dyknow` by default).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Namespace(String);
+
+impl Default for Namespace {
+    fn default() -> Self {
+        Self("dyknow".to_owned())
+    }
+}
+
+impl std::fmt::Display for Namespace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// Checks that `chunks` ('/'-separated) is a sequence of non-empty key-expression chunks
+/// without wildcards or hermetic (`@`) chunks.
+fn check_chunks(what: &'static str, chunks: &str) -> Result<(), KeyError> {
+    if chunks.is_empty() {
+        return Err(KeyError::Empty(what));
+    }
+    for chunk in chunks.split('/') {
+        if chunk.is_empty() {
+            return Err(KeyError::EmptyChunk {
+                what,
+                name: chunks.to_owned(),
+            });
+        }
+        if let Some(c) = chunk.chars().find(|c| matches!(c, '*' | '$' | '?' | '#')) {
+            return Err(KeyError::Forbidden {
+                what,
+                name: chunks.to_owned(),
+                character: c,
+            });
+        }
+        if chunk.starts_with('@') {
+            return Err(KeyError::Hermetic {
+                what,
+                name: chunks.to_owned(),
+            });
+        }
+    }
+    Ok(())
+}
+
+impl Namespace {
+    /// A namespace: one or more key-expression chunks (`dyknow`, `lab/robot1`).
+    pub fn new(namespace: impl Into<String>) -> Result<Self, KeyError> {
+        let namespace = namespace.into();
+        check_chunks("namespace", &namespace)?;
+        Ok(Self(namespace))
+    }
+
+    /// The namespace as a string.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The key expression of a channel: `<namespace>/channel/<name without one leading '/'>`.
+    pub fn channel(&self, channel: &str) -> Result<String, KeyError> {
+        let chunks = channel.strip_prefix('/').unwrap_or(channel);
+        check_chunks("channel name", chunks)?;
+        Ok(format!("{}/channel/{chunks}", self.0))
+    }
+
+    /// The channel a key expression of [`Namespace::channel`] names, with the leading '/'
+    /// given back if the name had one is unknowable; so this returns the chunks after
+    /// `channel/`.
+    pub fn channel_of<'k>(&self, key: &'k str) -> Option<&'k str> {
+        key.strip_prefix(self.0.as_str())?.strip_prefix("/channel/")
+    }
+
+    /// The hermetic prefix of the control keys: `<namespace>/@dyknow`.
+    pub fn control(&self) -> String {
+        format!("{}/@dyknow", self.0)
+    }
+
+    /// An executor's liveliness token (present while the executor is).
+    pub fn executor_token(&self, executor: &str) -> String {
+        format!("{}/executor/{executor}", self.control())
+    }
+
+    /// The liveliness key expression matching every executor's token.
+    pub fn executor_tokens(&self) -> String {
+        format!("{}/executor/*", self.control())
+    }
+
+    /// The executor's queryable for change sets (`apply`), its description (`info`) and
+    /// implementation checks (`check`).
+    pub fn executor_service(&self, executor: &str, service: &str) -> String {
+        format!("{}/service/{executor}/{service}", self.control())
+    }
+
+    /// Where an executor publishes its events (crashes, measured costs).
+    pub fn executor_events(&self, executor: &str) -> String {
+        format!("{}/events/{executor}", self.control())
+    }
+
+    /// The key expression matching every executor's events.
+    pub fn all_executor_events(&self) -> String {
+        format!("{}/events/*", self.control())
+    }
+
+    /// A CU's liveliness token (present while the CU runs).
+    pub fn cu_token(&self, cu: &str) -> String {
+        format!("{}/cu/{cu}", self.control())
+    }
+
+    /// A process CU's control queryable, which its executor queries.
+    pub fn cu_control(&self, cu: &str) -> String {
+        format!("{}/cu-control/{cu}", self.control())
+    }
+}
+
+/// Checks that a name (an executor's, a CU's) is one key-expression chunk.
+pub fn check_name(what: &'static str, name: &str) -> Result<(), KeyError> {
+    check_chunks(what, name)?;
+    if name.contains('/') {
+        return Err(KeyError::Slash {
+            what,
+            name: name.to_owned(),
+        });
+    }
+    Ok(())
+}
+
+/// Checks that a channel name maps to a key expression (`executors.md`).
+pub fn check_channel(channel: &str) -> Result<(), KeyError> {
+    check_chunks("channel name", channel.strip_prefix('/').unwrap_or(channel))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn channels_map_as_the_contract_says() {
+        let ns = Namespace::default();
+        assert_eq!(
+            ns.channel("/ball/position").as_deref(),
+            Ok("dyknow/channel/ball/position")
+        );
+        assert_eq!(ns.channel("101").as_deref(), Ok("dyknow/channel/101"));
+        assert_eq!(ns.channel("ch-7").as_deref(), Ok("dyknow/channel/ch-7"));
+        let lab = Namespace::new("lab/r1").expect("valid");
+        assert_eq!(lab.channel("/a").as_deref(), Ok("lab/r1/channel/a"));
+        assert_eq!(lab.channel_of("lab/r1/channel/a/b"), Some("a/b"));
+        for bad in [
+            "", "/", "a//b", "a/", "//a", "a*", "$x", "a?b", "#", "/@x", "a/@b",
+        ] {
+            assert!(ns.channel(bad).is_err(), "{bad:?} must be refused");
+            assert!(check_channel(bad).is_err(), "{bad:?} must be refused");
+        }
+        assert!(Namespace::new("a/*").is_err());
+        assert!(check_name("CU name", "cu-1").is_ok());
+        assert!(check_name("CU name", "a/b").is_err());
+    }
+
+    #[test]
+    fn control_keys_are_hermetic() {
+        let ns = Namespace::default();
+        assert_eq!(ns.executor_token("local"), "dyknow/@dyknow/executor/local");
+        assert!(ns.cu_control("cu-1").starts_with("dyknow/@dyknow/"));
+    }
+}

@@ -1,0 +1,231 @@
+//! A CU in its own process (`dkros:hasType "process"`): what the executor hands the process
+//! and how it drives it (`docs/executor-protocol.md`). [`run_process`] is the whole `main` of
+//! a process CU written with this SDK.
+//!
+//! The executor starts the program with these environment variables:
+//!
+//! | variable | value |
+//! | --- | --- |
+//! | `DYKNOW_CU` | the CU's name |
+//! | `DYKNOW_TRANSFORMATION` | its transformation's label |
+//! | `DYKNOW_NAMESPACE` | the key namespace (`dyknow`) |
+//! | `DYKNOW_CONNECT` | Zenoh endpoints to connect to, comma-separated |
+//! | `DYKNOW_EXECUTOR` | the executor's name; the CU exits when its token vanishes |
+//! | `DYKNOW_INPUTS`, `DYKNOW_OUTPUTS` | port names, comma-separated |
+//! | `DYKNOW_PARAMS` | the parameters, a JSON object |
+//!
+//! The CU then declares its liveliness token and its control queryable (which answers
+//! [`ControlRequest`]s with [`ControlReply`]s), and runs until told to stop, until it
+//! crashes (exit status 1) or until its executor's token vanishes.
+
+use std::collections::BTreeMap;
+use std::process::ExitCode;
+use std::sync::mpsc;
+
+use zenoh::Wait;
+use zenoh::sample::SampleKind;
+
+use crate::error::CuError;
+use crate::keys::Namespace;
+use crate::protocol::{ControlReply, ControlRequest};
+use crate::timers::Timers;
+use crate::transformation::Transformation;
+use crate::unit::{Unit, UnitSpec};
+
+/// What the executor said in the environment.
+#[derive(Debug, Clone)]
+pub struct ProcessEnv {
+    /// The CU.
+    pub spec: UnitSpec,
+    /// The namespace.
+    pub namespace: Namespace,
+    /// Endpoints to connect to.
+    pub connect: Vec<String>,
+    /// The executor's name.
+    pub executor: Option<String>,
+}
+
+fn list(var: &str) -> Vec<String> {
+    std::env::var(var)
+        .unwrap_or_default()
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(str::to_owned)
+        .collect()
+}
+
+impl ProcessEnv {
+    /// Reads the environment.
+    pub fn from_env() -> Result<Self, CuError> {
+        let name = std::env::var("DYKNOW_CU")
+            .map_err(|_| CuError::failed("DYKNOW_CU is not set: run me from a DyKnow executor"))?;
+        let params = match std::env::var("DYKNOW_PARAMS") {
+            Ok(text) if !text.trim().is_empty() => serde_json::from_str(&text)
+                .map_err(|e| CuError::failed(format!("DYKNOW_PARAMS is not a JSON object: {e}")))?,
+            _ => BTreeMap::new(),
+        };
+        Ok(Self {
+            spec: UnitSpec {
+                name,
+                transformation: std::env::var("DYKNOW_TRANSFORMATION").unwrap_or_default(),
+                inputs: list("DYKNOW_INPUTS"),
+                outputs: list("DYKNOW_OUTPUTS"),
+                params,
+            },
+            namespace: Namespace::new(
+                std::env::var("DYKNOW_NAMESPACE").unwrap_or_else(|_| "dyknow".into()),
+            )?,
+            connect: list("DYKNOW_CONNECT"),
+            executor: std::env::var("DYKNOW_EXECUTOR").ok(),
+        })
+    }
+}
+
+/// A Zenoh client configuration connecting to `endpoints` (scouting off).
+pub fn client_config(endpoints: &[String]) -> Result<zenoh::Config, CuError> {
+    let mut config = zenoh::Config::default();
+    let json = |v: &dyn erased::Json| v.json();
+    config.insert_json5("mode", &json(&"client"))?;
+    config.insert_json5("connect/endpoints", &json(&endpoints))?;
+    config.insert_json5("scouting/multicast/enabled", "false")?;
+    config.insert_json5("scouting/gossip/enabled", "false")?;
+    Ok(config)
+}
+
+mod erased {
+    pub trait Json {
+        fn json(&self) -> String;
+    }
+    impl<T: serde::Serialize + ?Sized> Json for T {
+        fn json(&self) -> String {
+            serde_json::to_string(self).unwrap_or_default()
+        }
+    }
+}
+
+enum Exit {
+    Stop,
+    Crash(String),
+    Orphaned,
+}
+
+/// The `main` of a process CU: reads [`ProcessEnv`], connects, starts the transformation
+/// `make` builds and serves the executor until stopped (exit 0), crashed (exit 1) or orphaned
+/// (exit 2).
+pub fn run_process<T: Transformation>(
+    make: impl FnOnce(&UnitSpec) -> Result<T, CuError>,
+) -> ExitCode {
+    match serve(make) {
+        Ok(Exit::Stop) => ExitCode::SUCCESS,
+        Ok(Exit::Crash(reason)) => {
+            eprintln!("crashed: {reason}");
+            ExitCode::from(1)
+        }
+        Ok(Exit::Orphaned) => {
+            eprintln!("the executor is gone: exiting");
+            ExitCode::from(2)
+        }
+        Err(e) => {
+            eprintln!("cannot run: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn serve<T: Transformation>(
+    make: impl FnOnce(&UnitSpec) -> Result<T, CuError>,
+) -> Result<Exit, CuError> {
+    let env = ProcessEnv::from_env()?;
+    let session = zenoh::open(client_config(&env.connect)?).wait()?;
+    let transformation = make(&env.spec)?;
+    let (exit_tx, exit_rx) = mpsc::channel::<Exit>();
+    let timers = Timers::start();
+    let crash_tx = exit_tx.clone();
+    let started = Unit::start(
+        &session,
+        &env.namespace,
+        env.spec.clone(),
+        Box::new(transformation),
+        &timers,
+        Box::new(move |reason| {
+            let _ = crash_tx.send(Exit::Crash(reason.to_owned()));
+        }),
+    )?;
+    let unit = started.unit;
+    let control_unit = unit.clone();
+    let stop_tx = exit_tx.clone();
+    let _queryable = session
+        .declare_queryable(env.namespace.cu_control(&env.spec.name))
+        .callback(move |query| {
+            let request: Result<ControlRequest, _> = query
+                .payload()
+                .map(|p| serde_json::from_slice(&p.to_bytes()))
+                .unwrap_or_else(|| serde_json::from_slice(b"null"));
+            let reply = match request {
+                Err(e) => ControlReply {
+                    ok: false,
+                    error: Some(format!("not a control request: {e}")),
+                    statistics: None,
+                },
+                Ok(request) => control(&control_unit, request, &stop_tx),
+            };
+            let payload = serde_json::to_vec(&reply).unwrap_or_default();
+            if let Err(e) = query.reply(query.key_expr().clone(), payload).wait() {
+                tracing::warn!("cannot answer the executor: {e}");
+            }
+        })
+        .wait()?;
+    let _watch = match &env.executor {
+        Some(executor) => {
+            let orphan_tx = exit_tx.clone();
+            Some(
+                session
+                    .liveliness()
+                    .declare_subscriber(env.namespace.executor_token(executor))
+                    .callback(move |sample| {
+                        if sample.kind() == SampleKind::Delete {
+                            let _ = orphan_tx.send(Exit::Orphaned);
+                        }
+                    })
+                    .wait()?,
+            )
+        }
+        None => None,
+    };
+    drop(exit_tx);
+    let exit = exit_rx.recv().unwrap_or(Exit::Orphaned);
+    unit.stop();
+    let _ = session.close().wait();
+    Ok(exit)
+}
+
+fn control(unit: &Unit, request: ControlRequest, stop: &mpsc::Sender<Exit>) -> ControlReply {
+    let result = match request {
+        ControlRequest::BindIn { port, channel, .. } => unit.bind_in(&port, channel.as_deref()),
+        ControlRequest::BindOut { port, channel, .. } => unit.bind_out(&port, channel.as_deref()),
+        ControlRequest::Statistics => {
+            return ControlReply {
+                ok: true,
+                error: None,
+                statistics: Some(unit.statistics()),
+            };
+        }
+        ControlRequest::Stop => {
+            let _ = stop.send(Exit::Stop);
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => ControlReply {
+            ok: true,
+            error: None,
+            statistics: None,
+        },
+        Err(e) => ControlReply {
+            ok: false,
+            error: Some(e.to_string()),
+            statistics: None,
+        },
+    }
+}

@@ -1,0 +1,612 @@
+//! A running CU (the seed's nodelet behind its proxy, Ch. 5.2.1): a [`Transformation`] whose
+//! named ports are bound to channels on a Zenoh session. Bindings change while it runs, make
+//! before break; it keeps per-port statistics, its uptime, its reconfigurations and the CPU
+//! time of its callbacks (the thread CPU clock around each callback, less the time of the
+//! callbacks its publications ran in turn); a panic or an `Err` from a callback crashes it.
+//! While it runs it holds a liveliness token.
+
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, Weak};
+use std::time::{Duration, Instant};
+
+use cpu_time::ThreadTime;
+use serde_json::Value;
+use zenoh::Wait;
+use zenoh::bytes::Encoding;
+use zenoh::liveliness::LivelinessToken;
+use zenoh::pubsub::{Publisher, Subscriber};
+
+use crate::error::CuError;
+use crate::keys::Namespace;
+use crate::protocol::{CuReport, CuState, CuStatistics, PortStatistics};
+use crate::sample::Sample;
+use crate::timers::{Fire, Timers};
+use crate::transformation::{NodeHandle, Outputs, Transformation};
+
+/// What a CU is: its name, its transformation's label, ports and parameters.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct UnitSpec {
+    /// The CU's name.
+    pub name: String,
+    /// Its transformation's label.
+    pub transformation: String,
+    /// In port names.
+    pub inputs: Vec<String>,
+    /// Out port names.
+    pub outputs: Vec<String>,
+    /// Parameters.
+    pub params: BTreeMap<String, Value>,
+}
+
+/// Called once when a CU crashes, with the reason, on the thread that saw it.
+pub type CrashHook = Box<dyn Fn(&str) + Send + Sync>;
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+static NEXT_ID: AtomicUsize = AtomicUsize::new(1);
+
+thread_local! {
+    /// The CUs whose callbacks run on this thread now, innermost last, with the CPU time
+    /// of the callbacks nested in each.
+    static ACTIVE: RefCell<Vec<(usize, Duration)>> = const { RefCell::new(Vec::new()) };
+}
+
+struct OutBinding {
+    channel: Option<String>,
+    publisher: Option<Publisher<'static>>,
+    stats: PortStatistics,
+}
+
+struct OutPorts {
+    cu: String,
+    ports: BTreeMap<String, OutBinding>,
+}
+
+impl Outputs for OutPorts {
+    fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
+        let Some(out) = self.ports.get_mut(port) else {
+            return Err(CuError::UnknownPort {
+                cu: self.cu.clone(),
+                direction: "out",
+                port: port.to_owned(),
+            });
+        };
+        let Some(publisher) = &out.publisher else {
+            return Ok(());
+        };
+        let payload = sample.to_bytes();
+        out.stats.messages += 1;
+        out.stats.bytes += payload.len() as u64;
+        out.stats.last_t = Some(sample.t);
+        publisher.put(payload).wait()?;
+        Ok(())
+    }
+
+    fn is_bound(&self, port: &str) -> bool {
+        self.ports.get(port).is_some_and(|o| o.publisher.is_some())
+    }
+}
+
+struct Core {
+    transformation: Box<dyn Transformation>,
+    outputs: OutPorts,
+    in_stats: BTreeMap<String, PortStatistics>,
+    timers: Vec<Duration>,
+}
+
+struct InBinding {
+    channel: String,
+    _subscriber: Subscriber<()>,
+}
+
+struct Life {
+    state: CuState,
+    reason: Option<String>,
+    running_since: Option<Instant>,
+}
+
+struct Shared {
+    id: usize,
+    spec: UnitSpec,
+    namespace: Namespace,
+    session: zenoh::Session,
+    core: Mutex<Core>,
+    inputs: Mutex<BTreeMap<String, InBinding>>,
+    life: Mutex<Life>,
+    token: Mutex<Option<LivelinessToken>>,
+    reconfigurations: AtomicU64,
+    cpu_ns: AtomicU64,
+    on_crash: CrashHook,
+}
+
+/// A running CU. Cloning gives another handle to the same CU.
+#[derive(Clone)]
+pub struct Unit {
+    shared: Arc<Shared>,
+}
+
+impl std::fmt::Debug for Unit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Unit")
+            .field("name", &self.shared.spec.name)
+            .field("state", &self.state())
+            .finish_non_exhaustive()
+    }
+}
+
+/// A started CU and the CPU time its start took (its labour).
+#[derive(Debug)]
+pub struct Started {
+    /// The CU.
+    pub unit: Unit,
+    /// The CPU time of creating and starting it.
+    pub labour: Duration,
+}
+
+impl Unit {
+    /// Starts a CU of `transformation` on `session`, every port unbound: calls
+    /// [`Transformation::start`], arms its timers on `timers` and declares its liveliness
+    /// token. `on_crash` is called once if it crashes later.
+    pub fn start(
+        session: &zenoh::Session,
+        namespace: &Namespace,
+        spec: UnitSpec,
+        transformation: Box<dyn Transformation>,
+        timers: &Timers,
+        on_crash: CrashHook,
+    ) -> Result<Started, CuError> {
+        crate::keys::check_name("CU name", &spec.name)?;
+        let clock = ThreadTime::now();
+        let outputs = OutPorts {
+            cu: spec.name.clone(),
+            ports: spec
+                .outputs
+                .iter()
+                .map(|p| {
+                    (
+                        p.clone(),
+                        OutBinding {
+                            channel: None,
+                            publisher: None,
+                            stats: PortStatistics::default(),
+                        },
+                    )
+                })
+                .collect(),
+        };
+        let mut core = Core {
+            transformation,
+            outputs,
+            in_stats: spec
+                .inputs
+                .iter()
+                .map(|p| (p.clone(), PortStatistics::default()))
+                .collect(),
+            timers: Vec::new(),
+        };
+        {
+            let Core {
+                transformation,
+                outputs,
+                timers,
+                ..
+            } = &mut core;
+            let mut handle = NodeHandle::new(
+                &spec.name,
+                &spec.params,
+                &spec.inputs,
+                &spec.outputs,
+                outputs,
+                timers,
+            );
+            match catch_unwind(AssertUnwindSafe(|| transformation.start(&mut handle))) {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => return Err(e),
+                Err(panic) => return Err(CuError::Failed(panic_message(&*panic))),
+            }
+        }
+        let token = session
+            .liveliness()
+            .declare_token(namespace.cu_token(&spec.name))
+            .wait()?;
+        let periods = core.timers.clone();
+        let shared = Arc::new(Shared {
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            spec,
+            namespace: namespace.clone(),
+            session: session.clone(),
+            core: Mutex::new(core),
+            inputs: Mutex::new(BTreeMap::new()),
+            life: Mutex::new(Life {
+                state: CuState::Running,
+                reason: None,
+                running_since: Some(Instant::now()),
+            }),
+            token: Mutex::new(Some(token)),
+            reconfigurations: AtomicU64::new(0),
+            cpu_ns: AtomicU64::new(0),
+            on_crash,
+        });
+        let fire: Arc<dyn Fire> = shared.clone();
+        for (timer, period) in periods.into_iter().enumerate() {
+            timers.every(Arc::downgrade(&fire), timer, period);
+        }
+        let labour = clock.elapsed();
+        Ok(Started {
+            unit: Unit { shared },
+            labour,
+        })
+    }
+
+    /// The CU's name.
+    pub fn name(&self) -> &str {
+        &self.shared.spec.name
+    }
+
+    /// Its spec.
+    pub fn spec(&self) -> &UnitSpec {
+        &self.shared.spec
+    }
+
+    /// Its state.
+    pub fn state(&self) -> CuState {
+        lock(&self.shared.life).state
+    }
+
+    /// Binds in port `port` to `channel` (make before break: the new subscription is
+    /// declared before the old one is undeclared), or unbinds it (`None`).
+    pub fn bind_in(&self, port: &str, channel: Option<&str>) -> Result<(), CuError> {
+        let shared = &self.shared;
+        if !shared.spec.inputs.iter().any(|p| p == port) {
+            return Err(CuError::UnknownPort {
+                cu: shared.spec.name.clone(),
+                direction: "in",
+                port: port.to_owned(),
+            });
+        }
+        self.running()?;
+        let mut inputs = lock(&shared.inputs);
+        match channel {
+            Some(channel) => {
+                if inputs.get(port).is_some_and(|b| b.channel == channel) {
+                    return Ok(());
+                }
+                let key = shared.namespace.channel(channel)?;
+                let weak: Weak<Shared> = Arc::downgrade(shared);
+                let name: Arc<str> = Arc::from(port);
+                let subscriber = shared
+                    .session
+                    .declare_subscriber(key)
+                    .callback(move |sample| {
+                        if let Some(shared) = weak.upgrade() {
+                            let payload = sample.payload().to_bytes();
+                            shared.deliver(&name, &payload);
+                        }
+                    })
+                    .wait()?;
+                // The old binding is dropped (undeclared) only now: make before break.
+                inputs.insert(
+                    port.to_owned(),
+                    InBinding {
+                        channel: channel.to_owned(),
+                        _subscriber: subscriber,
+                    },
+                );
+            }
+            None => {
+                if inputs.remove(port).is_none() {
+                    return Ok(());
+                }
+            }
+        }
+        drop(inputs);
+        self.reconfigured();
+        Ok(())
+    }
+
+    /// Binds out port `port` to `channel`, or unbinds it (`None`).
+    pub fn bind_out(&self, port: &str, channel: Option<&str>) -> Result<(), CuError> {
+        let shared = &self.shared;
+        if !shared.spec.outputs.iter().any(|p| p == port) {
+            return Err(CuError::UnknownPort {
+                cu: shared.spec.name.clone(),
+                direction: "out",
+                port: port.to_owned(),
+            });
+        }
+        self.running()?;
+        let publisher = match channel {
+            Some(channel) => {
+                if lock(&shared.core)
+                    .outputs
+                    .ports
+                    .get(port)
+                    .is_some_and(|o| o.channel.as_deref() == Some(channel))
+                {
+                    return Ok(());
+                }
+                let key = shared.namespace.channel(channel)?;
+                Some(
+                    shared
+                        .session
+                        .declare_publisher(key)
+                        .encoding(Encoding::APPLICATION_JSON)
+                        .express(true)
+                        .wait()?,
+                )
+            }
+            None => None,
+        };
+        let old = {
+            let mut core = lock(&shared.core);
+            let Some(out) = core.outputs.ports.get_mut(port) else {
+                return Ok(());
+            };
+            out.channel = channel.map(str::to_owned);
+            std::mem::replace(&mut out.publisher, publisher)
+        };
+        drop(old);
+        self.reconfigured();
+        Ok(())
+    }
+
+    fn running(&self) -> Result<(), CuError> {
+        match self.state() {
+            CuState::Running | CuState::Starting => Ok(()),
+            _ => Err(CuError::NotRunning(self.shared.spec.name.clone())),
+        }
+    }
+
+    fn reconfigured(&self) {
+        self.shared.reconfigurations.fetch_add(1, Ordering::Relaxed);
+        self.shared
+            .guarded(|transformation, handle| transformation.on_reconfigure(&mut handle.node));
+    }
+
+    /// The in and out bindings now.
+    pub fn bindings(
+        &self,
+    ) -> (
+        BTreeMap<String, Option<String>>,
+        BTreeMap<String, Option<String>>,
+    ) {
+        let inputs = lock(&self.shared.inputs);
+        let ins = self
+            .shared
+            .spec
+            .inputs
+            .iter()
+            .map(|p| (p.clone(), inputs.get(p).map(|b| b.channel.clone())))
+            .collect();
+        drop(inputs);
+        let core = lock(&self.shared.core);
+        let outs = core
+            .outputs
+            .ports
+            .iter()
+            .map(|(p, o)| (p.clone(), o.channel.clone()))
+            .collect();
+        (ins, outs)
+    }
+
+    /// The CPU time its callbacks used so far.
+    pub fn cpu(&self) -> Duration {
+        Duration::from_nanos(self.shared.cpu_ns.load(Ordering::Relaxed))
+    }
+
+    /// Its statistics now (GetStatistics).
+    pub fn statistics(&self) -> CuStatistics {
+        let life = lock(&self.shared.life);
+        let uptime_ms = match (life.state, life.running_since) {
+            (CuState::Running, Some(since)) => {
+                u64::try_from(since.elapsed().as_millis()).unwrap_or(u64::MAX)
+            }
+            _ => 0,
+        };
+        drop(life);
+        let core = lock(&self.shared.core);
+        let mut ports = core.in_stats.clone();
+        for (port, out) in &core.outputs.ports {
+            ports.insert(port.clone(), out.stats.clone());
+        }
+        drop(core);
+        CuStatistics {
+            uptime_ms,
+            reconfigurations: self.shared.reconfigurations.load(Ordering::Relaxed),
+            cpu_ms: self.cpu().as_secs_f64() * 1e3,
+            ports,
+        }
+    }
+
+    /// Its report: state, bindings, statistics.
+    pub fn report(&self) -> CuReport {
+        let (inputs, outputs) = self.bindings();
+        let life = lock(&self.shared.life);
+        let (state, reason) = (life.state, life.reason.clone());
+        drop(life);
+        CuReport {
+            cu: self.shared.spec.name.clone(),
+            transformation: self.shared.spec.transformation.clone(),
+            state,
+            inputs,
+            outputs,
+            statistics: self.statistics(),
+            reason,
+        }
+    }
+
+    /// Crashes it from outside (a fault, a lost process): as if a callback had failed.
+    pub fn crash(&self, reason: &str) {
+        self.shared.crash(reason);
+    }
+
+    /// Stops it (destroy): no callback runs after this returns, its bindings and token are
+    /// gone. A crashed CU keeps its crashed state.
+    pub fn stop(&self) {
+        {
+            let mut life = lock(&self.shared.life);
+            if life.state != CuState::Crashed {
+                life.state = CuState::Stopped;
+            }
+            life.running_since = None;
+        }
+        self.release();
+    }
+
+    /// Undeclares its subscriptions, publishers and token (after a crash: the executor calls
+    /// this from its own thread, never from inside a callback).
+    pub fn release(&self) {
+        let inputs = std::mem::take(&mut *lock(&self.shared.inputs));
+        drop(inputs);
+        // Wait for a running callback: it holds the core.
+        let publishers: Vec<_> = lock(&self.shared.core)
+            .outputs
+            .ports
+            .values_mut()
+            .filter_map(|o| o.publisher.take())
+            .collect();
+        drop(publishers);
+        let token = lock(&self.shared.token).take();
+        drop(token);
+    }
+}
+
+impl Shared {
+    /// A sample on in port `port`.
+    fn deliver(&self, port: &str, payload: &[u8]) {
+        let sample = match Sample::from_slice(payload) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::debug!("{} drops a sample on {port}: {e}", self.spec.name);
+                return;
+            }
+        };
+        let bytes = payload.len() as u64;
+        self.guarded(|transformation, handle| {
+            transformation_sample(transformation, handle, port, sample, bytes)
+        });
+    }
+
+    /// Runs a callback: only while running, never re-entered on one thread (a cycle of CUs
+    /// drops the sample instead of deadlocking), a panic or `Err` crashes the CU, and the
+    /// thread CPU time is charged to this CU less that of the callbacks nested in it.
+    fn guarded(
+        &self,
+        callback: impl FnOnce(&mut dyn Transformation, &mut Handle<'_>) -> Result<(), CuError>,
+    ) {
+        if lock(&self.life).state != CuState::Running {
+            return;
+        }
+        let reentered = ACTIVE.with(|a| a.borrow().iter().any(|(id, _)| *id == self.id));
+        if reentered {
+            tracing::warn!(
+                "{} would consume its own output on one thread (a cycle): sample dropped",
+                self.spec.name
+            );
+            return;
+        }
+        ACTIVE.with(|a| a.borrow_mut().push((self.id, Duration::ZERO)));
+        let clock = ThreadTime::now();
+        let mut core = lock(&self.core);
+        let result = {
+            let Core {
+                transformation,
+                outputs,
+                in_stats,
+                timers,
+            } = &mut *core;
+            let mut handle = Handle {
+                node: NodeHandle::new(
+                    &self.spec.name,
+                    &self.spec.params,
+                    &self.spec.inputs,
+                    &self.spec.outputs,
+                    outputs,
+                    timers,
+                ),
+                in_stats,
+            };
+            catch_unwind(AssertUnwindSafe(|| {
+                callback(transformation.as_mut(), &mut handle)
+            }))
+        };
+        drop(core);
+        let total = clock.elapsed();
+        let nested = ACTIVE.with(|a| {
+            let mut a = a.borrow_mut();
+            let (_, nested) = a.pop().unwrap_or_default();
+            if let Some((_, parent)) = a.last_mut() {
+                *parent += total;
+            }
+            nested
+        });
+        let own = total.saturating_sub(nested);
+        self.cpu_ns.fetch_add(
+            u64::try_from(own.as_nanos()).unwrap_or(u64::MAX),
+            Ordering::Relaxed,
+        );
+        match result {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => self.crash(&e.to_string()),
+            Err(panic) => self.crash(&format!("panicked: {}", panic_message(&*panic))),
+        }
+    }
+
+    fn crash(&self, reason: &str) {
+        {
+            let mut life = lock(&self.life);
+            if life.state != CuState::Running && life.state != CuState::Starting {
+                return;
+            }
+            life.state = CuState::Crashed;
+            life.reason = Some(reason.to_owned());
+            life.running_since = None;
+        }
+        tracing::warn!("{} crashed: {reason}", self.spec.name);
+        (self.on_crash)(reason);
+    }
+}
+
+/// The handle a callback gets, with the in-port statistics beside it.
+struct Handle<'a> {
+    node: NodeHandle<'a>,
+    in_stats: &'a mut BTreeMap<String, PortStatistics>,
+}
+
+fn transformation_sample(
+    transformation: &mut dyn Transformation,
+    handle: &mut Handle<'_>,
+    port: &str,
+    sample: Sample,
+    bytes: u64,
+) -> Result<(), CuError> {
+    if let Some(stats) = handle.in_stats.get_mut(port) {
+        stats.messages += 1;
+        stats.bytes += bytes;
+        stats.last_t = Some(sample.t);
+    }
+    transformation.on_sample(&mut handle.node, port, sample)
+}
+
+impl Fire for Shared {
+    fn fire(&self, timer: usize) -> bool {
+        self.guarded(|transformation, handle| transformation.on_timer(&mut handle.node, timer));
+        lock(&self.life).state == CuState::Running
+    }
+}
+
+/// The text of a panic's payload.
+pub fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    if let Some(s) = panic.downcast_ref::<&str>() {
+        (*s).to_owned()
+    } else if let Some(s) = panic.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "a panic without a message".to_owned()
+    }
+}

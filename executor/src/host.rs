@@ -1,0 +1,518 @@
+//! The executor (`executors.md`, *Executors*): hosts builtin CUs as [`Unit`]s on its Zenoh
+//! session and process CUs as children, applies the actions of change sets to them in order
+//! and acknowledges them, reports crashes and measured costs as [`Event`]s, and holds a
+//! liveliness token while it runs. Its services answer on Zenoh queryables
+//! (`docs/executor-protocol.md`); requests are carried out one at a time on a worker thread,
+//! never on a Zenoh callback thread.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
+use std::time::{Duration, Instant};
+
+use dyknow_cu::protocol::{
+    ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Failure,
+    Implementation, Kind,
+};
+use dyknow_cu::zenoh::bytes::Encoding;
+use dyknow_cu::zenoh::liveliness::LivelinessToken;
+use dyknow_cu::zenoh::pubsub::Publisher;
+use dyknow_cu::zenoh::query::{Query, Queryable};
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{CuError, Namespace, Timers, Unit, UnitSpec};
+
+use crate::builtins::{self, Host};
+use crate::process::{Launch, OnCrash, ProcessCu, resolve};
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// An executor's settings.
+#[derive(Debug, Clone)]
+pub struct ExecutorConfig {
+    /// Its name (one key-expression chunk).
+    pub name: String,
+    /// The key namespace.
+    pub namespace: Namespace,
+    /// Endpoints its process CUs connect to.
+    pub process_connect: Vec<String>,
+    /// How often it reports the upkeep of its CUs.
+    pub report_interval: Duration,
+    /// How long a process CU may take to announce itself.
+    pub start_timeout: Duration,
+}
+
+impl ExecutorConfig {
+    /// Settings with defaults: upkeep reported every second, 10 s for a process to start.
+    pub fn new(
+        name: impl Into<String>,
+        namespace: Namespace,
+        process_connect: Vec<String>,
+    ) -> Self {
+        Self {
+            name: name.into(),
+            namespace,
+            process_connect,
+            report_interval: Duration::from_secs(1),
+            start_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+enum Hosted {
+    Builtin(Unit),
+    Process(Arc<ProcessCu>),
+}
+
+impl Hosted {
+    fn report(&self) -> CuReport {
+        match self {
+            Self::Builtin(u) => u.report(),
+            Self::Process(p) => p.report(),
+        }
+    }
+
+    fn stop(&self) {
+        match self {
+            Self::Builtin(u) => u.stop(),
+            Self::Process(p) => p.stop(Duration::from_millis(500)),
+        }
+    }
+
+    fn cpu(&self) -> Duration {
+        match self {
+            Self::Builtin(u) => u.cpu(),
+            Self::Process(p) => p.cpu().saturating_sub(p.labour()),
+        }
+    }
+
+    fn transformation(&self) -> String {
+        match self {
+            Self::Builtin(u) => u.spec().transformation.clone(),
+            Self::Process(p) => p.report_transformation(),
+        }
+    }
+}
+
+impl ProcessCu {
+    fn report_transformation(&self) -> String {
+        // Cheap: no statistics request.
+        self.spec_transformation()
+    }
+}
+
+struct Inner {
+    config: ExecutorConfig,
+    session: zenoh::Session,
+    timers: Timers,
+    cus: Mutex<BTreeMap<String, Hosted>>,
+    /// CPU time at the last upkeep report, per CU.
+    reported: Mutex<BTreeMap<String, (Duration, Instant)>>,
+    events: Publisher<'static>,
+    jobs: mpsc::Sender<Job>,
+}
+
+enum Job {
+    Query(Query, &'static str),
+    Crashed { cu: String, reason: String },
+    Report,
+    Stop(mpsc::Sender<()>),
+}
+
+/// A running executor. [`Executor::shutdown`] (or dropping the last handle) stops its CUs and
+/// withdraws its token.
+pub struct Executor {
+    inner: Arc<Inner>,
+    token: Mutex<Option<LivelinessToken>>,
+    queryables: Mutex<Vec<Queryable<()>>>,
+    worker: Mutex<Option<std::thread::JoinHandle<()>>>,
+}
+
+impl std::fmt::Debug for Executor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Executor")
+            .field("name", &self.inner.config.name)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Executor {
+    /// Starts an executor on `session`: its services, its worker, its upkeep reports, then
+    /// its token (so whoever sees the token can use the services).
+    pub fn start(session: &zenoh::Session, config: ExecutorConfig) -> Result<Self, CuError> {
+        dyknow_cu::keys::check_name("executor name", &config.name)?;
+        let ns = config.namespace.clone();
+        let events = session
+            .declare_publisher(ns.executor_events(&config.name))
+            .encoding(Encoding::APPLICATION_JSON)
+            .wait()?;
+        let (jobs, rx) = mpsc::channel::<Job>();
+        let inner = Arc::new(Inner {
+            config: config.clone(),
+            session: session.clone(),
+            timers: Timers::start(),
+            cus: Mutex::default(),
+            reported: Mutex::default(),
+            events,
+            jobs,
+        });
+        let worker_inner = inner.clone();
+        let worker = std::thread::Builder::new()
+            .name(format!("executor-{}", config.name))
+            .spawn(move || worker_inner.work(&rx))
+            .map_err(|e| CuError::failed(format!("cannot start the worker: {e}")))?;
+        let mut queryables = Vec::new();
+        for service in ["apply", "info", "check"] {
+            let jobs = inner.jobs.clone();
+            queryables.push(
+                session
+                    .declare_queryable(ns.executor_service(&config.name, service))
+                    .callback(move |query| {
+                        let _ = jobs.send(Job::Query(query, service));
+                    })
+                    .wait()?,
+            );
+        }
+        let ticker = inner.jobs.clone();
+        let interval = config.report_interval;
+        let _ = std::thread::Builder::new()
+            .name(format!("executor-{}-upkeep", config.name))
+            .spawn(move || {
+                loop {
+                    std::thread::sleep(interval);
+                    if ticker.send(Job::Report).is_err() {
+                        return;
+                    }
+                }
+            });
+        let token = session
+            .liveliness()
+            .declare_token(ns.executor_token(&config.name))
+            .wait()?;
+        tracing::info!("executor {} is up", config.name);
+        Ok(Self {
+            inner,
+            token: Mutex::new(Some(token)),
+            queryables: Mutex::new(queryables),
+            worker: Mutex::new(Some(worker)),
+        })
+    }
+
+    /// Its name.
+    pub fn name(&self) -> &str {
+        &self.inner.config.name
+    }
+
+    /// Its description now.
+    pub fn info(&self) -> ExecutorInfo {
+        self.inner.info()
+    }
+
+    /// Applies a request directly (what its `apply` service does).
+    pub fn apply(&self, request: &ApplyRequest) -> ApplyReply {
+        self.inner.apply(request)
+    }
+
+    /// The pids of its process CUs.
+    pub fn pids(&self) -> Vec<(String, u32)> {
+        lock(&self.inner.cus)
+            .iter()
+            .filter_map(|(n, h)| match h {
+                Hosted::Process(p) => Some((n.clone(), p.pid())),
+                Hosted::Builtin(_) => None,
+            })
+            .collect()
+    }
+
+    /// Stops every CU (children are asked to exit, then killed), withdraws the token and the
+    /// services, and ends the worker. Idempotent.
+    pub fn shutdown(&self) {
+        lock(&self.queryables).clear();
+        let worker = lock(&self.worker).take();
+        if let Some(worker) = worker {
+            let (done, wait) = mpsc::channel();
+            if self.inner.jobs.send(Job::Stop(done)).is_ok() {
+                let _ = wait.recv_timeout(Duration::from_secs(30));
+            }
+            let _ = worker.join();
+        }
+        lock(&self.token).take();
+    }
+}
+
+impl Drop for Executor {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+impl Inner {
+    fn work(self: &Arc<Self>, jobs: &mpsc::Receiver<Job>) {
+        while let Ok(job) = jobs.recv() {
+            match job {
+                Job::Query(query, service) => self.answer(&query, service),
+                Job::Crashed { cu, reason } => self.crashed(&cu, &reason),
+                Job::Report => self.report_upkeep(),
+                Job::Stop(done) => {
+                    let cus = std::mem::take(&mut *lock(&self.cus));
+                    for (_, hosted) in cus {
+                        hosted.stop();
+                    }
+                    let _ = done.send(());
+                    return;
+                }
+            }
+        }
+    }
+
+    fn answer(self: &Arc<Self>, query: &Query, service: &str) {
+        let payload = query
+            .payload()
+            .map(|p| p.to_bytes().into_owned())
+            .unwrap_or_default();
+        let reply: Result<Vec<u8>, String> = match service {
+            "apply" => serde_json::from_slice::<ApplyRequest>(&payload)
+                .map_err(|e| format!("not an apply request: {e}"))
+                .map(|r| serde_json::to_vec(&self.apply(&r)).unwrap_or_default()),
+            "check" => serde_json::from_slice::<Implementation>(&payload)
+                .map_err(|e| format!("not an implementation: {e}"))
+                .map(|i| serde_json::to_vec(&check(&i)).unwrap_or_default()),
+            _ => Ok(serde_json::to_vec(&self.info()).unwrap_or_default()),
+        };
+        let sent = match reply {
+            Ok(bytes) => query.reply(query.key_expr().clone(), bytes).wait(),
+            Err(e) => query.reply_err(e.into_bytes()).wait(),
+        };
+        if let Err(e) = sent {
+            tracing::warn!(
+                "executor {}: cannot answer {service}: {e}",
+                self.config.name
+            );
+        }
+    }
+
+    fn info(&self) -> ExecutorInfo {
+        ExecutorInfo {
+            name: self.config.name.clone(),
+            builtins: builtins::names(),
+            processes: true,
+            cus: lock(&self.cus).values().map(Hosted::report).collect(),
+        }
+    }
+
+    fn publish(&self, event: &Event) {
+        let payload = serde_json::to_vec(event).unwrap_or_default();
+        if let Err(e) = self.events.put(payload).wait() {
+            tracing::warn!(
+                "executor {}: cannot publish an event: {e}",
+                self.config.name
+            );
+        }
+    }
+
+    fn on_crash(self: &Arc<Self>) -> OnCrash {
+        let jobs = self.jobs.clone();
+        Arc::new(move |cu: &str, reason: &str| {
+            let _ = jobs.send(Job::Crashed {
+                cu: cu.to_owned(),
+                reason: reason.to_owned(),
+            });
+        })
+    }
+
+    fn crashed(&self, cu: &str, reason: &str) {
+        let Some(hosted) = lock(&self.cus).remove(cu) else {
+            return;
+        };
+        lock(&self.reported).remove(cu);
+        let transformation = hosted.transformation();
+        match &hosted {
+            Hosted::Builtin(unit) => unit.release(),
+            Hosted::Process(p) => p.kill(),
+        }
+        tracing::warn!("executor {}: {cu} crashed: {reason}", self.config.name);
+        self.publish(&Event::CuCrashed {
+            cu: cu.to_owned(),
+            transformation,
+            reason: reason.to_owned(),
+        });
+    }
+
+    fn report_upkeep(&self) {
+        let now = Instant::now();
+        let cpus: Vec<(String, String, Duration)> = lock(&self.cus)
+            .iter()
+            .map(|(n, h)| (n.clone(), h.transformation(), h.cpu()))
+            .collect();
+        let mut reported = lock(&self.reported);
+        for (cu, transformation, cpu) in cpus {
+            let (last_cpu, last_at) = reported.get(&cu).copied().unwrap_or((Duration::ZERO, now));
+            reported.insert(cu.clone(), (cpu, now));
+            let over = now.duration_since(last_at);
+            if over.is_zero() {
+                continue;
+            }
+            self.publish(&Event::Upkeep {
+                cu,
+                transformation,
+                cpu_ms: cpu.saturating_sub(last_cpu).as_secs_f64() * 1e3,
+                over_ms: over.as_secs_f64() * 1e3,
+            });
+        }
+    }
+
+    /// Applies the actions in order; after a failure, the later actions of that CU are
+    /// skipped.
+    fn apply(self: &Arc<Self>, request: &ApplyRequest) -> ApplyReply {
+        let mut failures: Vec<Failure> = Vec::new();
+        for (index, action) in request.actions.iter().enumerate() {
+            if failures.iter().any(|f| f.cu == action.cu()) {
+                continue;
+            }
+            if let Err(e) = self.act(action) {
+                tracing::warn!(
+                    "executor {}: {} {} of {}: {e}",
+                    self.config.name,
+                    action.kind(),
+                    action.cu(),
+                    request.change_set
+                );
+                failures.push(Failure {
+                    index,
+                    cu: action.cu().to_owned(),
+                    reason: e.to_string(),
+                });
+            }
+        }
+        ApplyReply { failures }
+    }
+
+    fn act(self: &Arc<Self>, action: &CuAction) -> Result<(), CuError> {
+        match action {
+            CuAction::Spawn {
+                cu,
+                transformation,
+                implementation,
+            } => self.spawn(cu, transformation, implementation),
+            CuAction::Destroy { cu } => {
+                let hosted = lock(&self.cus).remove(cu);
+                lock(&self.reported).remove(cu);
+                if let Some(hosted) = hosted {
+                    hosted.stop();
+                }
+                Ok(())
+            }
+            CuAction::ConnectIn { cu, port, channel } => self.bind(cu, true, port, Some(channel)),
+            CuAction::ConnectOut { cu, port, channel } => self.bind(cu, false, port, Some(channel)),
+            CuAction::DisconnectIn { cu, port } => self.bind(cu, true, port, None),
+            CuAction::DisconnectOut { cu, port } => self.bind(cu, false, port, None),
+        }
+    }
+
+    fn bind(
+        &self,
+        cu: &str,
+        input: bool,
+        port: &str,
+        channel: Option<&str>,
+    ) -> Result<(), CuError> {
+        let cus = lock(&self.cus);
+        match cus.get(cu) {
+            None => Err(CuError::failed(format!("{cu} does not run here"))),
+            Some(Hosted::Builtin(unit)) => {
+                let unit = unit.clone();
+                drop(cus);
+                if input {
+                    unit.bind_in(port, channel)
+                } else {
+                    unit.bind_out(port, channel)
+                }
+            }
+            Some(Hosted::Process(p)) => {
+                let p = p.clone();
+                drop(cus);
+                p.bind(input, port, channel)
+            }
+        }
+    }
+
+    fn spawn(
+        self: &Arc<Self>,
+        cu: &str,
+        transformation: &str,
+        implementation: &Implementation,
+    ) -> Result<(), CuError> {
+        dyknow_cu::keys::check_name("CU name", cu)?;
+        if lock(&self.cus).contains_key(cu) {
+            return Err(CuError::failed(format!("{cu} already runs here")));
+        }
+        let spec = UnitSpec {
+            name: cu.to_owned(),
+            transformation: transformation.to_owned(),
+            inputs: implementation.inputs.clone(),
+            outputs: implementation.outputs.clone(),
+            params: implementation.params.clone(),
+        };
+        let (hosted, labour) = match implementation.kind().map_err(CuError::Failed)? {
+            Kind::Builtin => {
+                let Some(factory) = builtins::builtin(&implementation.source) else {
+                    return Err(CuError::failed(format!(
+                        "no builtin {:?} in this executor",
+                        implementation.source
+                    )));
+                };
+                let clock = cpu_time::ThreadTime::now();
+                let made = factory(&spec, Host::Thread)?;
+                let made_cpu = clock.elapsed();
+                let on_crash = self.on_crash();
+                let name = cu.to_owned();
+                let started = Unit::start(
+                    &self.session,
+                    &self.config.namespace,
+                    spec,
+                    made,
+                    &self.timers,
+                    Box::new(move |reason| on_crash(&name, reason)),
+                )?;
+                (Hosted::Builtin(started.unit), made_cpu + started.labour)
+            }
+            Kind::Process => {
+                let command = implementation.command();
+                let launch = Launch {
+                    executor: self.config.name.clone(),
+                    namespace: self.config.namespace.clone(),
+                    connect: self.config.process_connect.clone(),
+                    start_timeout: self.config.start_timeout,
+                };
+                let p = ProcessCu::start(&self.session, &launch, spec, &command, self.on_crash())?;
+                let labour = p.labour();
+                (Hosted::Process(p), labour)
+            }
+        };
+        lock(&self.reported).insert(cu.to_owned(), (hosted.cpu(), Instant::now()));
+        lock(&self.cus).insert(cu.to_owned(), hosted);
+        self.publish(&Event::Running {
+            cu: cu.to_owned(),
+            transformation: transformation.to_owned(),
+            labour_cpu_ms: labour.as_secs_f64() * 1e3,
+        });
+        Ok(())
+    }
+}
+
+/// Whether this executor can run an implementation, and why not.
+pub fn check(implementation: &Implementation) -> CheckReply {
+    let why = match implementation.kind() {
+        Err(why) => Some(why),
+        Ok(Kind::Builtin) => (builtins::builtin(&implementation.source).is_none())
+            .then(|| format!("no executor has the builtin {:?}", implementation.source)),
+        Ok(Kind::Process) => {
+            let command = implementation.command();
+            resolve(command.first().map_or("", String::as_str)).err()
+        }
+    };
+    CheckReply {
+        runnable: why.is_none(),
+        why,
+    }
+}

@@ -1,0 +1,452 @@
+//! Process CUs: one child process per CU, speaking the CU protocol over Zenoh
+//! (`dyknow_cu::run_process`, `docs/executor-protocol.md`). Its exit or `kill -9` is seen at
+//! once twice over: the waiter thread returns and its liveliness token vanishes.
+
+use std::collections::BTreeMap;
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
+use std::time::{Duration, Instant};
+
+use dyknow_cu::protocol::{ControlReply, ControlRequest, CuReport, CuState, CuStatistics};
+use dyknow_cu::zenoh::Wait;
+use dyknow_cu::zenoh::pubsub::Subscriber;
+use dyknow_cu::zenoh::sample::SampleKind;
+use dyknow_cu::{CuError, Namespace, UnitSpec};
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Finds a program: a path with a '/' as it is, otherwise on `PATH`.
+pub fn resolve(program: &str) -> Result<PathBuf, String> {
+    let executable = |p: &Path| {
+        use std::os::unix::fs::PermissionsExt;
+        p.metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+    };
+    if program.is_empty() {
+        return Err("the command line is empty".into());
+    }
+    if program.contains('/') {
+        let p = PathBuf::from(program);
+        return if executable(&p) {
+            Ok(p)
+        } else {
+            Err(format!("{program} is not an executable file"))
+        };
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path)
+        .map(|dir| dir.join(program))
+        .find(|p| executable(p))
+        .ok_or_else(|| format!("{program} is not on PATH"))
+}
+
+/// The CPU time of a process so far: the sum over its threads of
+/// `/proc/<pid>/task/*/schedstat` (nanoseconds), falling back to `/proc/<pid>/stat`
+/// (10 ms ticks).
+pub fn process_cpu(pid: u32) -> Option<Duration> {
+    let mut total = 0u64;
+    let mut any = false;
+    if let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) {
+        for task in tasks.flatten() {
+            if let Ok(text) = std::fs::read_to_string(task.path().join("schedstat"))
+                && let Some(ns) = text
+                    .split_whitespace()
+                    .next()
+                    .and_then(|s| s.parse::<u64>().ok())
+            {
+                total += ns;
+                any = true;
+            }
+        }
+    }
+    if any {
+        return Some(Duration::from_nanos(total));
+    }
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let after = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    Some(Duration::from_millis(ticks * 10))
+}
+
+/// How an executor starts process CUs.
+#[derive(Debug, Clone)]
+pub struct Launch {
+    /// The executor's name.
+    pub executor: String,
+    /// The namespace.
+    pub namespace: Namespace,
+    /// Endpoints the child connects to.
+    pub connect: Vec<String>,
+    /// How long a child may take to announce itself.
+    pub start_timeout: Duration,
+}
+
+struct Life {
+    state: CuState,
+    reason: Option<String>,
+    running_since: Option<Instant>,
+}
+
+/// A process CU.
+pub struct ProcessCu {
+    spec: UnitSpec,
+    pid: u32,
+    namespace: Namespace,
+    session: dyknow_cu::zenoh::Session,
+    life: Mutex<Life>,
+    /// Set before the executor stops or kills it: an exit then is no crash.
+    stopping: AtomicBool,
+    exited: AtomicBool,
+    inputs: Mutex<BTreeMap<String, Option<String>>>,
+    outputs: Mutex<BTreeMap<String, Option<String>>>,
+    reconfigurations: std::sync::atomic::AtomicU64,
+    labour_ns: std::sync::atomic::AtomicU64,
+    _watch: Mutex<Option<Subscriber<()>>>,
+}
+
+impl std::fmt::Debug for ProcessCu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ProcessCu")
+            .field("name", &self.spec.name)
+            .field("pid", &self.pid)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Called once when a process CU crashes.
+pub type OnCrash = Arc<dyn Fn(&str, &str) + Send + Sync>;
+
+impl ProcessCu {
+    /// Starts `command` as CU `spec` and waits until it announces itself (its liveliness
+    /// token). Returns it and its labour (the process's CPU time until then).
+    pub fn start(
+        session: &dyknow_cu::zenoh::Session,
+        launch: &Launch,
+        spec: UnitSpec,
+        command: &[String],
+        on_crash: OnCrash,
+    ) -> Result<Arc<Self>, CuError> {
+        let program =
+            resolve(command.first().map_or("", String::as_str)).map_err(CuError::Failed)?;
+        let (up_tx, up_rx) = mpsc::channel::<bool>();
+        let watch = session
+            .liveliness()
+            .declare_subscriber(launch.namespace.cu_token(&spec.name))
+            .callback(move |sample| {
+                let _ = up_tx.send(sample.kind() == SampleKind::Put);
+            })
+            .wait()?;
+        let mut child = Command::new(&program)
+            .args(&command[1..])
+            .env("DYKNOW_CU", &spec.name)
+            .env("DYKNOW_TRANSFORMATION", &spec.transformation)
+            .env("DYKNOW_NAMESPACE", launch.namespace.as_str())
+            .env("DYKNOW_CONNECT", launch.connect.join(","))
+            .env("DYKNOW_EXECUTOR", &launch.executor)
+            .env("DYKNOW_INPUTS", spec.inputs.join(","))
+            .env("DYKNOW_OUTPUTS", spec.outputs.join(","))
+            .env(
+                "DYKNOW_PARAMS",
+                serde_json::to_string(&spec.params).unwrap_or_default(),
+            )
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| CuError::failed(format!("cannot start {}: {e}", program.display())))?;
+        let pid = child.id();
+        if let Some(stderr) = child.stderr.take() {
+            let name = spec.name.clone();
+            let _ = std::thread::Builder::new()
+                .name(format!("{name}-stderr"))
+                .spawn(move || {
+                    for line in std::io::BufReader::new(stderr)
+                        .lines()
+                        .map_while(Result::ok)
+                    {
+                        tracing::info!(target: "dyknow::cu", "{name}: {line}");
+                    }
+                });
+        }
+        let cu = Arc::new(Self {
+            spec,
+            pid,
+            namespace: launch.namespace.clone(),
+            session: session.clone(),
+            life: Mutex::new(Life {
+                state: CuState::Starting,
+                reason: None,
+                running_since: None,
+            }),
+            stopping: AtomicBool::new(false),
+            exited: AtomicBool::new(false),
+            inputs: Mutex::default(),
+            outputs: Mutex::default(),
+            reconfigurations: std::sync::atomic::AtomicU64::new(0),
+            labour_ns: std::sync::atomic::AtomicU64::new(0),
+            _watch: Mutex::new(None),
+        });
+        {
+            let mut inputs = lock(&cu.inputs);
+            for p in &cu.spec.inputs {
+                inputs.insert(p.clone(), None);
+            }
+            let mut outputs = lock(&cu.outputs);
+            for p in &cu.spec.outputs {
+                outputs.insert(p.clone(), None);
+            }
+        }
+        // The waiter: an exit is a crash unless the executor asked for it.
+        let (exit_tx, exit_rx) = mpsc::channel::<String>();
+        let waiter = cu.clone();
+        let crash = on_crash.clone();
+        let _ = std::thread::Builder::new()
+            .name(format!("{}-wait", cu.spec.name))
+            .spawn(move || {
+                let status = wait(&mut child);
+                waiter.exited.store(true, Ordering::SeqCst);
+                let _ = exit_tx.send(status.clone());
+                if !waiter.stopping.load(Ordering::SeqCst) && waiter.crashed(&status) {
+                    crash(&waiter.spec.name, &status);
+                }
+            });
+        // Wait for its token (or its exit, or the timeout).
+        let deadline = Instant::now() + launch.start_timeout;
+        loop {
+            if let Ok(status) = exit_rx.try_recv() {
+                return Err(CuError::failed(format!("{status} before it ran")));
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                cu.kill();
+                return Err(CuError::failed(format!(
+                    "did not announce itself within {} ms",
+                    launch.start_timeout.as_millis()
+                )));
+            }
+            match up_rx.recv_timeout(left.min(Duration::from_millis(20))) {
+                Ok(true) => break,
+                Ok(false) | Err(mpsc::RecvTimeoutError::Timeout) => {}
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    return Err(CuError::failed("lost its liveliness subscription"));
+                }
+            }
+        }
+        let labour = process_cpu(pid).unwrap_or_default();
+        // Its token vanishing is a crash too (seen before the waiter when the process is
+        // killed, and the only sign when it hangs up from another machine).
+        let vanished = cu.clone();
+        let crash = on_crash;
+        let watch_after = std::thread::Builder::new()
+            .name(format!("{}-token", cu.spec.name))
+            .spawn(move || {
+                while let Ok(up) = up_rx.recv() {
+                    if !up && !vanished.stopping.load(Ordering::SeqCst) {
+                        if vanished.crashed("its liveliness token vanished") {
+                            crash(&vanished.spec.name, "its liveliness token vanished");
+                        }
+                        return;
+                    }
+                }
+            });
+        drop(watch_after);
+        *lock(&cu._watch) = Some(watch);
+        {
+            let mut life = lock(&cu.life);
+            if life.state == CuState::Starting {
+                life.state = CuState::Running;
+                life.running_since = Some(Instant::now());
+            }
+        }
+        cu.labour_ns.store(
+            u64::try_from(labour.as_nanos()).unwrap_or(u64::MAX),
+            Ordering::Relaxed,
+        );
+        Ok(cu)
+    }
+
+    /// Marks it crashed; false if it already was, or was stopped.
+    fn crashed(&self, reason: &str) -> bool {
+        let mut life = lock(&self.life);
+        if matches!(life.state, CuState::Crashed | CuState::Stopped) {
+            return false;
+        }
+        life.state = CuState::Crashed;
+        life.reason = Some(reason.to_owned());
+        life.running_since = None;
+        true
+    }
+
+    /// Its name.
+    pub fn name(&self) -> &str {
+        &self.spec.name
+    }
+
+    /// Its transformation's label.
+    pub fn spec_transformation(&self) -> String {
+        self.spec.transformation.clone()
+    }
+
+    /// Its pid.
+    pub fn pid(&self) -> u32 {
+        self.pid
+    }
+
+    /// Its labour.
+    pub fn labour(&self) -> Duration {
+        Duration::from_nanos(self.labour_ns.load(Ordering::Relaxed))
+    }
+
+    /// Its state.
+    pub fn state(&self) -> CuState {
+        lock(&self.life).state
+    }
+
+    /// Its CPU time so far.
+    pub fn cpu(&self) -> Duration {
+        process_cpu(self.pid).unwrap_or_default()
+    }
+
+    fn control(&self, request: &ControlRequest) -> Result<ControlReply, CuError> {
+        let payload = serde_json::to_vec(request).unwrap_or_default();
+        let replies = self
+            .session
+            .get(self.namespace.cu_control(&self.spec.name))
+            .payload(payload)
+            .timeout(Duration::from_secs(5))
+            .wait()?;
+        match replies.recv() {
+            Ok(reply) => match reply.result() {
+                Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes()).map_err(|e| {
+                    CuError::failed(format!("a control reply that does not parse: {e}"))
+                }),
+                Err(e) => Err(CuError::failed(format!(
+                    "control error: {}",
+                    String::from_utf8_lossy(&e.payload().to_bytes())
+                ))),
+            },
+            Err(_) => Err(CuError::failed(
+                "the process did not answer its control request",
+            )),
+        }
+    }
+
+    /// Binds a port (make before break in the process).
+    pub fn bind(&self, input: bool, port: &str, channel: Option<&str>) -> Result<(), CuError> {
+        let key = channel.map(|c| self.namespace.channel(c)).transpose()?;
+        let request = if input {
+            ControlRequest::BindIn {
+                port: port.to_owned(),
+                channel: channel.map(str::to_owned),
+                key,
+            }
+        } else {
+            ControlRequest::BindOut {
+                port: port.to_owned(),
+                channel: channel.map(str::to_owned),
+                key,
+            }
+        };
+        let reply = self.control(&request)?;
+        if !reply.ok {
+            return Err(CuError::failed(
+                reply.error.unwrap_or_else(|| "refused".into()),
+            ));
+        }
+        let map = if input { &self.inputs } else { &self.outputs };
+        lock(map).insert(port.to_owned(), channel.map(str::to_owned));
+        self.reconfigurations.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Its report; statistics from the process when it answers within the timeout.
+    pub fn report(&self) -> CuReport {
+        let mut statistics = match self.state() {
+            CuState::Running => self
+                .control(&ControlRequest::Statistics)
+                .ok()
+                .and_then(|r| r.statistics)
+                .unwrap_or_default(),
+            _ => CuStatistics::default(),
+        };
+        let life = lock(&self.life);
+        statistics.uptime_ms = life.running_since.map_or(0, |s| {
+            u64::try_from(s.elapsed().as_millis()).unwrap_or(u64::MAX)
+        });
+        let (state, reason) = (life.state, life.reason.clone());
+        drop(life);
+        statistics.cpu_ms = self.cpu().as_secs_f64() * 1e3;
+        statistics.reconfigurations = self.reconfigurations.load(Ordering::Relaxed);
+        CuReport {
+            cu: self.spec.name.clone(),
+            transformation: self.spec.transformation.clone(),
+            state,
+            inputs: lock(&self.inputs).clone(),
+            outputs: lock(&self.outputs).clone(),
+            statistics,
+            reason,
+        }
+    }
+
+    /// Stops it: asks it to exit, and kills it if it has not within `grace`.
+    pub fn stop(&self, grace: Duration) {
+        self.stopping.store(true, Ordering::SeqCst);
+        {
+            let mut life = lock(&self.life);
+            if life.state != CuState::Crashed {
+                life.state = CuState::Stopped;
+            }
+            life.running_since = None;
+        }
+        if !self.exited.load(Ordering::SeqCst) {
+            let _ = self.control_quick(&ControlRequest::Stop, grace);
+            let deadline = Instant::now() + grace;
+            while !self.exited.load(Ordering::SeqCst) && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        }
+        self.kill();
+        *lock(&self._watch) = None;
+    }
+
+    fn control_quick(&self, request: &ControlRequest, timeout: Duration) -> Result<(), CuError> {
+        let payload = serde_json::to_vec(request).unwrap_or_default();
+        let replies = self
+            .session
+            .get(self.namespace.cu_control(&self.spec.name))
+            .payload(payload)
+            .timeout(timeout)
+            .wait()?;
+        let _ = replies.recv_timeout(timeout);
+        Ok(())
+    }
+
+    /// `kill -9` unless it has exited (and been reaped: its pid may be another's then).
+    pub fn kill(&self) {
+        self.stopping.store(true, Ordering::SeqCst);
+        if !self.exited.load(Ordering::SeqCst) {
+            let pid = nix::unistd::Pid::from_raw(i32::try_from(self.pid).unwrap_or(i32::MAX));
+            let _ = nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGKILL);
+        }
+    }
+}
+
+fn wait(child: &mut Child) -> String {
+    match child.wait() {
+        Ok(status) => match (
+            status.code(),
+            std::os::unix::process::ExitStatusExt::signal(&status),
+        ) {
+            (Some(code), _) => format!("exited with status {code}"),
+            (None, Some(signal)) => format!("killed by signal {signal}"),
+            _ => "exited".to_owned(),
+        },
+        Err(e) => format!("cannot be waited for: {e}"),
+    }
+}

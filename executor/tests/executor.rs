@@ -1,0 +1,369 @@
+//! The executor on a real Zenoh session: builtin and process CUs computing, rewired make
+//! before break, crashing.
+
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dyknow_cu::protocol::{ApplyRequest, CuAction, CuState, Event, Implementation};
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{Namespace, Sample};
+use dyknow_executor::{Executor, ExecutorConfig};
+use serde_json::{Value, json};
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port")
+}
+
+/// A router session listening on a fresh loopback port; returns it and its endpoint.
+fn session() -> (zenoh::Session, String) {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"router\"").expect("mode");
+    config
+        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
+        .expect("listen");
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .expect("scouting");
+    config
+        .insert_json5("scouting/gossip/enabled", "false")
+        .expect("gossip");
+    (zenoh::open(config).wait().expect("a session"), endpoint)
+}
+
+fn implementation(
+    kind: &str,
+    source: &str,
+    ins: &[&str],
+    outs: &[&str],
+    params: Value,
+) -> Implementation {
+    Implementation {
+        kind: kind.into(),
+        source: source.into(),
+        params: serde_json::from_value(params).expect("params"),
+        executor: None,
+        inputs: ins.iter().map(|s| (*s).to_owned()).collect(),
+        outputs: outs.iter().map(|s| (*s).to_owned()).collect(),
+    }
+}
+
+fn spawn(cu: &str, implementation: Implementation) -> CuAction {
+    CuAction::Spawn {
+        cu: cu.into(),
+        transformation: format!("t-{cu}"),
+        implementation,
+    }
+}
+
+fn connect(cu: &str, input: bool, port: &str, channel: &str) -> CuAction {
+    if input {
+        CuAction::ConnectIn {
+            cu: cu.into(),
+            port: port.into(),
+            channel: channel.into(),
+        }
+    } else {
+        CuAction::ConnectOut {
+            cu: cu.into(),
+            port: port.into(),
+            channel: channel.into(),
+        }
+    }
+}
+
+fn listen(session: &zenoh::Session, channel: &str) -> (mpsc::Receiver<Sample>, impl Drop) {
+    let (tx, rx) = mpsc::channel();
+    let key = Namespace::default().channel(channel).expect("a key");
+    let sub = session
+        .declare_subscriber(key)
+        .callback(move |s| {
+            if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes()) {
+                let _ = tx.send(sample);
+            }
+        })
+        .wait()
+        .expect("subscribe");
+    (rx, sub)
+}
+
+fn events(session: &zenoh::Session) -> (mpsc::Receiver<Event>, impl Drop) {
+    let (tx, rx) = mpsc::channel();
+    let sub = session
+        .declare_subscriber(Namespace::default().all_executor_events())
+        .callback(move |s| {
+            if let Ok(e) = serde_json::from_slice::<Event>(&s.payload().to_bytes()) {
+                let _ = tx.send(e);
+            }
+        })
+        .wait()
+        .expect("subscribe");
+    (rx, sub)
+}
+
+fn apply(executor: &Executor, actions: Vec<CuAction>) {
+    let reply = executor.apply(&ApplyRequest {
+        change_set: "cs-t".into(),
+        actions,
+    });
+    assert!(reply.failures.is_empty(), "{:?}", reply.failures);
+}
+
+#[test]
+fn a_signal_relay_map_chain_computes_and_a_panic_is_a_crash() {
+    let (session, endpoint) = session();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("t1", Namespace::default(), vec![endpoint]),
+    )
+    .expect("an executor");
+    let (crashes, _e) = events(&session);
+    let (out, _s) = listen(&session, "/out");
+    apply(
+        &executor,
+        vec![
+            spawn(
+                "sig",
+                implementation(
+                    "builtin",
+                    "dyknow/signal",
+                    &[],
+                    &["o"],
+                    json!({"period_ms": 5}),
+                ),
+            ),
+            spawn(
+                "rel",
+                implementation("nodelet", "dyknow/relay", &["i"], &["o"], json!({})),
+            ),
+            spawn(
+                "map",
+                implementation(
+                    "builtin",
+                    "dyknow/map",
+                    &["i"],
+                    &["o"],
+                    json!({"scale": 10}),
+                ),
+            ),
+            connect("map", false, "o", "/out"),
+            connect("map", true, "i", "b"),
+            connect("rel", false, "o", "b"),
+            connect("rel", true, "i", "a"),
+            connect("sig", false, "o", "a"),
+        ],
+    );
+    let first = out
+        .recv_timeout(Duration::from_secs(10))
+        .expect("a sample")
+        .value;
+    let n = first.as_i64().expect("a number");
+    assert_eq!(n % 10, 0, "the counter times ten");
+    let next = out
+        .recv_timeout(Duration::from_secs(10))
+        .expect("a sample")
+        .value;
+    assert_eq!(next.as_i64(), Some(n + 10), "consecutive counter values");
+    let report = executor
+        .info()
+        .cus
+        .into_iter()
+        .find(|c| c.cu == "rel")
+        .expect("rel");
+    assert_eq!(report.state, CuState::Running);
+    assert!(report.statistics.ports["i"].messages >= 1);
+    assert_eq!(report.inputs["i"].as_deref(), Some("a"));
+    // A fault relay that panics on command.
+    apply(
+        &executor,
+        vec![
+            spawn(
+                "bad",
+                implementation("builtin", "dyknow/fault", &["i"], &["o"], json!({})),
+            ),
+            connect("bad", true, "i", "cmd"),
+        ],
+    );
+    session
+        .put(
+            Namespace::default().channel("cmd").expect("key"),
+            Sample::now(json!({"fault": "panic"})).to_bytes(),
+        )
+        .wait()
+        .expect("put");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match crashes.recv_timeout(left).expect("a crash event") {
+            Event::CuCrashed { cu, reason, .. } => {
+                assert_eq!(cu, "bad");
+                assert!(reason.contains("panic"), "{reason}");
+                break;
+            }
+            _ => continue,
+        }
+    }
+    assert!(
+        executor.info().cus.iter().all(|c| c.cu != "bad"),
+        "a crashed CU is gone"
+    );
+    executor.shutdown();
+}
+
+#[test]
+fn rebinding_an_input_loses_no_sample_after_the_acknowledgement() {
+    let (session, endpoint) = session();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("t2", Namespace::default(), vec![endpoint]),
+    )
+    .expect("an executor");
+    let (out, _s) = listen(&session, "out");
+    apply(
+        &executor,
+        vec![
+            spawn(
+                "r",
+                implementation("builtin", "dyknow/relay", &["i"], &["o"], json!({})),
+            ),
+            connect("r", false, "o", "out"),
+            connect("r", true, "i", "old"),
+        ],
+    );
+    let new_key = Namespace::default().channel("new").expect("key");
+    let publisher = session
+        .declare_publisher(new_key)
+        .wait()
+        .expect("publisher");
+    for round in 0..20 {
+        let channel = if round % 2 == 0 { "new" } else { "old" };
+        apply(&executor, vec![connect("r", true, "i", channel)]);
+        if channel == "new" {
+            publisher
+                .put(Sample::new(round, json!(round)).to_bytes())
+                .wait()
+                .expect("put");
+            let got = out
+                .recv_timeout(Duration::from_secs(10))
+                .expect("no sample lost");
+            assert_eq!(got.t, round);
+        }
+    }
+    let report = executor
+        .info()
+        .cus
+        .into_iter()
+        .find(|c| c.cu == "r")
+        .expect("r");
+    assert_eq!(report.statistics.reconfigurations, 22);
+}
+
+#[test]
+fn process_cus_compute_and_their_death_is_seen_at_once() {
+    let (session, endpoint) = session();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("t3", Namespace::default(), vec![endpoint]),
+    )
+    .expect("an executor");
+    let (crashes, _e) = events(&session);
+    let (out, _s) = listen(&session, "pout");
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    apply(
+        &executor,
+        vec![
+            spawn(
+                "pm",
+                implementation(
+                    "process",
+                    &format!("{program} dyknow/map"),
+                    &["i"],
+                    &["o"],
+                    json!({"offset": 1}),
+                ),
+            ),
+            connect("pm", false, "o", "pout"),
+            connect("pm", true, "i", "pin"),
+        ],
+    );
+    let key = Namespace::default().channel("pin").expect("key");
+    let got = (0..100)
+        .find_map(|i| {
+            session
+                .put(&key, Sample::new(i, json!(41)).to_bytes())
+                .wait()
+                .expect("put");
+            out.recv_timeout(Duration::from_millis(100)).ok()
+        })
+        .expect("the process computes");
+    assert_eq!(got.value, json!(42));
+    let (_, pid) = executor
+        .pids()
+        .into_iter()
+        .find(|(n, _)| n == "pm")
+        .expect("a pid");
+    let killed = Instant::now();
+    std::process::Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .expect("kill");
+    loop {
+        match crashes
+            .recv_timeout(Duration::from_secs(10))
+            .expect("a crash event")
+        {
+            Event::CuCrashed { cu, .. } if cu == "pm" => break,
+            _ => continue,
+        }
+    }
+    assert!(
+        killed.elapsed() < Duration::from_secs(2),
+        "seen in {:?}",
+        killed.elapsed()
+    );
+    // A program that is not there fails the spawn, with the reason.
+    let reply = executor.apply(&ApplyRequest {
+        change_set: "cs".into(),
+        actions: vec![spawn(
+            "gone",
+            implementation("process", "/nonexistent/cu", &[], &["o"], json!({})),
+        )],
+    });
+    assert_eq!(reply.failures.len(), 1);
+    assert!(
+        reply.failures[0].reason.contains("not an executable"),
+        "{:?}",
+        reply.failures
+    );
+    // Shutdown leaves no child behind.
+    apply(
+        &executor,
+        vec![spawn(
+            "p2",
+            implementation(
+                "process",
+                &format!("{program} dyknow/relay"),
+                &["i"],
+                &["o"],
+                json!({}),
+            ),
+        )],
+    );
+    let (_, pid) = executor
+        .pids()
+        .into_iter()
+        .find(|(n, _)| n == "p2")
+        .expect("a pid");
+    executor.shutdown();
+    assert!(
+        !std::path::Path::new(&format!("/proc/{pid}")).exists() || is_zombie(pid),
+        "child {pid} still runs"
+    );
+}
+
+fn is_zombie(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| s.contains(") Z "))
+}
