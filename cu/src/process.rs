@@ -20,7 +20,7 @@
 
 use std::collections::BTreeMap;
 use std::process::ExitCode;
-use std::sync::mpsc;
+use std::sync::{Arc, OnceLock, mpsc};
 
 use zenoh::Wait;
 use zenoh::sample::SampleKind;
@@ -141,6 +141,37 @@ fn serve<T: Transformation>(
     let transformation = make(&env.spec)?;
     let (exit_tx, exit_rx) = mpsc::channel::<Exit>();
     let timers = Timers::start();
+    // The control service first, then the CU (whose liveliness token tells the executor it
+    // may send requests): a request never finds the service missing.
+    let slot: Arc<OnceLock<Unit>> = Arc::default();
+    let control_slot = slot.clone();
+    let stop_tx = exit_tx.clone();
+    let _queryable = session
+        .declare_queryable(env.namespace.cu_control(&env.spec.name))
+        .callback(move |query| {
+            let request: Result<ControlRequest, _> = query
+                .payload()
+                .map(|p| serde_json::from_slice(&p.to_bytes()))
+                .unwrap_or_else(|| serde_json::from_slice(b"null"));
+            let reply = match (request, control_slot.get()) {
+                (Err(e), _) => ControlReply {
+                    ok: false,
+                    error: Some(format!("not a control request: {e}")),
+                    statistics: None,
+                },
+                (Ok(_), None) => ControlReply {
+                    ok: false,
+                    error: Some("still starting".into()),
+                    statistics: None,
+                },
+                (Ok(request), Some(unit)) => control(unit, request, &stop_tx),
+            };
+            let payload = serde_json::to_vec(&reply).unwrap_or_default();
+            if let Err(e) = query.reply(query.key_expr().clone(), payload).wait() {
+                tracing::warn!("cannot answer the executor: {e}");
+            }
+        })
+        .wait()?;
     let crash_tx = exit_tx.clone();
     let started = Unit::start(
         &session,
@@ -153,29 +184,7 @@ fn serve<T: Transformation>(
         }),
     )?;
     let unit = started.unit;
-    let control_unit = unit.clone();
-    let stop_tx = exit_tx.clone();
-    let _queryable = session
-        .declare_queryable(env.namespace.cu_control(&env.spec.name))
-        .callback(move |query| {
-            let request: Result<ControlRequest, _> = query
-                .payload()
-                .map(|p| serde_json::from_slice(&p.to_bytes()))
-                .unwrap_or_else(|| serde_json::from_slice(b"null"));
-            let reply = match request {
-                Err(e) => ControlReply {
-                    ok: false,
-                    error: Some(format!("not a control request: {e}")),
-                    statistics: None,
-                },
-                Ok(request) => control(&control_unit, request, &stop_tx),
-            };
-            let payload = serde_json::to_vec(&reply).unwrap_or_default();
-            if let Err(e) = query.reply(query.key_expr().clone(), payload).wait() {
-                tracing::warn!("cannot answer the executor: {e}");
-            }
-        })
-        .wait()?;
+    let _ = slot.set(unit.clone());
     let _watch = match &env.executor {
         Some(executor) => {
             let orphan_tx = exit_tx.clone();

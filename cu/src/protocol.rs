@@ -275,6 +275,9 @@ pub struct CuReport {
     /// Why it crashed, if it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// The process id of a process CU.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pid: Option<u32>,
 }
 
 /// An executor's description (its `info` service).

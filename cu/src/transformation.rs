@@ -175,3 +175,26 @@ impl<'a> NodeHandle<'a> {
         self.timers.len() - 1
     }
 }
+
+impl Transformation for Box<dyn Transformation> {
+    fn start(&mut self, cu: &mut NodeHandle<'_>) -> Result<(), CuError> {
+        self.as_mut().start(cu)
+    }
+
+    fn on_sample(
+        &mut self,
+        cu: &mut NodeHandle<'_>,
+        port: &str,
+        sample: Sample,
+    ) -> Result<(), CuError> {
+        self.as_mut().on_sample(cu, port, sample)
+    }
+
+    fn on_timer(&mut self, cu: &mut NodeHandle<'_>, timer: TimerId) -> Result<(), CuError> {
+        self.as_mut().on_timer(cu, timer)
+    }
+
+    fn on_reconfigure(&mut self, cu: &mut NodeHandle<'_>) -> Result<(), CuError> {
+        self.as_mut().on_reconfigure(cu)
+    }
+}

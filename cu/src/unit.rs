@@ -437,6 +437,7 @@ impl Unit {
             outputs,
             statistics: self.statistics(),
             reason,
+            pid: None,
         }
     }
 

@@ -391,6 +391,7 @@ impl ProcessCu {
             outputs: lock(&self.outputs).clone(),
             statistics,
             reason,
+            pid: Some(self.pid),
         }
     }
 

@@ -1,8 +1,13 @@
 //! The seam between the life-cycle and the running system: an [`Executor`] applies the change
 //! sets the life-cycle decides to real computation units (the seed's nodelet proxy, Ch.
-//! 5.2.1–5.3) and says which actions it could not apply.
+//! 5.2.1–5.3), says which actions it could not apply, and says which transformations it can
+//! run at all (a transformation no executor can run is never planned).
 
-use dyknow_engine::{ActionFailure, ChangeSet};
+use std::collections::BTreeMap;
+
+use dyknow_engine::{ActionFailure, ChangeSet, Cid, Tid};
+use dyknow_store::spec::TransformationSpec;
+use serde::Serialize;
 
 /// What an executor did with a change set.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -18,25 +23,52 @@ impl Applied {
     }
 }
 
+/// A CU as the running system sees it (`GET /cus/{name}`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CuView {
+    /// The executor hosting it.
+    pub executor: Option<String>,
+    /// `starting`, `running`, `crashed`, `stopped`, or `model` in model-only mode.
+    pub state: String,
+    /// Its statistics (`uptime_ms`, `reconfigurations`, `cpu_ms`, `ports`).
+    pub statistics: serde_json::Value,
+    /// The process id of a process CU.
+    pub pid: Option<u32>,
+}
+
 /// Applies change sets to the running system. The life-cycle calls [`Executor::apply`] for
-/// every change set it makes (reviews, Spawn, Destroy), one at a time, holding its
-/// configuration lock; then it writes the model and records the change set with its status.
+/// every change set it makes (reviews, Spawn, Destroy, SetConfig), one at a time, holding its
+/// configuration lock, and counts it applied when the call returns (every executor involved
+/// acknowledged it); then it writes the model and records the change set with its status.
 /// The CU of a failed action is treated as crashed: it leaves the model and a review repairs
 /// the configuration.
 pub trait Executor: Send + Sync {
     /// Applies the actions of `change_set` in order (each CU reconfigured make before break)
-    /// and reports those that failed.
-    fn apply(&self, change_set: &ChangeSet) -> Applied;
+    /// and reports those that failed. `specs` gives the implementation of every
+    /// transformation.
+    fn apply(&self, change_set: &ChangeSet, specs: &BTreeMap<Tid, TransformationSpec>) -> Applied;
+
+    /// Whether some present executor can run the transformation; why not otherwise.
+    fn runnable(&self, spec: &TransformationSpec) -> Result<(), String> {
+        let _ = spec;
+        Ok(())
+    }
+
+    /// What the running system says of a CU; `None` when nothing runs (model-only mode).
+    fn describe(&self, cu: &Cid) -> Option<CuView> {
+        let _ = cu;
+        None
+    }
 }
 
 /// The executor of a service that runs no computation units (`dyknow serve --model-only`):
 /// change sets change the model only, which the life-cycle writes for every executor, so
-/// there is nothing more to apply and nothing fails.
+/// there is nothing more to apply, nothing fails and every transformation is runnable.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ModelOnly;
 
 impl Executor for ModelOnly {
-    fn apply(&self, _change_set: &ChangeSet) -> Applied {
+    fn apply(&self, _: &ChangeSet, _: &BTreeMap<Tid, TransformationSpec>) -> Applied {
         Applied::all()
     }
 }

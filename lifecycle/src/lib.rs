@@ -30,13 +30,15 @@
 
 mod error;
 mod executor;
+pub mod fleet;
 mod history;
 mod manager;
 mod perturbation;
 mod schedule;
 
 pub use error::LifecycleError;
-pub use executor::{Applied, Executor, ModelOnly};
+pub use executor::{Applied, CuView, Executor, ModelOnly};
+pub use fleet::{ExecutorSummary, Fleet, FleetEvent};
 pub use manager::{Manager, Observation, Settings, SpawnRequest};
 pub use perturbation::Perturbation;
 pub use schedule::{Phase, Status};

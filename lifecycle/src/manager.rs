@@ -4,6 +4,7 @@
 //! *configuration lock*, held from reading the environment to recording the outcome, so two
 //! of them never hand out the same name or undo each other.
 
+use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock};
 use std::time::Duration;
 
@@ -12,11 +13,12 @@ use dyknow_engine::{
     CostSummary, Environment, ExploreOptions, Ids, Invalidity, Learned, Tid,
 };
 use dyknow_store::model::{self, Loaded, SpecCache};
+use dyknow_store::spec::TransformationSpec;
 use dyknow_store::{EnvironmentPart, KnowledgeBase};
 use tokio::sync::{Notify, broadcast};
 
 use crate::error::LifecycleError;
-use crate::executor::Executor;
+use crate::executor::{CuView, Executor};
 use crate::history::History;
 use crate::perturbation::Perturbation;
 use crate::schedule::{Schedule, Status};
@@ -127,6 +129,9 @@ pub struct Manager {
     history: RwLock<History>,
     learned: RwLock<Learned>,
     schedule: Mutex<Schedule>,
+    /// The transformations the executors could run when last asked
+    /// ([`Manager::executors_changed`]).
+    runnable: Mutex<BTreeSet<Tid>>,
     wake: Notify,
     events: broadcast::Sender<Arc<ChangeSet>>,
 }
@@ -178,6 +183,7 @@ impl Manager {
             history: RwLock::new(history),
             learned: RwLock::new(learned),
             schedule: Mutex::new(Schedule::new(settings)),
+            runnable: Mutex::default(),
             wake: Notify::new(),
             events,
             kb,
@@ -194,10 +200,58 @@ impl Manager {
         self.settings
     }
 
-    /// The environment, candidate table and IRIs now, with the learned estimates.
+    /// The environment, candidate table and IRIs now, with the learned estimates. The
+    /// library holds only the transformations the executors can run (seed Def. 33.1: a CU of
+    /// another is invalid, and the search never plans one).
     pub fn load(&self) -> Result<Loaded, LifecycleError> {
         let learned = self.learned();
-        Ok(self.specs.load(&self.kb, Some(&learned))?)
+        let mut loaded = self.specs.load(&self.kb, Some(&learned))?;
+        let executor = &self.executor;
+        let specs = &loaded.specs;
+        loaded
+            .env
+            .library
+            .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
+        Ok(loaded)
+    }
+
+    /// Whether the executors can run a transformation, and why not.
+    pub fn runnable(&self, spec: &TransformationSpec) -> Result<(), String> {
+        self.executor.runnable(spec)
+    }
+
+    /// What the running system says of a CU (`None` in model-only mode).
+    pub fn describe(&self, cu: &Cid) -> Option<CuView> {
+        self.executor.describe(cu)
+    }
+
+    /// The executors changed (one appeared or vanished): the transformations that became
+    /// runnable are a registration, those that no longer are a deregistration (seed Def. 36),
+    /// so a review replans when the environment is no longer valid.
+    pub fn executors_changed(&self) -> Result<(), LifecycleError> {
+        let loaded = self.specs.load(&self.kb, None)?;
+        let now: BTreeSet<Tid> = loaded
+            .specs
+            .iter()
+            .filter(|(_, s)| self.executor.runnable(s).is_ok())
+            .map(|(t, _)| t.clone())
+            .collect();
+        let before = std::mem::replace(&mut *lock(&self.runnable), now.clone());
+        let registered: Vec<Tid> = now.difference(&before).cloned().collect();
+        let mut schedule = lock(&self.schedule);
+        if !registered.is_empty() {
+            schedule.perturbed(&Perturbation::Registered {
+                transformations: registered,
+            });
+        }
+        for transformation in before.difference(&now) {
+            schedule.perturbed(&Perturbation::Deregistered {
+                transformation: transformation.clone(),
+            });
+        }
+        drop(schedule);
+        self.wake.notify_one();
+        Ok(())
     }
 
     /// The learned estimates.
@@ -451,7 +505,7 @@ impl Manager {
             .take_id();
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
-        let applied = self.executor.apply(&change_set);
+        let applied = self.executor.apply(&change_set, &loaded.specs);
         let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;
@@ -480,12 +534,34 @@ impl Manager {
             EnvironmentPart::ChangeSet(id),
             model::change_set_triples(&change_set),
         ));
+        // A spawn that failed cost labour and gave nothing: its transformation's labour
+        // estimate doubles (as an observation), so a transformation that keeps failing to
+        // start loses to its alternatives instead of crash-looping.
+        let mut learned = None;
+        for failure in &change_set.failures {
+            if let Some(Action::Spawn { transformation, .. }) =
+                change_set.actions.get(failure.action)
+                && let Some(tf) = loaded.env.library.get(transformation)
+            {
+                let learned = learned.get_or_insert_with(|| self.learned());
+                learned.observe(transformation.clone(), CostKind::Labour, (2.0 * tf.labour).max(1.0));
+            }
+        }
+        if let Some(learned) = &learned {
+            parts.push((
+                EnvironmentPart::Statistics,
+                model::statistics_triples(&self.kb, learned, &loaded.iris)?,
+            ));
+        }
         if let Err(e) = self.kb.set_environment(&parts) {
             // The executor may have applied what the model now lacks: replan from the model.
             tracing::error!("{}: applied but not recorded: {e}", change_set.id);
             lock(&self.schedule).urgent();
             self.wake.notify_one();
             return Err(e.into());
+        }
+        if let Some(learned) = learned {
+            *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
         }
         let change_set = Arc::new(change_set);
         self.history
@@ -507,6 +583,39 @@ impl Manager {
             self.wake.notify_one();
         }
         Ok(Committed { change_set, after })
+    }
+
+    /// Records observed costs in one write (what executors report every interval); those of
+    /// CUs that are gone or invalid values are skipped. Returns how many were recorded.
+    pub fn observe_all(&self, observations: Vec<Observation>) -> Result<usize, LifecycleError> {
+        let _configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let mut learned = self.learned();
+        let mut recorded = 0;
+        for observation in observations {
+            let (tid, kind, value) = match observation {
+                Observation::Upkeep { cu, value } => match loaded.env.cus.get(&cu) {
+                    Some(cu) => (cu.tid.clone(), CostKind::Upkeep, value),
+                    None => continue,
+                },
+                Observation::Labour {
+                    transformation,
+                    value,
+                } => (transformation, CostKind::Labour, value),
+            };
+            if !(value.is_finite() && value >= 0.0) || !loaded.specs.contains_key(&tid) {
+                continue;
+            }
+            learned.observe(tid, kind, value);
+            recorded += 1;
+        }
+        if recorded > 0 {
+            let triples = model::statistics_triples(&self.kb, &learned, &loaded.iris)?;
+            self.kb
+                .set_environment(&[(EnvironmentPart::Statistics, triples)])?;
+            *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
+        }
+        Ok(recorded)
     }
 
     /// Records an observed cost: the historical average of its transformation is updated and
@@ -569,6 +678,7 @@ impl Manager {
             if !due && check.is_none() {
                 continue;
             }
+            tracing::debug!("review loop: due {due}, check {check:?}");
             let me = self.clone();
             let result = tokio::task::spawn_blocking(move || {
                 // A check that cannot read the environment reviews (which records the error),

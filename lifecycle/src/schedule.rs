@@ -171,6 +171,10 @@ impl Schedule {
     /// A review starts: takes what perturbed the environment.
     pub(crate) fn review_starts(&mut self) -> (Vec<Cause>, Vec<Tid>) {
         self.urgent = false;
+        // The next regular review is a stable interval away; a failure while this one runs
+        // brings it forward by the back-off only (from a time in the past, the back-off would
+        // be no wait at all).
+        self.next_review_at = SystemTime::now() + self.stable_interval();
         self.checks_done = self.checks_asked;
         self.phase = Phase::Review;
         (
@@ -235,6 +239,26 @@ mod tests {
         assert!(s.wait() <= FIRST_RETRY);
         let (causes, _) = s.review_starts();
         assert_eq!(causes.len(), 11, "every failed CU is a cause");
+    }
+
+    /// The cycle the life-cycle loop runs: a review starts when due, its change set fails,
+    /// it ends. The waits double although each review starts after the time it was due.
+    #[test]
+    fn failed_reviews_in_a_row_wait_longer_and_longer() {
+        let mut s = schedule();
+        for k in 0..6 {
+            s.next_review_at = SystemTime::now() - Duration::from_millis(5);
+            assert!(s.due().0, "round {k}: due");
+            let (causes, _) = s.review_starts();
+            s.failed(format!("cu-{k}").into());
+            s.review_ends(causes, None);
+            let expected = FIRST_RETRY * (1 << k);
+            let wait = s.wait();
+            assert!(
+                wait <= expected && wait + Duration::from_millis(50) >= expected,
+                "round {k}: waits {wait:?}, expected {expected:?}"
+            );
+        }
     }
 
     #[test]

@@ -35,7 +35,11 @@ struct Recording {
 }
 
 impl Executor for Recording {
-    fn apply(&self, change_set: &ChangeSet) -> Applied {
+    fn apply(
+        &self,
+        change_set: &ChangeSet,
+        _: &std::collections::BTreeMap<dyknow_engine::Tid, dyknow_store::spec::TransformationSpec>,
+    ) -> Applied {
         self.seen.lock().unwrap().push(change_set.clone());
         let mut fail = self.fail_once.lock().unwrap();
         let failures: Vec<ActionFailure> = change_set
@@ -257,7 +261,11 @@ fn names_are_never_handed_out_twice_across_a_restart() {
 struct RefusesDestroy;
 
 impl Executor for RefusesDestroy {
-    fn apply(&self, change_set: &ChangeSet) -> Applied {
+    fn apply(
+        &self,
+        change_set: &ChangeSet,
+        _: &std::collections::BTreeMap<dyknow_engine::Tid, dyknow_store::spec::TransformationSpec>,
+    ) -> Applied {
         Applied {
             failures: change_set
                 .actions

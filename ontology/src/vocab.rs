@@ -117,6 +117,9 @@ pub mod dkros {
         HAS_SOURCE = "hasSource";
         /// `dkros:hasParam`.
         HAS_PARAM = "hasParam";
+        /// `dkros:hasExecutor`, this project's addition: the executor a transformation is
+        /// pinned to (`executors.md`).
+        HAS_EXECUTOR = "hasExecutor";
         /// `dkros:hasIndex`, the position of a port or tag in the posted spec, or of an action
         /// in its change set.
         HAS_INDEX = "hasIndex";

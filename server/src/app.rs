@@ -9,7 +9,7 @@ use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::{Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
-use dyknow_lifecycle::{Executor, LifecycleError, Manager, ModelOnly, Settings};
+use dyknow_lifecycle::{Executor, Fleet, LifecycleError, Manager, ModelOnly, Settings};
 use dyknow_store::KnowledgeBase;
 
 use crate::error::ApiError;
@@ -52,6 +52,8 @@ pub struct AppState {
     pub metrics: Arc<Metrics>,
     /// The configuration life-cycle (reviews, Spawn, Destroy, change sets, estimators).
     pub lifecycle: Arc<Manager>,
+    /// The executors on Zenoh, unless the service runs in model-only mode.
+    pub fleet: Option<Arc<Fleet>>,
 }
 
 impl AppState {
@@ -75,7 +77,19 @@ impl AppState {
             config: Arc::new(config),
             metrics: Arc::new(Metrics::default()),
             lifecycle,
+            fleet: None,
         })
+    }
+
+    /// [`AppState::new`] with change sets applied by the executors of `fleet`.
+    pub fn with_fleet(
+        kb: KnowledgeBase,
+        config: ServerConfig,
+        fleet: Arc<Fleet>,
+    ) -> Result<Self, LifecycleError> {
+        let mut state = Self::with_executor(kb, config, fleet.clone())?;
+        state.fleet = Some(fleet);
+        Ok(state)
     }
 
     /// Spawns the life-cycle loop on the current Tokio runtime.
@@ -103,6 +117,7 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::model::router())
         .merge(routes::ops::router())
         .merge(routes::reconfig::router())
+        .merge(routes::executors::router())
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))

@@ -7,7 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
+use std::sync::Arc;
+
 use clap::{Parser, Subcommand};
+
+use crate::dataplane;
 use dyknow_store::{IngestError, InputFormat, KnowledgeBase, ModelFormat};
 
 use crate::app::{AppState, ServerConfig, app};
@@ -26,6 +30,47 @@ pub struct Cli {
 pub enum Command {
     /// Runs the knowledge service (HTTP API, see docs/http-api.md).
     Serve(ServeArgs),
+    /// Runs a stand-alone executor hosting CUs for the manager at --connect, until
+    /// SIGTERM/SIGINT; then stops its CUs.
+    Executor(ExecutorArgs),
+    /// Runs one of the executors' builtins as a process CU (`dkros:hasType "process"`,
+    /// `dkros:hasSource "dyknow cu dyknow/relay"`); started by an executor, which sets its
+    /// environment (docs/executor-protocol.md).
+    Cu {
+        /// The builtin (`dyknow/relay`, `dyknow/map`, ...).
+        builtin: String,
+    },
+    /// Prints the samples of a channel as JSON lines (`{"t", "value"}`).
+    Listen {
+        /// The channel's name (`/ball/position`, `101`).
+        channel: String,
+        /// The service's Zenoh endpoint.
+        #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+        connect: String,
+        /// The key namespace.
+        #[arg(long, value_name = "NS", default_value = "dyknow")]
+        namespace: String,
+        /// Stop after this many samples.
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+        /// Print only each sample's value.
+        #[arg(long)]
+        values: bool,
+    },
+    /// Publishes one sample on a channel: `{"t": now, "value": VALUE}` (VALUE is JSON, or
+    /// taken as a string).
+    Publish {
+        /// The channel's name.
+        channel: String,
+        /// The value.
+        value: String,
+        /// The service's Zenoh endpoint.
+        #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+        connect: String,
+        /// The key namespace.
+        #[arg(long, value_name = "NS", default_value = "dyknow")]
+        namespace: String,
+    },
     /// Loads Turtle specs and ontology extensions into a store offline.
     Load {
         /// The store directory.
@@ -161,6 +206,37 @@ pub struct ServeArgs {
     /// The largest accepted request body, in bytes.
     #[arg(long, value_name = "BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_body: usize,
+    /// The Zenoh endpoint the service's router listens on (executors and process CUs connect
+    /// here).
+    #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+    pub zenoh_listen: String,
+    /// The key namespace of channels and control keys.
+    #[arg(long, value_name = "NS", default_value = "dyknow")]
+    pub namespace: String,
+    /// Run no embedded executor: only stand-alone `dyknow executor`s run CUs.
+    #[arg(long, conflicts_with = "model_only")]
+    pub no_executor: bool,
+    /// Run no executor and no data plane: plan with every transformation and apply change sets
+    /// to the model only.
+    #[arg(long)]
+    pub model_only: bool,
+}
+
+/// Options of `dyknow executor`.
+#[derive(Debug, clap::Args)]
+pub struct ExecutorArgs {
+    /// The executor's name (one key chunk: no '/', '*', '$', '?', '#').
+    #[arg(long, value_name = "NAME")]
+    pub name: String,
+    /// The manager's Zenoh endpoint (e.g. tcp/127.0.0.1:7447).
+    #[arg(long, value_name = "ENDPOINT", required = true, num_args = 1..)]
+    pub connect: Vec<String>,
+    /// An endpoint to listen on (its process CUs then connect here).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub listen: Option<String>,
+    /// The key namespace.
+    #[arg(long, value_name = "NS", default_value = "dyknow")]
+    pub namespace: String,
 }
 
 /// A failure of a subcommand: the one-line message and the exit status.
@@ -177,6 +253,21 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Serve(args) => serve(args),
+        Command::Executor(args) => executor(&args),
+        Command::Cu { builtin } => return cu(&builtin),
+        Command::Listen {
+            channel,
+            connect,
+            namespace,
+            count,
+            values,
+        } => listen(&channel, &connect, &namespace, count, values),
+        Command::Publish {
+            channel,
+            value,
+            connect,
+            namespace,
+        } => publish(&channel, &value, &connect, &namespace),
         Command::Load { data, files } => load(&data, &files),
         Command::Export {
             data,
@@ -565,7 +656,7 @@ fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
     let kb = open_store(data)?;
     use std::io::Write;
     let body = if format == "dyknow" || format == "json" {
-        let json = crate::routes::model::model_json(&kb).map_err(|e| Failure(2, e.message))?;
+        let json = crate::routes::model::model_json(&kb, &|_| Ok(())).map_err(|e| Failure(2, e.message))?;
         serde_json::to_vec_pretty(&json)?
     } else {
         let format = ModelFormat::from_name(format).ok_or_else(|| {
@@ -641,12 +732,61 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
                 .then(|| Duration::from_millis(args.explore_timeout_ms)),
         },
     };
-    let state = AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?;
+    let namespace = dyknow_cu::Namespace::new(args.namespace.clone())
+        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
+    let mut plane = None;
+    let state = if args.model_only {
+        tracing::info!("model-only mode: no executor, change sets change the model only");
+        AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?
+    } else {
+        let listen = vec![args.zenoh_listen.clone()];
+        let session = dataplane::open(
+            dataplane::router_config(&listen, &[]).map_err(|e| Failure(2, e))?,
+        )
+        .map_err(|e| Failure(2, format!("{e} (listening on {})", args.zenoh_listen)))?;
+        let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
+            .map_err(|e| Failure(2, format!("zenoh: {e}")))?;
+        let fleet = Arc::new(fleet);
+        let local = if args.no_executor {
+            None
+        } else {
+            let executor = dyknow_executor::Executor::start(
+                &session,
+                dyknow_executor::ExecutorConfig::new("local", namespace.clone(), listen.clone()),
+            )
+            .map_err(|e| Failure(2, format!("executor: {e}")))?;
+            if !fleet.wait_for("local", Duration::from_secs(10)) {
+                tracing::warn!("the embedded executor did not show up within 10 s");
+            }
+            Some(executor)
+        };
+        tracing::info!(
+            "data plane: Zenoh router on {}, namespace {}, {}",
+            args.zenoh_listen,
+            namespace,
+            if local.is_some() { "embedded executor local" } else { "no embedded executor" }
+        );
+        let state = AppState::with_fleet(kb, config, fleet)
+            .map_err(|e| Failure(2, format!("engine: {e}")))?;
+        plane = Some((session, local, events));
+        state
+    };
     let kb = state.kb.clone();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
+    let (session, local, events) = match plane {
+        Some((session, local, events)) => (Some(session), local, Some(events)),
+        None => (None, None, None),
+    };
     runtime.block_on(async move {
+        if let Some(events) = events {
+            tokio::spawn(dataplane::forward(
+                events,
+                state.lifecycle.clone(),
+                Duration::from_secs(1),
+            ));
+        }
         let listener = tokio::net::TcpListener::bind(args.bind)
             .await
             .map_err(|e| Failure(2, format!("cannot listen on {}: {e}", args.bind)))?;
@@ -665,8 +805,125 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             .await?;
         Ok::<(), Failure>(())
     })?;
+    if let Some(local) = local {
+        // Every CU and child process stops with the service.
+        local.shutdown();
+    }
+    if let Some(session) = session {
+        let _ = dyknow_cu::zenoh::Wait::wait(session.close());
+    }
     kb.flush()?;
     tracing::info!("stopped");
+    Ok(())
+}
+
+/// `dyknow executor`.
+fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
+    init_logging();
+    let namespace = dyknow_cu::Namespace::new(args.namespace.clone())
+        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
+    let listen: Vec<String> = args.listen.iter().cloned().collect();
+    let session = dataplane::open(
+        dataplane::router_config(&listen, &args.connect).map_err(|e| Failure(2, e))?,
+    )
+    .map_err(|e| Failure(2, e))?;
+    let process_connect = if listen.is_empty() {
+        args.connect.clone()
+    } else {
+        listen
+    };
+    let executor = dyknow_executor::Executor::start(
+        &session,
+        dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect),
+    )
+    .map_err(|e| Failure(2, format!("executor: {e}")))?;
+    tracing::info!("executor {} connected to {}", args.name, args.connect.join(", "));
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(shutdown_signal());
+    executor.shutdown();
+    let _ = dyknow_cu::zenoh::Wait::wait(session.close());
+    tracing::info!("stopped");
+    Ok(())
+}
+
+/// `dyknow cu`: a builtin as a process CU; its exit status is the CU protocol's (0 stopped,
+/// 1 crashed, 2 orphaned, 64 usage).
+fn cu(builtin: &str) -> ExitCode {
+    let Some(factory) = dyknow_executor::builtins::builtin(builtin) else {
+        eprintln!(
+            "dyknow cu: no builtin {builtin:?} (one of: {})",
+            dyknow_executor::builtins::names().join(", ")
+        );
+        return ExitCode::from(64);
+    };
+    dyknow_cu::run_process(|spec| factory(spec, dyknow_executor::builtins::Host::Process))
+}
+
+/// `dyknow publish`.
+fn publish(channel: &str, value: &str, connect: &str, namespace: &str) -> Result<(), Failure> {
+    let namespace = dyknow_cu::Namespace::new(namespace.to_owned())
+        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
+    let key = namespace
+        .channel(channel)
+        .map_err(|e| Failure(2, e.to_string()))?;
+    let value: serde_json::Value = serde_json::from_str(value)
+        .unwrap_or_else(|_| serde_json::Value::String(value.to_owned()));
+    let session = dataplane::open(
+        dataplane::client_config(&[connect.to_owned()]).map_err(|e| Failure(2, e))?,
+    )
+    .map_err(|e| Failure(2, format!("{e} (is `dyknow serve` running at {connect}?)")))?;
+    let payload = dyknow_cu::Sample::now(value).to_bytes();
+    dyknow_cu::zenoh::Wait::wait(
+        session
+            .put(key, payload)
+            .encoding(dyknow_cu::zenoh::bytes::Encoding::APPLICATION_JSON),
+    )
+    .map_err(|e| Failure(2, format!("cannot publish: {e}")))?;
+    let _ = dyknow_cu::zenoh::Wait::wait(session.close());
+    Ok(())
+}
+
+/// `dyknow listen`.
+fn listen(
+    channel: &str,
+    connect: &str,
+    namespace: &str,
+    count: Option<u64>,
+    values: bool,
+) -> Result<(), Failure> {
+    use std::io::Write as _;
+    let namespace = dyknow_cu::Namespace::new(namespace.to_owned())
+        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
+    let key = namespace
+        .channel(channel)
+        .map_err(|e| Failure(2, e.to_string()))?;
+    let session = dataplane::open(
+        dataplane::client_config(&[connect.to_owned()]).map_err(|e| Failure(2, e))?,
+    )
+    .map_err(|e| Failure(2, format!("{e} (is `dyknow serve` running at {connect}?)")))?;
+    let subscriber = dyknow_cu::zenoh::Wait::wait(session.declare_subscriber(key))
+        .map_err(|e| Failure(2, format!("cannot subscribe: {e}")))?;
+    let mut seen = 0u64;
+    let stdout = std::io::stdout();
+    while count.is_none_or(|n| seen < n) {
+        let Ok(sample) = subscriber.recv() else { break };
+        let payload = sample.payload().to_bytes();
+        let line = match dyknow_cu::Sample::from_slice(&payload) {
+            Ok(s) if values => serde_json::to_string(&s.value).unwrap_or_default(),
+            Ok(s) => serde_json::to_string(&s).unwrap_or_default(),
+            Err(e) => {
+                eprintln!("not a sample ({e}): {}", String::from_utf8_lossy(&payload));
+                continue;
+            }
+        };
+        let mut out = stdout.lock();
+        if writeln!(out, "{line}").and_then(|()| out.flush()).is_err() {
+            break;
+        }
+        seen += 1;
+    }
     Ok(())
 }
 

@@ -2,6 +2,7 @@
 
 mod app;
 pub mod cli;
+pub mod dataplane;
 mod error;
 mod metrics;
 mod negotiate;

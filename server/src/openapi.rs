@@ -3,7 +3,7 @@
 use utoipa::OpenApi;
 
 use crate::error::ErrorBody;
-use crate::routes::{model, ontology, ops, reconfig, sparql, specs};
+use crate::routes::{executors, model, ontology, ops, reconfig, sparql, specs};
 
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
@@ -28,7 +28,8 @@ use crate::routes::{model, ontology, ops, reconfig, sparql, specs};
         sparql::sparql_post,
         model::get_model,
         reconfig::list_cus,
-        reconfig::get_cu,
+        executors::get_cu,
+        executors::list_executors,
         reconfig::spawn_cu,
         reconfig::destroy_cu,
         reconfig::list_change_sets,
@@ -36,6 +37,7 @@ use crate::routes::{model, ontology, ops, reconfig, sparql, specs};
         reconfig::change_set_stream,
         reconfig::post_perturbation,
         reconfig::post_statistics,
+        reconfig::get_statistics,
         reconfig::post_review,
         reconfig::get_environment,
         ops::health,

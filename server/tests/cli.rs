@@ -36,7 +36,7 @@ impl Server {
     fn start(args: &[&str]) -> Self {
         let mut child = Command::new(BIN)
             .arg("serve")
-            .args(["--bind", "127.0.0.1:0"])
+            .args(["--bind", "127.0.0.1:0", "--model-only"])
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
@@ -360,7 +360,7 @@ fn start_up_refusals() {
     let data = dir.path().to_str().unwrap();
     let _first = Server::start(&["--data", data]);
     let out = Command::new(BIN)
-        .args(["serve", "--bind", "127.0.0.1:0", "--data", data])
+        .args(["serve", "--bind", "127.0.0.1:0", "--model-only", "--data", data])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));

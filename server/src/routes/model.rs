@@ -64,7 +64,10 @@ const OFFERS: [&str; 7] = [
 ];
 
 /// Builds the DyKnow JSON model.
-pub fn model_json(kb: &KnowledgeBase) -> Result<ModelJson, ApiError> {
+pub fn model_json(
+    kb: &KnowledgeBase,
+    runnable: &dyn Fn(&dyknow_store::spec::TransformationSpec) -> Result<(), String>,
+) -> Result<ModelJson, ApiError> {
     let loaded = dyknow_store::model::load(kb)?;
     let mut channels = Vec::new();
     for (name, targets) in kb.channels()? {
@@ -79,12 +82,12 @@ pub fn model_json(kb: &KnowledgeBase) -> Result<ModelJson, ApiError> {
         transformations: kb
             .specs(SpecKind::Transformation)?
             .into_iter()
-            .map(|s| spec_json(kb, s))
+            .map(|s| spec_json(kb, runnable, s))
             .collect::<Result<_, _>>()?,
         targets: kb
             .specs(SpecKind::Target)?
             .into_iter()
-            .map(|s| spec_json(kb, s))
+            .map(|s| spec_json(kb, runnable, s))
             .collect::<Result<_, _>>()?,
         cus: loaded
             .env
@@ -122,7 +125,8 @@ pub async fn get_model(
     let inferred = params.inferred.unwrap_or(true);
     let kb = state.kb.clone();
     let Some(format) = format else {
-        let json = blocking(move || model_json(&kb)).await?;
+        let lifecycle = state.lifecycle.clone();
+        let json = blocking(move || model_json(&kb, &|t| lifecycle.runnable(t))).await?;
         return Ok(axum::response::IntoResponse::into_response(Json(json)));
     };
     let exported = blocking(move || Ok(kb.export(format, inferred)?)).await?;

@@ -22,12 +22,15 @@ use crate::negotiate::negotiate;
 pub(crate) fn router() -> Router<AppState> {
     Router::new()
         .route("/cus", get(list_cus).post(spawn_cu))
-        .route("/cus/{name}", get(get_cu).delete(destroy_cu))
+        .route(
+            "/cus/{name}",
+            get(crate::routes::executors::get_cu).delete(destroy_cu),
+        )
         .route("/changesets", get(list_change_sets))
         .route("/changesets/stream", get(change_set_stream))
         .route("/changesets/{id}", get(get_change_set))
         .route("/perturbations", post(post_perturbation))
-        .route("/statistics", post(post_statistics))
+        .route("/statistics", get(get_statistics).post(post_statistics))
         .route("/review", post(post_review))
         .route("/environment", get(get_environment))
 }
@@ -83,22 +86,6 @@ pub(crate) fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
 pub async fn list_cus(State(state): State<AppState>) -> Result<Json<Vec<CuJson>>, ApiError> {
     let s = state.clone();
     Ok(Json(blocking(move || cus(&s)).await?))
-}
-
-/// One computation unit.
-#[utoipa::path(get, path = "/cus/{name}", tag = "reconfiguration",
-    params(("name" = String, Path, description = "the CU's name")),
-    responses((status = 200, body = CuJson), (status = 404, body = crate::error::ErrorBody)))]
-pub async fn get_cu(
-    State(state): State<AppState>,
-    Path(name): Path<String>,
-) -> Result<Json<CuJson>, ApiError> {
-    let s = state.clone();
-    let all = blocking(move || cus(&s)).await?;
-    all.into_iter()
-        .find(|c| c.name == name)
-        .map(Json)
-        .ok_or_else(|| ApiError::not_found(format!("no computation unit named {name:?}")))
 }
 
 /// The Spawn call's body.
@@ -353,6 +340,90 @@ pub async fn post_statistics(
     let s = state.clone();
     blocking(move || Ok(s.lifecycle.observe(observation)?)).await?;
     Ok(StatusCode::ACCEPTED)
+}
+
+/// One learned estimate.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct EstimateJson {
+    /// The historical average of the observations (seed Eqs. 5.8–5.9).
+    pub average: f64,
+    /// How many observations it averages.
+    pub observations: u64,
+}
+
+/// The estimates of one transformation: what the next review uses.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct TransformationStatisticsJson {
+    /// The labour estimate in use (learned, or the spec's).
+    pub labour: f64,
+    /// The upkeep estimate in use per time unit (learned, or the spec's).
+    pub upkeep: f64,
+    /// The learned labour, if anything was observed.
+    pub learned_labour: Option<EstimateJson>,
+    /// The learned upkeep, if anything was observed.
+    pub learned_upkeep: Option<EstimateJson>,
+}
+
+/// The cost statistics (seed Ch. 5.3.2).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct StatisticsListJson {
+    /// The unit of the estimates.
+    pub unit: String,
+    /// The length of one time unit, in seconds.
+    pub time_unit_seconds: f64,
+    /// By transformation label.
+    pub transformations: BTreeMap<String, TransformationStatisticsJson>,
+}
+
+/// The cost estimates per transformation: learned from the executors' measurements (CPU
+/// milliseconds) and `POST /statistics`, or the specs' own.
+#[utoipa::path(get, path = "/statistics", tag = "reconfiguration", responses((status = 200, body = StatisticsListJson)))]
+pub async fn get_statistics(
+    State(state): State<AppState>,
+) -> Result<Json<StatisticsListJson>, ApiError> {
+    let s = state.clone();
+    blocking(move || {
+        let learned = s.lifecycle.learned();
+        let loaded = s.lifecycle.load()?;
+        let estimate = |e: Option<&dyknow_engine::Estimate>| {
+            e.map(|e| EstimateJson {
+                average: e.average,
+                observations: e.count,
+            })
+        };
+        let transformations = loaded
+            .specs
+            .keys()
+            .map(|tid| {
+                let (labour, upkeep) = loaded.env.library.get(tid).map_or_else(
+                    || {
+                        let spec = &loaded.specs[tid];
+                        (spec.labour, spec.upkeep)
+                    },
+                    |t| (t.labour, t.upkeep),
+                );
+                (
+                    tid.to_string(),
+                    TransformationStatisticsJson {
+                        labour: learned.labour.get(tid).map_or(labour, |e| e.average),
+                        upkeep: learned.upkeep.get(tid).map_or(upkeep, |e| e.average),
+                        learned_labour: estimate(learned.labour.get(tid)),
+                        learned_upkeep: estimate(learned.upkeep.get(tid)),
+                    },
+                )
+            })
+            .collect();
+        Ok(Json(StatisticsListJson {
+            unit: if s.fleet.is_some() {
+                "CPU milliseconds as the executors measure them (labour per spawn, upkeep per time unit); posted observations and spec estimates in their own unit".into()
+            } else {
+                "as posted (model-only mode: nothing is measured)".into()
+            },
+            time_unit_seconds: s.lifecycle.settings().time_unit.as_secs_f64(),
+            transformations,
+        }))
+    })
+    .await
 }
 
 /// Starts a review interval now. 202.

@@ -79,6 +79,17 @@ pub struct TransformationJson {
     pub exec_type: Option<String>,
     /// `dkros:hasSource`.
     pub source: Option<String>,
+    /// `dkros:hasParam`: name → value as executors read it (`executors.md`).
+    #[schema(value_type = Object)]
+    pub params: serde_json::Map<String, serde_json::Value>,
+    /// `dkros:hasExecutor`.
+    pub executor: Option<String>,
+    /// Whether some present executor can run it (always, in model-only mode); a
+    /// transformation that is not is never planned.
+    pub runnable: bool,
+    /// Why not.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
 }
 
 /// A target spec.
@@ -131,9 +142,17 @@ fn port_json(port: &Port) -> PortJson {
 }
 
 /// The JSON of a spec (targets look up their producer in the model).
-pub(crate) fn spec_json(kb: &KnowledgeBase, spec: Spec) -> Result<serde_json::Value, ApiError> {
+pub(crate) fn spec_json(
+    kb: &KnowledgeBase,
+    runnable: &dyn Fn(&dyknow_store::spec::TransformationSpec) -> Result<(), String>,
+    spec: Spec,
+) -> Result<serde_json::Value, ApiError> {
     let value = match spec {
         Spec::Transformation(t) => serde_json::to_value(TransformationJson {
+            params: dyknow_lifecycle::fleet::implementation(&t).params.into_iter().collect(),
+            executor: t.executor.clone(),
+            why: runnable(&t).err(),
+            runnable: runnable(&t).is_ok(),
             inputs: t.inputs.iter().map(port_json).collect(),
             outputs: t.outputs.iter().map(port_json).collect(),
             label: t.label,
@@ -207,6 +226,7 @@ async fn list_specs(
 ) -> Result<Response, ApiError> {
     let media = negotiate(&headers, &["application/json", "text/turtle"])?;
     let kb = state.kb.clone();
+    let lifecycle = state.lifecycle.clone();
     if media == "text/turtle" {
         let body = blocking(move || {
             let mut triples = Vec::new();
@@ -221,7 +241,7 @@ async fn list_specs(
     let list = blocking(move || {
         kb.specs(kind)?
             .into_iter()
-            .map(|s| spec_json(&kb, s))
+            .map(|s| spec_json(&kb, &|t| lifecycle.runnable(t), s))
             .collect::<Result<Vec<_>, _>>()
     })
     .await?;
@@ -236,6 +256,7 @@ async fn get_spec(
 ) -> Result<Response, ApiError> {
     let media = negotiate(&headers, &["application/json", "text/turtle"])?;
     let kb = state.kb.clone();
+    let lifecycle = state.lifecycle.clone();
     let missing = || ApiError::not_found(format!("no {} labelled {label:?}", kind.name()));
     if media == "text/turtle" {
         let graph = dyknow_store::graphs::spec_graph(kind, &label);
@@ -248,7 +269,7 @@ async fn get_spec(
     }
     let label2 = label.clone();
     let value = blocking(move || match kb.spec(kind, &label2)? {
-        Some(spec) => spec_json(&kb, spec).map(Some),
+        Some(spec) => spec_json(&kb, &|t| lifecycle.runnable(t), spec).map(Some),
         None => Ok(None),
     })
     .await?

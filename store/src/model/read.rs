@@ -13,7 +13,7 @@ use oxigraph::model::{NamedNode, Term};
 use super::queries;
 use crate::error::ModelReadError;
 use crate::knowledge_base::KnowledgeBase;
-use crate::spec::{Spec, SpecKind};
+use crate::spec::{Spec, SpecKind, TransformationSpec};
 
 /// The IRIs of the library's resources, for writing CUs.
 #[derive(Debug, Clone, Default)]
@@ -35,6 +35,9 @@ pub struct Loaded {
     pub candidates: Candidates,
     /// The IRIs of transformations and ports.
     pub iris: Iris,
+    /// The transformation specs, for what the engine does not need (implementations,
+    /// parameters).
+    pub specs: BTreeMap<Tid, TransformationSpec>,
 }
 
 pub(crate) fn literal(term: &Option<Term>) -> Option<String> {
@@ -106,7 +109,8 @@ fn load_specs(kb: &KnowledgeBase) -> Result<Loaded, ModelReadError> {
         let Spec::Transformation(t) = spec else {
             continue;
         };
-        let tid = Tid::new(t.label);
+        let tid = Tid::new(t.label.clone());
+        loaded.specs.insert(tid.clone(), t.clone());
         loaded
             .iris
             .transformations

@@ -8,7 +8,9 @@ use rustc_hash::{FxHashMap as HashMap, FxHashSet as HashSet};
 use dyknow_ontology::vocab::{dkros, dyknow, rdf, rdfs, xsd};
 use oxigraph::model::{Literal, NamedNode, NamedNodeRef, NamedOrBlankNode, Term, Triple};
 
-use super::model::{Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec};
+use super::model::{
+    Param, Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec,
+};
 use crate::error::{SpecValidationError, Violation};
 use crate::graphs::{channel_resource, encode, spec_graph, spec_resource};
 
@@ -710,6 +712,11 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             self.violation("ROSTransformation has exactly 1 dkros:hasSource", &root);
         }
         let (types, _) = self.index.literals(&root, &[dkros::HAS_TYPE]);
+        let (executors, _) = self.index.literals(&root, &[dkros::HAS_EXECUTOR]);
+        if executors.len() > 1 {
+            self.violation("a transformation has at most 1 dkros:hasExecutor", &root);
+        }
+        let params = self.params(&root);
         Some(TransformationSpec {
             label: self.label.clone(),
             iri: root_iri.as_str().to_owned(),
@@ -719,7 +726,56 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             upkeep,
             exec_type: types.first().map(|l| l.value().to_owned()),
             source: sources.first().map(|l| l.value().to_owned()),
+            params,
+            executor: executors.first().map(|l| l.value().to_owned()),
         })
+    }
+
+    /// The `dkros:hasParam` nodes of `root`: each names one parameter with one value.
+    fn params(&mut self, root: &Node) -> Vec<Param> {
+        let nodes: Vec<Term> = self
+            .index
+            .objects(root, dkros::HAS_PARAM)
+            .into_iter()
+            .cloned()
+            .collect();
+        let mut params: Vec<Param> = Vec::new();
+        for term in nodes {
+            let Some(node) = term_node(&term) else {
+                self.violation("dkros:hasParam links to a Parameter node, not a literal", root);
+                continue;
+            };
+            let (names, _) = self.index.literals(&node, &[dyknow::HAS_NAME]);
+            let (values, _) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
+            let (types, _) = self.index.literals(&node, &[dkros::HAS_TYPE]);
+            let (name, value) = match (names.as_slice(), values.as_slice()) {
+                ([name], [value]) => ((*name).clone(), (*value).clone()),
+                _ => {
+                    self.names.insert(node.clone(), format!("{}/parameter", self.label));
+                    self.violation(
+                        "a parameter has exactly 1 dyknow:hasName and exactly 1 dyknow:hasValue",
+                        &node,
+                    );
+                    continue;
+                }
+            };
+            if params.iter().any(|p| p.name == name.value()) {
+                self.names.insert(node.clone(), format!("{}/parameter", self.label));
+                self.violation("parameter names are unique within a transformation", &node);
+                continue;
+            }
+            let datatype = value.datatype().as_str();
+            params.push(Param {
+                name: name.value().to_owned(),
+                value: value.value().to_owned(),
+                datatype: datatype
+                    .rsplit_once('#')
+                    .map_or(datatype, |(_, local)| local)
+                    .to_owned(),
+                param_type: types.first().map(|l| l.value().to_owned()),
+            });
+        }
+        params
     }
 
     fn costs(&mut self, root: &Node, root_iri: &NamedNode) -> (f64, f64) {

@@ -82,6 +82,25 @@ pub struct TransformationSpec {
     pub exec_type: Option<String>,
     /// `dkros:hasSource`, the program an executor runs.
     pub source: Option<String>,
+    /// `dkros:hasParam`, in document order.
+    pub params: Vec<Param>,
+    /// `dkros:hasExecutor`, the executor the transformation is pinned to.
+    pub executor: Option<String>,
+}
+
+/// A parameter of a transformation (`dkros:hasParam`: `dyknow:hasName`, `dyknow:hasValue`,
+/// optional `dkros:hasType`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Param {
+    /// Its name.
+    pub name: String,
+    /// The lexical form of its value.
+    pub value: String,
+    /// The local name of the value's XSD datatype (`integer`, `boolean`, `string`, …).
+    pub datatype: String,
+    /// Its `dkros:hasType`, if given.
+    #[serde(rename = "type")]
+    pub param_type: Option<String>,
 }
 
 /// A target spec (seed Def. 19; DyKnow-ROS Listing 5.4).

@@ -1,0 +1,567 @@
+//! The manager's view of its executors on Zenoh (`executors.md`): which are present (their
+//! liveliness tokens), what each can run, which CU runs where. [`Fleet`] is the
+//! [`Executor`] of a service with real executors: it places spawned CUs, sends each executor
+//! the actions for its CUs in order and waits for the acknowledgements, and turns what
+//! executors report (crashes, measured costs, executors coming and going) into
+//! [`FleetEvent`]s for the service to hand to the [`crate::Manager`].
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use dyknow_cu::Namespace;
+use dyknow_cu::protocol::{
+    ApplyReply, ApplyRequest, CheckReply, CuAction, Event, ExecutorInfo, Implementation, Kind,
+    param_value,
+};
+use dyknow_cu::zenoh::pubsub::Subscriber;
+use dyknow_cu::zenoh::sample::SampleKind;
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_engine::{Action, ActionFailure, ChangeSet, Cid, Tid};
+use dyknow_store::spec::TransformationSpec;
+use serde::Serialize;
+use tokio::sync::mpsc;
+
+use crate::executor::{Applied, CuView, Executor};
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// What the fleet tells the service.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FleetEvent {
+    /// An executor appeared or vanished: what is runnable may have changed.
+    ExecutorsChanged,
+    /// A CU crashed (reported by its executor, or its executor vanished).
+    Crashed {
+        /// The CU.
+        cu: Cid,
+        /// Why.
+        reason: String,
+    },
+    /// The labour of a CU that now runs, in CPU ms.
+    Labour {
+        /// Its transformation.
+        transformation: Tid,
+        /// CPU ms.
+        cpu_ms: f64,
+    },
+    /// The CPU time a CU's callbacks used over an interval.
+    Upkeep {
+        /// The CU.
+        cu: Cid,
+        /// CPU ms used.
+        cpu_ms: f64,
+        /// Over this many wall ms.
+        over_ms: f64,
+    },
+}
+
+#[derive(Debug, Default)]
+struct Known {
+    present: bool,
+    builtins: BTreeSet<String>,
+    processes: bool,
+    /// Answers of its `check` service, by command line.
+    checks: BTreeMap<String, Result<(), String>>,
+}
+
+struct Inner {
+    session: zenoh::Session,
+    namespace: Namespace,
+    executors: Mutex<BTreeMap<String, Known>>,
+    placement: Mutex<BTreeMap<Cid, String>>,
+    events: mpsc::UnboundedSender<FleetEvent>,
+}
+
+/// The executors as the manager sees them.
+pub struct Fleet {
+    inner: Arc<Inner>,
+    _subscribers: Vec<Subscriber<()>>,
+}
+
+impl std::fmt::Debug for Fleet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Fleet").finish_non_exhaustive()
+    }
+}
+
+/// An executor as `GET /executors` lists it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ExecutorSummary {
+    /// Its name.
+    pub name: String,
+    /// Whether its token is present.
+    pub present: bool,
+    /// The labels of the transformations it can run.
+    pub transformations: Vec<String>,
+    /// The CUs it hosts.
+    pub cus: Vec<String>,
+}
+
+/// The implementation a spec names.
+pub fn implementation(spec: &TransformationSpec) -> Implementation {
+    Implementation {
+        kind: spec.exec_type.clone().unwrap_or_default(),
+        source: spec.source.clone().unwrap_or_default(),
+        params: spec
+            .params
+            .iter()
+            .map(|p| (p.name.clone(), param_value(&p.value, Some(&p.datatype))))
+            .collect(),
+        executor: spec.executor.clone(),
+        inputs: spec.inputs.iter().map(|p| p.name.clone()).collect(),
+        outputs: spec.outputs.iter().map(|p| p.name.clone()).collect(),
+    }
+}
+
+const QUERY_TIMEOUT: Duration = Duration::from_secs(5);
+
+impl Fleet {
+    /// Watches the executors of `namespace` on `session`. The receiver gets the events.
+    pub fn start(
+        session: &zenoh::Session,
+        namespace: Namespace,
+    ) -> Result<(Self, mpsc::UnboundedReceiver<FleetEvent>), zenoh::Error> {
+        let (tx, rx) = mpsc::unbounded_channel();
+        let inner = Arc::new(Inner {
+            session: session.clone(),
+            namespace: namespace.clone(),
+            executors: Mutex::default(),
+            placement: Mutex::default(),
+            events: tx,
+        });
+        let watcher = inner.clone();
+        let tokens = session
+            .liveliness()
+            .declare_subscriber(namespace.executor_tokens())
+            .history(true)
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str().to_owned();
+                let Some(name) = key.rsplit('/').next().map(str::to_owned) else {
+                    return;
+                };
+                let up = sample.kind() == SampleKind::Put;
+                let inner = watcher.clone();
+                // Never block a Zenoh callback: the info query runs on its own thread.
+                let _ = std::thread::Builder::new()
+                    .name("fleet-membership".into())
+                    .spawn(move || inner.membership(&name, up));
+            })
+            .wait()?;
+        let reporter = inner.clone();
+        let events = session
+            .declare_subscriber(namespace.all_executor_events())
+            .callback(move |sample| {
+                match serde_json::from_slice::<Event>(&sample.payload().to_bytes()) {
+                    Ok(event) => reporter.event(event),
+                    Err(e) => tracing::debug!("an executor event that does not parse: {e}"),
+                }
+            })
+            .wait()?;
+        Ok((
+            Self {
+                inner,
+                _subscribers: vec![tokens, events],
+            },
+            rx,
+        ))
+    }
+
+    /// The executors, with what each can run of `specs`.
+    pub fn executors(&self, specs: &BTreeMap<Tid, TransformationSpec>) -> Vec<ExecutorSummary> {
+        let names: Vec<String> = lock(&self.inner.executors).keys().cloned().collect();
+        let placement = lock(&self.inner.placement).clone();
+        names
+            .into_iter()
+            .map(|name| {
+                let present = lock(&self.inner.executors)
+                    .get(&name)
+                    .is_some_and(|k| k.present);
+                ExecutorSummary {
+                    transformations: specs
+                        .iter()
+                        .filter(|(_, s)| {
+                            present
+                                && s.executor.as_ref().is_none_or(|e| *e == name)
+                                && self.inner.can_run(&name, s).is_ok()
+                        })
+                        .map(|(t, _)| t.to_string())
+                        .collect(),
+                    cus: placement
+                        .iter()
+                        .filter(|(_, e)| **e == name)
+                        .map(|(c, _)| c.to_string())
+                        .collect(),
+                    present,
+                    name,
+                }
+            })
+            .collect()
+    }
+
+    /// Waits until an executor named `name` is present (for start-up and tests).
+    pub fn wait_for(&self, name: &str, timeout: Duration) -> bool {
+        let deadline = std::time::Instant::now() + timeout;
+        while std::time::Instant::now() < deadline {
+            if lock(&self.inner.executors).get(name).is_some_and(|k| k.present) {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        false
+    }
+}
+
+impl Inner {
+    fn membership(&self, name: &str, up: bool) {
+        if up {
+            let info: Option<ExecutorInfo> = self.query(name, "info", Vec::new());
+            let Some(info) = info else {
+                tracing::warn!("executor {name} appeared but does not describe itself");
+                return;
+            };
+            tracing::info!("executor {name} is present ({} builtins)", info.builtins.len());
+            lock(&self.executors).insert(
+                name.to_owned(),
+                Known {
+                    present: true,
+                    builtins: info.builtins.into_iter().collect(),
+                    processes: info.processes,
+                    checks: BTreeMap::new(),
+                },
+            );
+        } else {
+            tracing::warn!("executor {name} vanished");
+            if let Some(known) = lock(&self.executors).get_mut(name) {
+                known.present = false;
+            }
+            let lost: Vec<Cid> = {
+                let mut placement = lock(&self.placement);
+                let lost: Vec<Cid> = placement
+                    .iter()
+                    .filter(|(_, e)| *e == name)
+                    .map(|(c, _)| c.clone())
+                    .collect();
+                for cu in &lost {
+                    placement.remove(cu);
+                }
+                lost
+            };
+            for cu in lost {
+                let _ = self.events.send(FleetEvent::Crashed {
+                    cu,
+                    reason: format!("its executor {name} vanished"),
+                });
+            }
+        }
+        let _ = self.events.send(FleetEvent::ExecutorsChanged);
+    }
+
+    fn event(&self, event: Event) {
+        let out = match event {
+            Event::Running {
+                transformation,
+                labour_cpu_ms,
+                ..
+            } => FleetEvent::Labour {
+                transformation: transformation.into(),
+                cpu_ms: labour_cpu_ms,
+            },
+            Event::CuCrashed { cu, reason, .. } => {
+                lock(&self.placement).remove(cu.as_str());
+                FleetEvent::Crashed {
+                    cu: cu.into(),
+                    reason,
+                }
+            }
+            Event::Upkeep {
+                cu, cpu_ms, over_ms, ..
+            } => FleetEvent::Upkeep {
+                cu: cu.into(),
+                cpu_ms,
+                over_ms,
+            },
+        };
+        let _ = self.events.send(out);
+    }
+
+    /// Asks executor `name`'s `service`; `None` when it does not answer in time.
+    fn query<T: serde::de::DeserializeOwned>(
+        &self,
+        name: &str,
+        service: &str,
+        payload: Vec<u8>,
+    ) -> Option<T> {
+        self.query_for(name, service, payload, QUERY_TIMEOUT).ok()
+    }
+
+    fn query_for<T: serde::de::DeserializeOwned>(
+        &self,
+        name: &str,
+        service: &str,
+        payload: Vec<u8>,
+        timeout: Duration,
+    ) -> Result<T, String> {
+        let replies = self
+            .session
+            .get(self.namespace.executor_service(name, service))
+            .payload(payload)
+            .timeout(timeout)
+            .wait()
+            .map_err(|e| e.to_string())?;
+        let reply = replies
+            .recv()
+            .map_err(|_| format!("executor {name} did not answer within {} s", timeout.as_secs()))?;
+        match reply.result() {
+            Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
+                .map_err(|e| format!("executor {name} answered nonsense: {e}")),
+            Err(e) => Err(format!(
+                "executor {name}: {}",
+                String::from_utf8_lossy(&e.payload().to_bytes())
+            )),
+        }
+    }
+
+    /// Whether executor `name` (present) can run `spec`.
+    fn can_run(&self, name: &str, spec: &TransformationSpec) -> Result<(), String> {
+        let implementation = implementation(spec);
+        let kind = implementation.kind()?;
+        let executors = lock(&self.executors);
+        let Some(known) = executors.get(name).filter(|k| k.present) else {
+            return Err(format!("executor {name} is not present"));
+        };
+        match kind {
+            Kind::Builtin => {
+                if known.builtins.contains(&implementation.source) {
+                    Ok(())
+                } else {
+                    Err(format!("no present executor has the builtin {:?}", implementation.source))
+                }
+            }
+            Kind::Process => {
+                if !known.processes {
+                    return Err(format!("executor {name} runs no processes"));
+                }
+                if let Some(answer) = known.checks.get(&implementation.source) {
+                    return answer.clone();
+                }
+                drop(executors);
+                let payload = serde_json::to_vec(&implementation).unwrap_or_default();
+                let answer = match self.query::<CheckReply>(name, "check", payload) {
+                    Some(CheckReply { runnable: true, .. }) => Ok(()),
+                    Some(CheckReply { why, .. }) => {
+                        Err(why.unwrap_or_else(|| "the executor cannot run it".into()))
+                    }
+                    None => return Err(format!("executor {name} did not answer")),
+                };
+                if let Some(known) = lock(&self.executors).get_mut(name) {
+                    known.checks.insert(implementation.source.clone(), answer.clone());
+                }
+                answer
+            }
+        }
+    }
+
+    /// The executors that could run `spec`, fewest CUs first.
+    fn candidates(&self, spec: &TransformationSpec) -> Result<Vec<String>, String> {
+        if spec.exec_type.is_none() {
+            return Err("it names no implementation (no dkros:hasType): an abstract transformation no executor runs".into());
+        }
+        let names: Vec<String> = lock(&self.executors)
+            .iter()
+            .filter(|(n, k)| k.present && spec.executor.as_ref().is_none_or(|e| e == *n))
+            .map(|(n, _)| n.clone())
+            .collect();
+        if names.is_empty() {
+            return Err(match &spec.executor {
+                Some(e) => format!("it is pinned to executor {e}, which is not present"),
+                None => "no executor is present".into(),
+            });
+        }
+        let mut why = None;
+        let mut able = Vec::new();
+        for name in names {
+            match self.can_run(&name, spec) {
+                Ok(()) => able.push(name),
+                Err(e) => why = Some(e),
+            }
+        }
+        if able.is_empty() {
+            return Err(why.unwrap_or_else(|| "no executor can run it".into()));
+        }
+        let placement = lock(&self.placement);
+        able.sort_by_key(|n| placement.values().filter(|e| *e == n).count());
+        Ok(able)
+    }
+}
+
+impl Executor for Fleet {
+    fn runnable(&self, spec: &TransformationSpec) -> Result<(), String> {
+        self.inner.candidates(spec).map(|_| ())
+    }
+
+    fn apply(&self, change_set: &ChangeSet, specs: &BTreeMap<Tid, TransformationSpec>) -> Applied {
+        let inner = &self.inner;
+        let mut failures: Vec<ActionFailure> = Vec::new();
+        // Per executor, in order of first appearance: (index in the change set, action).
+        let mut batches: Vec<(String, Vec<(usize, CuAction)>)> = Vec::new();
+        let mut placed: BTreeMap<Cid, String> = lock(&inner.placement).clone();
+        let mut spawned_processes: BTreeMap<String, u32> = BTreeMap::new();
+        for (index, action) in change_set.actions.iter().enumerate() {
+            let Some(cu) = action.cu() else { continue };
+            if failures.iter().any(|f| &f.cu == cu) {
+                continue;
+            }
+            let fail = |reason: String| ActionFailure {
+                action: index,
+                cu: cu.clone(),
+                reason,
+            };
+            let (executor, cu_action) = match action {
+                Action::Spawn { transformation, .. } => {
+                    let Some(spec) = specs.get(transformation) else {
+                        failures.push(fail(format!("no transformation {transformation}")));
+                        continue;
+                    };
+                    let executor = match inner.candidates(spec) {
+                        Ok(able) => able[0].clone(),
+                        Err(why) => {
+                            failures.push(fail(why));
+                            continue;
+                        }
+                    };
+                    let implementation = implementation(spec);
+                    if implementation.kind() == Ok(Kind::Process) {
+                        *spawned_processes.entry(executor.clone()).or_default() += 1;
+                    }
+                    placed.insert(cu.clone(), executor.clone());
+                    (
+                        executor,
+                        CuAction::Spawn {
+                            cu: cu.to_string(),
+                            transformation: transformation.to_string(),
+                            implementation,
+                        },
+                    )
+                }
+                other => {
+                    let Some(executor) = placed.get(cu).cloned() else {
+                        if matches!(other, Action::Destroy { .. }) {
+                            // Not running anywhere: already gone.
+                            continue;
+                        }
+                        failures.push(fail(format!("{cu} runs on no executor")));
+                        continue;
+                    };
+                    let cu_action = match other {
+                        Action::Destroy { cu } => CuAction::Destroy { cu: cu.to_string() },
+                        Action::ConnectIn { cu, port, channel } => CuAction::ConnectIn {
+                            cu: cu.to_string(),
+                            port: port.clone(),
+                            channel: channel.to_string(),
+                        },
+                        Action::ConnectOut { cu, port, channel } => CuAction::ConnectOut {
+                            cu: cu.to_string(),
+                            port: port.clone(),
+                            channel: channel.to_string(),
+                        },
+                        Action::DisconnectIn { cu, port } => CuAction::DisconnectIn {
+                            cu: cu.to_string(),
+                            port: port.clone(),
+                        },
+                        Action::DisconnectOut { cu, port } => CuAction::DisconnectOut {
+                            cu: cu.to_string(),
+                            port: port.clone(),
+                        },
+                        _ => continue,
+                    };
+                    (executor, cu_action)
+                }
+            };
+            match batches.iter_mut().find(|(e, _)| *e == executor) {
+                Some((_, actions)) => actions.push((index, cu_action)),
+                None => batches.push((executor, vec![(index, cu_action)])),
+            }
+        }
+        for (executor, actions) in batches {
+            let indices: Vec<usize> = actions.iter().map(|(i, _)| *i).collect();
+            let request = ApplyRequest {
+                change_set: change_set.id.to_string(),
+                actions: actions.into_iter().map(|(_, a)| a).collect(),
+            };
+            let processes = spawned_processes.get(&executor).copied().unwrap_or(0);
+            let timeout = QUERY_TIMEOUT + Duration::from_secs(10) * processes;
+            let payload = serde_json::to_vec(&request).unwrap_or_default();
+            match inner.query_for::<ApplyReply>(&executor, "apply", payload, timeout) {
+                Ok(reply) => {
+                    for f in reply.failures {
+                        if let Some(&index) = indices.get(f.index) {
+                            failures.push(ActionFailure {
+                                action: index,
+                                cu: f.cu.into(),
+                                reason: f.reason,
+                            });
+                        }
+                    }
+                }
+                Err(why) => {
+                    // Unacknowledged: every CU it touched is treated as lost.
+                    for (k, action) in request.actions.iter().enumerate() {
+                        let cu: Cid = action.cu().into();
+                        if !failures.iter().any(|f| f.cu == cu) {
+                            failures.push(ActionFailure {
+                                action: indices[k],
+                                cu,
+                                reason: why.clone(),
+                            });
+                        }
+                    }
+                }
+            }
+        }
+        for action in &change_set.actions {
+            if let Action::Destroy { cu } = action {
+                placed.remove(cu);
+            }
+        }
+        for failure in &failures {
+            placed.remove(&failure.cu);
+        }
+        *lock(&inner.placement) = placed;
+        failures.sort_by_key(|f| f.action);
+        Applied { failures }
+    }
+
+    fn describe(&self, cu: &Cid) -> Option<CuView> {
+        let executor = lock(&self.inner.placement).get(cu).cloned();
+        let Some(executor) = executor else {
+            return Some(CuView {
+                executor: None,
+                state: "crashed".into(),
+                statistics: serde_json::json!({}),
+                pid: None,
+            });
+        };
+        let info: Option<ExecutorInfo> = self.inner.query(&executor, "info", Vec::new());
+        let report = info.and_then(|i| i.cus.into_iter().find(|c| c.cu == cu.as_str()));
+        Some(match report {
+            Some(report) => CuView {
+                executor: Some(executor),
+                state: serde_json::to_value(report.state)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_owned))
+                    .unwrap_or_default(),
+                statistics: serde_json::to_value(report.statistics).unwrap_or_default(),
+                pid: report.pid,
+            },
+            None => CuView {
+                executor: Some(executor),
+                state: "crashed".into(),
+                statistics: serde_json::json!({}),
+                pid: None,
+            },
+        })
+    }
+}

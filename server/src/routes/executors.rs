@@ -1,0 +1,116 @@
+//! The executors and the CU services (`executors.md`, *CU services*): `GET /executors`,
+//! `GET /cus/{name}` with the CU's executor, state and statistics.
+
+use axum::Json;
+use axum::Router;
+use axum::extract::{Path, State};
+use axum::routing::get;
+use dyknow_lifecycle::ExecutorSummary;
+use serde::Serialize;
+use utoipa::ToSchema;
+
+use crate::app::{AppState, blocking};
+use crate::error::ApiError;
+use crate::routes::reconfig::{CuJson, cus};
+
+/// The routes.
+pub fn router() -> Router<AppState> {
+    Router::new().route("/executors", get(list_executors))
+}
+
+/// An executor.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ExecutorJson {
+    /// Its name.
+    pub name: String,
+    /// Whether its liveliness token is present.
+    pub present: bool,
+    /// The labels of the transformations it can run.
+    pub transformations: Vec<String>,
+    /// The CUs it hosts.
+    pub cus: Vec<String>,
+}
+
+impl From<ExecutorSummary> for ExecutorJson {
+    fn from(e: ExecutorSummary) -> Self {
+        Self {
+            name: e.name,
+            present: e.present,
+            transformations: e.transformations,
+            cus: e.cus,
+        }
+    }
+}
+
+/// The executors the service has seen (none in model-only mode).
+#[utoipa::path(get, path = "/executors", tag = "executors", responses((status = 200, body = [ExecutorJson])))]
+pub async fn list_executors(
+    State(state): State<AppState>,
+) -> Result<Json<Vec<ExecutorJson>>, ApiError> {
+    let Some(fleet) = state.fleet.clone() else {
+        return Ok(Json(Vec::new()));
+    };
+    let lifecycle = state.lifecycle.clone();
+    let list = blocking(move || {
+        let loaded = lifecycle.load()?;
+        Ok(fleet.executors(&loaded.specs))
+    })
+    .await?;
+    Ok(Json(list.into_iter().map(ExecutorJson::from).collect()))
+}
+
+/// A CU with what its executor says of it (GetConfig + GetStatistics).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct CuDetailJson {
+    /// The CU as `GET /cus` lists it.
+    #[serde(flatten)]
+    pub cu: CuJson,
+    /// The executor hosting it (null in model-only mode).
+    pub executor: Option<String>,
+    /// `starting`, `running`, `crashed`, `stopped`, or `model` in model-only mode.
+    pub state: String,
+    /// `{"uptime_ms", "reconfigurations", "cpu_ms", "ports": {"<port>": {"messages", "bytes", "last_t"}}}`.
+    #[schema(value_type = Object)]
+    pub statistics: serde_json::Value,
+    /// The process id of a process CU.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pid: Option<u32>,
+}
+
+/// One computation unit, with its executor, state and statistics.
+#[utoipa::path(get, path = "/cus/{name}", tag = "reconfiguration",
+    params(("name" = String, Path, description = "the CU's name")),
+    responses((status = 200, body = CuDetailJson), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn get_cu(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+) -> Result<Json<CuDetailJson>, ApiError> {
+    let s = state.clone();
+    blocking(move || {
+        let Some(cu) = cus(&s)?.into_iter().find(|c| c.name == name) else {
+            return Err(ApiError::not_found(format!(
+                "no computation unit named {name:?}"
+            )));
+        };
+        let view = s.lifecycle.describe(&cu.name.as_str().into());
+        Ok(Json(match view {
+            Some(view) => CuDetailJson {
+                cu,
+                executor: view.executor,
+                state: view.state,
+                statistics: view.statistics,
+                pid: view.pid,
+            },
+            None => CuDetailJson {
+                cu,
+                executor: None,
+                state: "model".into(),
+                statistics: serde_json::json!({
+                    "uptime_ms": 0, "reconfigurations": 0, "cpu_ms": 0.0, "ports": {}
+                }),
+                pid: None,
+            },
+        }))
+    })
+    .await
+}

@@ -1,0 +1,576 @@
+//! Pipelines that really run (`executors.md`): `dyknow serve` with its embedded executor and
+//! stand-alone `dyknow executor` processes, builtin and process CUs (one in Python), crashes
+//! detected without any client report and repaired, measured costs steering the next review,
+//! and nothing left running after SIGTERM.
+#![cfg(feature = "rocksdb")]
+#![expect(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{Namespace, Sample};
+use serde_json::{Value, json};
+
+const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .unwrap()
+}
+
+/// Reads a child's stderr until a line contains `marker` (returned), then drains it.
+fn wait_for_line(child: &mut Child, marker: &str) -> String {
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    let marker = marker.to_owned();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if !sent && line.contains(&marker) {
+                let _ = tx.send(line);
+                sent = true;
+            }
+        }
+    });
+    rx.recv_timeout(Duration::from_secs(60))
+        .expect("the process did not start")
+}
+
+/// A running `dyknow serve` with its data plane on a port of its own.
+struct Service {
+    child: Child,
+    url: String,
+    zenoh: String,
+}
+
+impl Service {
+    fn start(args: &[&str]) -> Self {
+        let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+        let mut child = Command::new(BIN)
+            .args(["serve", "--in-memory", "--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let line = wait_for_line(&mut child, "listening on ");
+        let url = line
+            .split("listening on ")
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .unwrap()
+            .to_owned();
+        Self { child, url, zenoh }
+    }
+
+    fn get(&self, path: &str) -> Value {
+        let mut r = agent().get(&format!("{}{path}", self.url)).call().unwrap();
+        assert_eq!(r.status().as_u16(), 200, "GET {path}");
+        serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap()
+    }
+
+    fn status(&self, path: &str) -> u16 {
+        agent()
+            .get(&format!("{}{path}", self.url))
+            .call()
+            .unwrap()
+            .status()
+            .as_u16()
+    }
+
+    fn post(&self, path: &str, turtle: &str) {
+        let mut r = agent()
+            .post(&format!("{}{path}", self.url))
+            .header("Content-Type", "text/turtle")
+            .send(turtle.as_bytes())
+            .unwrap();
+        let body = r.body_mut().read_to_string().unwrap();
+        assert_eq!(r.status().as_u16(), 201, "POST {path}: {body}");
+    }
+
+    /// A Zenoh client of the service's data plane.
+    fn session(&self) -> zenoh::Session {
+        zenoh::open(dyknow_cu::client_config(&[self.zenoh.clone()]).unwrap())
+            .wait()
+            .unwrap()
+    }
+
+    fn change_sets(&self) -> Vec<Value> {
+        self.get("/changesets").as_array().unwrap().clone()
+    }
+
+    fn cu_of(&self, transformation: &str) -> Option<Value> {
+        self.get("/cus")
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["transformation"] == transformation)
+            .cloned()
+    }
+
+    fn sigterm(mut self) -> std::process::ExitStatus {
+        sigterm(&self.child);
+        let status = wait_exit(&mut self.child);
+        std::mem::forget(self);
+        status
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        sigterm(&self.child);
+        let _ = wait_exit(&mut self.child);
+    }
+}
+
+fn sigterm(child: &Child) {
+    Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+}
+
+fn wait_exit(child: &mut Child) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            return child.wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(60)))
+        .build()
+        .into()
+}
+
+/// Polls `f` until it gives something, for at most `timeout`.
+fn eventually<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A transformation spec. `kind`/`source` name its implementation; `params` are
+/// (name, Turtle literal) pairs; ports are (name, tag).
+struct Tf<'a> {
+    label: &'a str,
+    kind: &'a str,
+    source: &'a str,
+    params: &'a [(&'a str, &'a str)],
+    ins: &'a [(&'a str, &'a str)],
+    outs: &'a [(&'a str, &'a str)],
+    upkeep: Option<f64>,
+    executor: Option<&'a str>,
+}
+
+impl Tf<'_> {
+    fn turtle(&self) -> String {
+        let mut t = format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+             @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n\
+             [] a dkros:ROSTransformation ; rdfs:label \"{}\" ;\n   dkros:hasType \"{}\" ; dkros:hasSource \"{}\" ",
+            self.label, self.kind, self.source
+        );
+        for (name, value) in self.params {
+            t.push_str(&format!(
+                ";\n   dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"{name}\" ; dyknow:hasValue {value} ] "
+            ));
+        }
+        for (name, tag) in self.ins {
+            t.push_str(&format!(
+                ";\n   dyknow:hasInPort [ dyknow:hasName \"{name}\" ; dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] ] "
+            ));
+        }
+        for (name, tag) in self.outs {
+            t.push_str(&format!(
+                ";\n   dyknow:hasOutPort [ dyknow:hasName \"{name}\" ; dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] ] "
+            ));
+        }
+        if let Some(u) = self.upkeep {
+            t.push_str(&format!(
+                ";\n   dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue {u:?} ] "
+            ));
+        }
+        if let Some(e) = self.executor {
+            t.push_str(&format!(";\n   dkros:hasExecutor \"{e}\" "));
+        }
+        t.push_str(".\n");
+        t
+    }
+}
+
+fn tf<'a>(
+    label: &'a str,
+    kind: &'a str,
+    source: &'a str,
+    params: &'a [(&'a str, &'a str)],
+    ins: &'a [(&'a str, &'a str)],
+    outs: &'a [(&'a str, &'a str)],
+) -> Tf<'a> {
+    Tf {
+        label,
+        kind,
+        source,
+        params,
+        ins,
+        outs,
+        upkeep: None,
+        executor: None,
+    }
+}
+
+fn target(label: &str, channel: &str, tag: &str) -> String {
+    format!(
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n\
+         [] a dyknow:Target ; rdfs:label \"{label}\" ;\n\
+            dyknow:hasChannel [ dyknow:hasChannelName \"{channel}\" ] ;\n\
+            dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] .\n"
+    )
+}
+
+/// Samples arriving on a channel, with their arrival times.
+struct Listener {
+    rx: mpsc::Receiver<(Instant, Sample)>,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+}
+
+impl Listener {
+    fn new(session: &zenoh::Session, channel: &str) -> Self {
+        let (tx, rx) = mpsc::channel();
+        let subscriber = session
+            .declare_subscriber(Namespace::default().channel(channel).unwrap())
+            .callback(move |s| {
+                if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes()) {
+                    let _ = tx.send((Instant::now(), sample));
+                }
+            })
+            .wait()
+            .unwrap();
+        Self {
+            rx,
+            _subscriber: subscriber,
+        }
+    }
+
+    fn next(&self) -> (Instant, Sample) {
+        self.rx
+            .recv_timeout(Duration::from_secs(30))
+            .expect("a sample on the channel")
+    }
+
+    /// The first sample that arrives after `t`.
+    fn first_after(&self, t: Instant) -> Instant {
+        loop {
+            let (at, _) = self.next();
+            if at > t {
+                return at;
+            }
+        }
+    }
+}
+
+fn alive(pid: u64) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .is_ok_and(|s| !s.contains(") Z ") && !s.contains(") X "))
+}
+
+fn crash_change_set(service: &Service, cu: &str) -> Value {
+    eventually("a change set repairing the crash", Duration::from_secs(30), || {
+        service
+            .change_sets()
+            .into_iter()
+            .find(|c| c["cause"]["kind"] == "cu-crashed" && c["cause"]["cu"] == cu)
+    })
+}
+
+#[test]
+fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreported() {
+    let service = Service::start(&[]);
+    let process_map = format!("{BIN} cu dyknow/map");
+    for spec in [
+        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "20")], &[], &[("out", "Count")]),
+        tf("guard", "nodelet", "dyknow/fault", &[], &[("in", "Count")], &[("out", "Guarded")]),
+        tf("tenfold", "process", &process_map, &[("scale", "10")], &[("in", "Guarded")], &[("out", "Tenfold")]),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let session = service.session();
+    let out = Listener::new(&session, "/tenfold");
+    service.post("/targets", &target("tenfold-q", "/tenfold", "Tenfold"));
+    // The values the chain computes: the counter, times ten, consecutive.
+    let (_, first) = out.next();
+    let (_, second) = out.next();
+    let a = first.value.as_i64().unwrap();
+    assert_eq!(a % 10, 0, "{a} is a counter value times ten");
+    assert_eq!(second.value.as_i64(), Some(a + 10));
+    assert!(second.t >= first.t);
+
+    let guard = service.cu_of("guard").unwrap();
+    let tenfold = service.cu_of("tenfold").unwrap();
+    let detail = service.get(&format!("/cus/{}", tenfold["name"].as_str().unwrap()));
+    assert_eq!(detail["executor"], "local");
+    assert_eq!(detail["state"], "running");
+    assert!(detail["statistics"]["ports"]["in"]["messages"].as_u64().unwrap() >= 1);
+    assert!(detail["statistics"]["ports"]["out"]["last_t"].as_i64().is_some());
+    let executors = service.get("/executors");
+    assert_eq!(executors[0]["name"], "local");
+    assert_eq!(executors[0]["present"], true);
+    assert_eq!(executors[0]["cus"].as_array().unwrap().len(), 3);
+
+    // A panicking builtin CU: detected by the executor, repaired by a review.
+    let guard_name = guard["name"].as_str().unwrap().to_owned();
+    let channel = guard["inputs"]["in"].as_str().unwrap();
+    let crashed_at = Instant::now();
+    session
+        .put(
+            Namespace::default().channel(channel).unwrap(),
+            Sample::now(json!({"fault": "panic"})).to_bytes(),
+        )
+        .wait()
+        .unwrap();
+    let repair = crash_change_set(&service, &guard_name);
+    assert_eq!(repair["status"], "applied");
+    let flowing = out.first_after(crashed_at);
+    eprintln!("panicked builtin CU: stream flowing again after {:?}", flowing - crashed_at);
+    assert_eq!(service.status(&format!("/cus/{guard_name}")), 404);
+
+    // kill -9 of a process CU.
+    let tenfold_name = tenfold["name"].as_str().unwrap().to_owned();
+    let pid = detail["pid"].as_u64().unwrap();
+    let killed_at = Instant::now();
+    Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap();
+    crash_change_set(&service, &tenfold_name);
+    let flowing = out.first_after(killed_at);
+    eprintln!("kill -9ed process CU: stream flowing again after {:?}", flowing - killed_at);
+    let replacement = service.cu_of("tenfold").unwrap();
+    let replacement = service.get(&format!("/cus/{}", replacement["name"].as_str().unwrap()));
+    let new_pid = replacement["pid"].as_u64().unwrap();
+    assert_ne!(new_pid, pid);
+    assert!(alive(new_pid));
+
+    // SIGTERM: the service stops every CU and child process.
+    drop(out);
+    let status = service.sigterm();
+    assert!(status.success(), "{status}");
+    assert!(!alive(new_pid), "process CU {new_pid} survived the service");
+}
+
+#[test]
+fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
+    let service = Service::start(&["--no-executor"]);
+    assert_eq!(service.get("/executors"), json!([]));
+    for spec in [
+        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "20")], &[], &[("out", "Count")]),
+        tf("echo", "builtin", "dyknow/relay", &[], &[("in", "Count")], &[("out", "Echoed")]),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let echo = service.get("/transformations/echo");
+    assert_eq!(echo["runnable"], false);
+    assert!(echo["why"].as_str().unwrap().contains("no executor"), "{echo}");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let session = service.session();
+    let out = Listener::new(&session, "/echoed");
+    let start = |name: &str| {
+        let mut child = Command::new(BIN)
+            .args(["executor", "--name", name, "--connect", &service.zenoh])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        wait_for_line(&mut child, "connected to");
+        child
+    };
+    let mut first = start("ext1");
+    out.next();
+    let executors = service.get("/executors");
+    assert_eq!(executors[0]["name"], "ext1");
+    assert_eq!(executors[0]["cus"].as_array().unwrap().len(), 2);
+    assert_eq!(service.get("/transformations/echo")["runnable"], true);
+
+    // kill -9 of the whole executor: its CUs are lost, what only it ran is unavailable.
+    first.kill().unwrap();
+    first.wait().unwrap();
+    eventually("the executor's CUs to be lost", Duration::from_secs(30), || {
+        (service.get("/cus") == json!([])).then_some(())
+    });
+    assert_eq!(service.get("/executors")[0]["present"], false);
+    assert_eq!(service.get("/environment")["valid"], false);
+    let lost_at = Instant::now();
+    let mut second = start("ext2");
+    let flowing = out.first_after(lost_at);
+    eprintln!("executor replaced: stream flowing again {:?} after the new one started", flowing - lost_at);
+    sigterm(&second);
+    let status = wait_exit(&mut second);
+    assert!(status.success(), "{status}");
+    eventually("the executor to be gone", Duration::from_secs(30), || {
+        (service.get("/cus") == json!([])).then_some(())
+    });
+}
+
+#[test]
+fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off() {
+    let service = Service::start(&[]);
+    let fails_at_start = format!("{BIN} cu dyknow/fault");
+    for spec in [
+        tf("ghost", "builtin", "dyknow/nope", &[], &[], &[("out", "Ghost")]),
+        tf("missing", "process", "/nonexistent/program --x", &[], &[], &[("out", "Missing")]),
+        tf("flaky", "process", &fails_at_start, &[("after", "0")], &[], &[("out", "Flaky")]),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let ghost = service.get("/transformations/ghost");
+    assert_eq!(ghost["runnable"], false);
+    assert!(ghost["why"].as_str().unwrap().contains("dyknow/nope"), "{ghost}");
+    let missing = service.get("/transformations/missing");
+    assert_eq!(missing["runnable"], false);
+    assert!(missing["why"].as_str().unwrap().contains("/nonexistent/program"), "{missing}");
+    service.post("/targets", &target("ghost-q", "/ghost", "Ghost"));
+    service.post("/targets", &target("missing-q", "/missing", "Missing"));
+    assert_eq!(service.get("/environment")["valid"], false);
+    // A process that exits at start: the spawn fails, the change set says so, and the
+    // transformation is tried again only after a growing back-off, its labour estimate up.
+    service.post("/targets", &target("flaky-q", "/flaky", "Flaky"));
+    let failed = eventually("a failed change set", Duration::from_secs(30), || {
+        service
+            .change_sets()
+            .into_iter()
+            .find(|c| c["status"] == "failed")
+    });
+    assert!(failed["failures"][0]["reason"].as_str().unwrap().contains("before it ran"), "{failed}");
+    let window = Instant::now();
+    while window.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let all = service.change_sets();
+    let failures = all.iter().filter(|c| c["status"] == "failed").count();
+    assert!(
+        all.iter().all(|c| c["actions"].as_array().unwrap().iter().all(|a| {
+            a["transformation"] != "ghost" && a["transformation"] != "missing"
+        })),
+        "a transformation no executor can run was planned"
+    );
+    assert!((1..=8).contains(&failures), "{failures} failed starts in about 3 s: a crash loop");
+    let statistics = service.get("/statistics");
+    let labour = statistics["transformations"]["flaky"]["labour"].as_f64().unwrap();
+    assert!(labour > 1.0, "a failed start raises the labour estimate: {statistics}");
+}
+
+#[test]
+fn measured_costs_make_the_next_review_choose_the_cheaper_transformation() {
+    // The stable interval is H × time unit = 8 × 0.25 s = 2 s.
+    let service = Service::start(&["--time-unit", "0.25", "--horizon", "8"]);
+    let mut heavy = tf("heavy", "builtin", "dyknow/burn", &[("work", "3000000")], &[("in", "Count")], &[("out", "Echoed")]);
+    heavy.upkeep = Some(0.01);
+    let mut light = tf("light", "builtin", "dyknow/relay", &[], &[("in", "Count")], &[("out", "Echoed")]);
+    light.upkeep = Some(0.2);
+    for spec in [
+        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "10")], &[], &[("out", "Count")]),
+        heavy,
+        light,
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let first = eventually("the first change set", Duration::from_secs(30), || {
+        service.change_sets().into_iter().next()
+    });
+    let spawns = |c: &Value, t: &str| {
+        c["actions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a["action"] == "spawn" && a["transformation"] == t)
+    };
+    assert!(spawns(&first, "heavy"), "by its posted cost, heavy is the cheaper: {first}");
+    let switch = eventually("a review switching to light", Duration::from_secs(60), || {
+        service.change_sets().into_iter().find(|c| spawns(c, "light"))
+    });
+    assert!(
+        switch["actions"].as_array().unwrap().iter().any(|a| a["action"] == "destroy"),
+        "{switch}"
+    );
+    let statistics = service.get("/statistics");
+    let measured = &statistics["transformations"]["heavy"]["learned_upkeep"];
+    assert!(measured["observations"].as_u64().unwrap() >= 1, "{statistics}");
+    assert!(measured["average"].as_f64().unwrap() > 0.2, "{statistics}");
+}
+
+#[test]
+fn python_reads_a_channel_and_a_python_cu_computes() {
+    let service = Service::start(&[]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/scale_cu.py");
+    let source = format!("python3 {}", script.display());
+    for spec in [
+        tf("sevens", "builtin", "dyknow/signal", &[("period_ms", "20"), ("value", "7")], &[], &[("out", "Seven")]),
+        tf("triple", "process", &source, &[("factor", "3")], &[("in", "Seven")], &[("out", "Tripled")]),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    service.post("/targets", &target("tripled", "/tripled", "Tripled"));
+    // A subscriber written with PyPI's eclipse-zenoh parses the samples per the contract.
+    // (Undeclared and closed before exit: an open session keeps the interpreter alive.)
+    let reader = r#"
+import json, sys, threading, zenoh
+config = zenoh.Config()
+config.insert_json5("mode", '"client"')
+config.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+config.insert_json5("scouting/multicast/enabled", "false")
+got, done = [], threading.Event()
+def on(sample):
+    if done.is_set():
+        return
+    assert str(sample.encoding).startswith("application/json"), sample.encoding
+    message = json.loads(sample.payload.to_bytes())
+    assert isinstance(message["t"], int)
+    got.append(message["value"])
+    if len(got) == 3:
+        done.set()
+session = zenoh.open(config)
+sub = session.declare_subscriber("dyknow/channel/tripled", on)
+ok = done.wait(60)
+sub.undeclare()
+session.close()
+if not ok:
+    sys.exit("no samples")
+print("\n".join(json.dumps(v) for v in got[:3]))
+"#;
+    let out = Command::new("python3")
+        .args(["-c", reader, &service.zenoh])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(String::from_utf8(out.stdout).unwrap().trim(), "21\n21\n21");
+    let triple = service.cu_of("triple").unwrap();
+    let detail = service.get(&format!("/cus/{}", triple["name"].as_str().unwrap()));
+    assert_eq!(detail["state"], "running");
+    assert!(detail["statistics"]["ports"]["in"]["messages"].as_u64().unwrap() >= 3, "{detail}");
+}
