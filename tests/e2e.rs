@@ -27,8 +27,8 @@ async fn every_example_spec_loads_through_the_api() {
     let api = Api::new();
     api.load_examples().await;
     let list = api.get("/transformations").await.expect(200).json();
-    // Listing 5.3 (1) + Example 12 (5) + Piff (7) + Puff (7) + ceiling (10).
-    assert_eq!(list.as_array().unwrap().len(), 30);
+    // Listing 5.3 (1) + Example 12 (5) + Piff (7) + Puff (7) + ceiling (10) + live (2).
+    assert_eq!(list.as_array().unwrap().len(), 32);
     let targets = api.get("/targets").await.expect(200).json();
     let labels: Vec<&str> = targets
         .as_array()
@@ -36,7 +36,10 @@ async fn every_example_spec_loads_through_the_api() {
         .iter()
         .map(|t| t["label"].as_str().unwrap())
         .collect();
-    assert_eq!(labels, ["qid1", "qid2", "target1", "undistortSub"]);
+    assert_eq!(
+        labels,
+        ["greetings", "qid1", "qid2", "target1", "undistortSub"]
+    );
 }
 
 #[expect(clippy::expect_used, reason = "test helper")]

@@ -22,7 +22,7 @@ use serde_json::Value;
 use tower::{Service, ServiceExt};
 
 /// The example specs of `specs/turtle/` and the endpoint each is posted to.
-pub const EXAMPLE_SPECS: [(&str, &str); 9] = [
+pub const EXAMPLE_SPECS: [(&str, &str); 11] = [
     ("listing-5.3-undistort.ttl", "/transformations"),
     ("listing-5.4-target.ttl", "/targets"),
     ("example-12-similarity.ttl", "/ontology"),
@@ -32,6 +32,8 @@ pub const EXAMPLE_SPECS: [(&str, &str); 9] = [
     ("ch6-piff.ttl", "/transformations"),
     ("ch6-puff.ttl", "/transformations"),
     ("ch6-ceiling.ttl", "/transformations"),
+    ("live-pipeline.ttl", "/transformations"),
+    ("live-target.ttl", "/targets"),
 ];
 
 /// The directory of the example specs.

@@ -74,6 +74,16 @@ pub fn process_cpu(pid: u32) -> Option<Duration> {
     Some(Duration::from_millis(ticks * 10))
 }
 
+/// The CPU time of a whole process, its exited threads included: utime + stime of
+/// `/proc/<pid>/stat`, at 10 ms resolution (USER_HZ 100).
+pub fn process_cpu_total(pid: u32) -> Option<Duration> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let after = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    Some(Duration::from_millis(ticks * 10))
+}
+
 /// How an executor starts process CUs.
 #[derive(Debug, Clone)]
 pub struct Launch {

@@ -1,5 +1,9 @@
 //! The executor on a real Zenoh session: builtin and process CUs computing, rewired make
 //! before break, crashing.
+#![expect(
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
 
 use std::sync::mpsc;
 use std::time::{Duration, Instant};

@@ -205,7 +205,10 @@ impl Fleet {
     pub fn wait_for(&self, name: &str, timeout: Duration) -> bool {
         let deadline = std::time::Instant::now() + timeout;
         while std::time::Instant::now() < deadline {
-            if lock(&self.inner.executors).get(name).is_some_and(|k| k.present) {
+            if lock(&self.inner.executors)
+                .get(name)
+                .is_some_and(|k| k.present)
+            {
                 return true;
             }
             std::thread::sleep(Duration::from_millis(5));
@@ -222,7 +225,10 @@ impl Inner {
                 tracing::warn!("executor {name} appeared but does not describe itself");
                 return;
             };
-            tracing::info!("executor {name} is present ({} builtins)", info.builtins.len());
+            tracing::info!(
+                "executor {name} is present ({} builtins)",
+                info.builtins.len()
+            );
             lock(&self.executors).insert(
                 name.to_owned(),
                 Known {
@@ -277,7 +283,10 @@ impl Inner {
                 }
             }
             Event::Upkeep {
-                cu, cpu_ms, over_ms, ..
+                cu,
+                cpu_ms,
+                over_ms,
+                ..
             } => FleetEvent::Upkeep {
                 cu: cu.into(),
                 cpu_ms,
@@ -311,9 +320,12 @@ impl Inner {
             .timeout(timeout)
             .wait()
             .map_err(|e| e.to_string())?;
-        let reply = replies
-            .recv()
-            .map_err(|_| format!("executor {name} did not answer within {} s", timeout.as_secs()))?;
+        let reply = replies.recv().map_err(|_| {
+            format!(
+                "executor {name} did not answer within {} s",
+                timeout.as_secs()
+            )
+        })?;
         match reply.result() {
             Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
                 .map_err(|e| format!("executor {name} answered nonsense: {e}")),
@@ -337,7 +349,10 @@ impl Inner {
                 if known.builtins.contains(&implementation.source) {
                     Ok(())
                 } else {
-                    Err(format!("no present executor has the builtin {:?}", implementation.source))
+                    Err(format!(
+                        "no present executor has the builtin {:?}",
+                        implementation.source
+                    ))
                 }
             }
             Kind::Process => {
@@ -357,7 +372,9 @@ impl Inner {
                     None => return Err(format!("executor {name} did not answer")),
                 };
                 if let Some(known) = lock(&self.executors).get_mut(name) {
-                    known.checks.insert(implementation.source.clone(), answer.clone());
+                    known
+                        .checks
+                        .insert(implementation.source.clone(), answer.clone());
                 }
                 answer
             }

@@ -544,7 +544,11 @@ impl Manager {
                 && let Some(tf) = loaded.env.library.get(transformation)
             {
                 let learned = learned.get_or_insert_with(|| self.learned());
-                learned.observe(transformation.clone(), CostKind::Labour, (2.0 * tf.labour).max(1.0));
+                learned.observe(
+                    transformation.clone(),
+                    CostKind::Labour,
+                    (2.0 * tf.labour).max(1.0),
+                );
             }
         }
         if let Some(learned) = &learned {
@@ -603,7 +607,7 @@ impl Manager {
                     value,
                 } => (transformation, CostKind::Labour, value),
             };
-            if !(value.is_finite() && value >= 0.0) || !loaded.specs.contains_key(&tid) {
+            if !(value.is_finite() && value >= 0.0 && loaded.specs.contains_key(&tid)) {
                 continue;
             }
             learned.observe(tid, kind, value);

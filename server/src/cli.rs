@@ -45,7 +45,12 @@ pub enum Command {
         /// The channel's name (`/ball/position`, `101`).
         channel: String,
         /// The service's Zenoh endpoint.
-        #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+        #[arg(
+            long,
+            value_name = "ENDPOINT",
+            env = "DYKNOW_ZENOH",
+            default_value = "tcp/127.0.0.1:7447"
+        )]
         connect: String,
         /// The key namespace.
         #[arg(long, value_name = "NS", default_value = "dyknow")]
@@ -65,7 +70,12 @@ pub enum Command {
         /// The value.
         value: String,
         /// The service's Zenoh endpoint.
-        #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+        #[arg(
+            long,
+            value_name = "ENDPOINT",
+            env = "DYKNOW_ZENOH",
+            default_value = "tcp/127.0.0.1:7447"
+        )]
         connect: String,
         /// The key namespace.
         #[arg(long, value_name = "NS", default_value = "dyknow")]
@@ -208,7 +218,12 @@ pub struct ServeArgs {
     pub max_body: usize,
     /// The Zenoh endpoint the service's router listens on (executors and process CUs connect
     /// here).
-    #[arg(long, value_name = "ENDPOINT", env = "DYKNOW_ZENOH", default_value = "tcp/127.0.0.1:7447")]
+    #[arg(
+        long,
+        value_name = "ENDPOINT",
+        env = "DYKNOW_ZENOH",
+        default_value = "tcp/127.0.0.1:7447"
+    )]
     pub zenoh_listen: String,
     /// The key namespace of channels and control keys.
     #[arg(long, value_name = "NS", default_value = "dyknow")]
@@ -656,7 +671,8 @@ fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
     let kb = open_store(data)?;
     use std::io::Write;
     let body = if format == "dyknow" || format == "json" {
-        let json = crate::routes::model::model_json(&kb, &|_| Ok(())).map_err(|e| Failure(2, e.message))?;
+        let json = crate::routes::model::model_json(&kb, &|_| Ok(()))
+            .map_err(|e| Failure(2, e.message))?;
         serde_json::to_vec_pretty(&json)?
     } else {
         let format = ModelFormat::from_name(format).ok_or_else(|| {
@@ -740,10 +756,9 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?
     } else {
         let listen = vec![args.zenoh_listen.clone()];
-        let session = dataplane::open(
-            dataplane::router_config(&listen, &[]).map_err(|e| Failure(2, e))?,
-        )
-        .map_err(|e| Failure(2, format!("{e} (listening on {})", args.zenoh_listen)))?;
+        let session =
+            dataplane::open(dataplane::router_config(&listen, &[]).map_err(|e| Failure(2, e))?)
+                .map_err(|e| Failure(2, format!("{e} (listening on {})", args.zenoh_listen)))?;
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
             .map_err(|e| Failure(2, format!("zenoh: {e}")))?;
         let fleet = Arc::new(fleet);
@@ -764,7 +779,11 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "data plane: Zenoh router on {}, namespace {}, {}",
             args.zenoh_listen,
             namespace,
-            if local.is_some() { "embedded executor local" } else { "no embedded executor" }
+            if local.is_some() {
+                "embedded executor local"
+            } else {
+                "no embedded executor"
+            }
         );
         let state = AppState::with_fleet(kb, config, fleet)
             .map_err(|e| Failure(2, format!("engine: {e}")))?;
@@ -837,7 +856,11 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
         dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect),
     )
     .map_err(|e| Failure(2, format!("executor: {e}")))?;
-    tracing::info!("executor {} connected to {}", args.name, args.connect.join(", "));
+    tracing::info!(
+        "executor {} connected to {}",
+        args.name,
+        args.connect.join(", ")
+    );
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -868,8 +891,8 @@ fn publish(channel: &str, value: &str, connect: &str, namespace: &str) -> Result
     let key = namespace
         .channel(channel)
         .map_err(|e| Failure(2, e.to_string()))?;
-    let value: serde_json::Value = serde_json::from_str(value)
-        .unwrap_or_else(|_| serde_json::Value::String(value.to_owned()));
+    let value: serde_json::Value =
+        serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_owned()));
     let session = dataplane::open(
         dataplane::client_config(&[connect.to_owned()]).map_err(|e| Failure(2, e))?,
     )

@@ -360,7 +360,14 @@ fn start_up_refusals() {
     let data = dir.path().to_str().unwrap();
     let _first = Server::start(&["--data", data]);
     let out = Command::new(BIN)
-        .args(["serve", "--bind", "127.0.0.1:0", "--model-only", "--data", data])
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--model-only",
+            "--data",
+            data,
+        ])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));

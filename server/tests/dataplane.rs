@@ -57,7 +57,14 @@ impl Service {
     fn start(args: &[&str]) -> Self {
         let zenoh = format!("tcp/127.0.0.1:{}", free_port());
         let mut child = Command::new(BIN)
-            .args(["serve", "--in-memory", "--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh])
+            .args([
+                "serve",
+                "--in-memory",
+                "--bind",
+                "127.0.0.1:0",
+                "--zenoh-listen",
+                &zenoh,
+            ])
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
@@ -101,7 +108,7 @@ impl Service {
 
     /// A Zenoh client of the service's data plane.
     fn session(&self) -> zenoh::Session {
-        zenoh::open(dyknow_cu::client_config(&[self.zenoh.clone()]).unwrap())
+        zenoh::open(dyknow_cu::client_config(std::slice::from_ref(&self.zenoh)).unwrap())
             .wait()
             .unwrap()
     }
@@ -302,12 +309,16 @@ fn alive(pid: u64) -> bool {
 }
 
 fn crash_change_set(service: &Service, cu: &str) -> Value {
-    eventually("a change set repairing the crash", Duration::from_secs(30), || {
-        service
-            .change_sets()
-            .into_iter()
-            .find(|c| c["cause"]["kind"] == "cu-crashed" && c["cause"]["cu"] == cu)
-    })
+    eventually(
+        "a change set repairing the crash",
+        Duration::from_secs(30),
+        || {
+            service
+                .change_sets()
+                .into_iter()
+                .find(|c| c["cause"]["kind"] == "cu-crashed" && c["cause"]["cu"] == cu)
+        },
+    )
 }
 
 #[test]
@@ -315,9 +326,30 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     let service = Service::start(&[]);
     let process_map = format!("{BIN} cu dyknow/map");
     for spec in [
-        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "20")], &[], &[("out", "Count")]),
-        tf("guard", "nodelet", "dyknow/fault", &[], &[("in", "Count")], &[("out", "Guarded")]),
-        tf("tenfold", "process", &process_map, &[("scale", "10")], &[("in", "Guarded")], &[("out", "Tenfold")]),
+        tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20")],
+            &[],
+            &[("out", "Count")],
+        ),
+        tf(
+            "guard",
+            "nodelet",
+            "dyknow/fault",
+            &[],
+            &[("in", "Count")],
+            &[("out", "Guarded")],
+        ),
+        tf(
+            "tenfold",
+            "process",
+            &process_map,
+            &[("scale", "10")],
+            &[("in", "Guarded")],
+            &[("out", "Tenfold")],
+        ),
     ] {
         service.post("/transformations", &spec.turtle());
     }
@@ -337,8 +369,17 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     let detail = service.get(&format!("/cus/{}", tenfold["name"].as_str().unwrap()));
     assert_eq!(detail["executor"], "local");
     assert_eq!(detail["state"], "running");
-    assert!(detail["statistics"]["ports"]["in"]["messages"].as_u64().unwrap() >= 1);
-    assert!(detail["statistics"]["ports"]["out"]["last_t"].as_i64().is_some());
+    assert!(
+        detail["statistics"]["ports"]["in"]["messages"]
+            .as_u64()
+            .unwrap()
+            >= 1
+    );
+    assert!(
+        detail["statistics"]["ports"]["out"]["last_t"]
+            .as_i64()
+            .is_some()
+    );
     let executors = service.get("/executors");
     assert_eq!(executors[0]["name"], "local");
     assert_eq!(executors[0]["present"], true);
@@ -358,17 +399,26 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     let repair = crash_change_set(&service, &guard_name);
     assert_eq!(repair["status"], "applied");
     let flowing = out.first_after(crashed_at);
-    eprintln!("panicked builtin CU: stream flowing again after {:?}", flowing - crashed_at);
+    eprintln!(
+        "panicked builtin CU: stream flowing again after {:?}",
+        flowing - crashed_at
+    );
     assert_eq!(service.status(&format!("/cus/{guard_name}")), 404);
 
     // kill -9 of a process CU.
     let tenfold_name = tenfold["name"].as_str().unwrap().to_owned();
     let pid = detail["pid"].as_u64().unwrap();
     let killed_at = Instant::now();
-    Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap();
+    Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
     crash_change_set(&service, &tenfold_name);
     let flowing = out.first_after(killed_at);
-    eprintln!("kill -9ed process CU: stream flowing again after {:?}", flowing - killed_at);
+    eprintln!(
+        "kill -9ed process CU: stream flowing again after {:?}",
+        flowing - killed_at
+    );
     let replacement = service.cu_of("tenfold").unwrap();
     let replacement = service.get(&format!("/cus/{}", replacement["name"].as_str().unwrap()));
     let new_pid = replacement["pid"].as_u64().unwrap();
@@ -387,14 +437,31 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     let service = Service::start(&["--no-executor"]);
     assert_eq!(service.get("/executors"), json!([]));
     for spec in [
-        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "20")], &[], &[("out", "Count")]),
-        tf("echo", "builtin", "dyknow/relay", &[], &[("in", "Count")], &[("out", "Echoed")]),
+        tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20")],
+            &[],
+            &[("out", "Count")],
+        ),
+        tf(
+            "echo",
+            "builtin",
+            "dyknow/relay",
+            &[],
+            &[("in", "Count")],
+            &[("out", "Echoed")],
+        ),
     ] {
         service.post("/transformations", &spec.turtle());
     }
     let echo = service.get("/transformations/echo");
     assert_eq!(echo["runnable"], false);
-    assert!(echo["why"].as_str().unwrap().contains("no executor"), "{echo}");
+    assert!(
+        echo["why"].as_str().unwrap().contains("no executor"),
+        "{echo}"
+    );
     service.post("/targets", &target("echoed", "/echoed", "Echoed"));
     let session = service.session();
     let out = Listener::new(&session, "/echoed");
@@ -419,15 +486,20 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     // kill -9 of the whole executor: its CUs are lost, what only it ran is unavailable.
     first.kill().unwrap();
     first.wait().unwrap();
-    eventually("the executor's CUs to be lost", Duration::from_secs(30), || {
-        (service.get("/cus") == json!([])).then_some(())
-    });
+    eventually(
+        "the executor's CUs to be lost",
+        Duration::from_secs(30),
+        || (service.get("/cus") == json!([])).then_some(()),
+    );
     assert_eq!(service.get("/executors")[0]["present"], false);
     assert_eq!(service.get("/environment")["valid"], false);
     let lost_at = Instant::now();
     let mut second = start("ext2");
     let flowing = out.first_after(lost_at);
-    eprintln!("executor replaced: stream flowing again {:?} after the new one started", flowing - lost_at);
+    eprintln!(
+        "executor replaced: stream flowing again {:?} after the new one started",
+        flowing - lost_at
+    );
     sigterm(&second);
     let status = wait_exit(&mut second);
     assert!(status.success(), "{status}");
@@ -441,18 +513,48 @@ fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off(
     let service = Service::start(&[]);
     let fails_at_start = format!("{BIN} cu dyknow/fault");
     for spec in [
-        tf("ghost", "builtin", "dyknow/nope", &[], &[], &[("out", "Ghost")]),
-        tf("missing", "process", "/nonexistent/program --x", &[], &[], &[("out", "Missing")]),
-        tf("flaky", "process", &fails_at_start, &[("after", "0")], &[], &[("out", "Flaky")]),
+        tf(
+            "ghost",
+            "builtin",
+            "dyknow/nope",
+            &[],
+            &[],
+            &[("out", "Ghost")],
+        ),
+        tf(
+            "missing",
+            "process",
+            "/nonexistent/program --x",
+            &[],
+            &[],
+            &[("out", "Missing")],
+        ),
+        tf(
+            "flaky",
+            "process",
+            &fails_at_start,
+            &[("after", "0")],
+            &[],
+            &[("out", "Flaky")],
+        ),
     ] {
         service.post("/transformations", &spec.turtle());
     }
     let ghost = service.get("/transformations/ghost");
     assert_eq!(ghost["runnable"], false);
-    assert!(ghost["why"].as_str().unwrap().contains("dyknow/nope"), "{ghost}");
+    assert!(
+        ghost["why"].as_str().unwrap().contains("dyknow/nope"),
+        "{ghost}"
+    );
     let missing = service.get("/transformations/missing");
     assert_eq!(missing["runnable"], false);
-    assert!(missing["why"].as_str().unwrap().contains("/nonexistent/program"), "{missing}");
+    assert!(
+        missing["why"]
+            .as_str()
+            .unwrap()
+            .contains("/nonexistent/program"),
+        "{missing}"
+    );
     service.post("/targets", &target("ghost-q", "/ghost", "Ghost"));
     service.post("/targets", &target("missing-q", "/missing", "Missing"));
     assert_eq!(service.get("/environment")["valid"], false);
@@ -465,7 +567,13 @@ fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off(
             .into_iter()
             .find(|c| c["status"] == "failed")
     });
-    assert!(failed["failures"][0]["reason"].as_str().unwrap().contains("before it ran"), "{failed}");
+    assert!(
+        failed["failures"][0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("before it ran"),
+        "{failed}"
+    );
     let window = Instant::now();
     while window.elapsed() < Duration::from_secs(3) {
         std::thread::sleep(Duration::from_millis(100));
@@ -473,27 +581,58 @@ fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off(
     let all = service.change_sets();
     let failures = all.iter().filter(|c| c["status"] == "failed").count();
     assert!(
-        all.iter().all(|c| c["actions"].as_array().unwrap().iter().all(|a| {
-            a["transformation"] != "ghost" && a["transformation"] != "missing"
-        })),
+        all.iter().all(|c| c["actions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|a| { a["transformation"] != "ghost" && a["transformation"] != "missing" })),
         "a transformation no executor can run was planned"
     );
-    assert!((1..=8).contains(&failures), "{failures} failed starts in about 3 s: a crash loop");
+    assert!(
+        (1..=8).contains(&failures),
+        "{failures} failed starts in about 3 s: a crash loop"
+    );
     let statistics = service.get("/statistics");
-    let labour = statistics["transformations"]["flaky"]["labour"].as_f64().unwrap();
-    assert!(labour > 1.0, "a failed start raises the labour estimate: {statistics}");
+    let labour = statistics["transformations"]["flaky"]["labour"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        labour > 1.0,
+        "a failed start raises the labour estimate: {statistics}"
+    );
 }
 
 #[test]
 fn measured_costs_make_the_next_review_choose_the_cheaper_transformation() {
     // The stable interval is H × time unit = 8 × 0.25 s = 2 s.
     let service = Service::start(&["--time-unit", "0.25", "--horizon", "8"]);
-    let mut heavy = tf("heavy", "builtin", "dyknow/burn", &[("work", "3000000")], &[("in", "Count")], &[("out", "Echoed")]);
+    let mut heavy = tf(
+        "heavy",
+        "builtin",
+        "dyknow/burn",
+        &[("work", "3000000")],
+        &[("in", "Count")],
+        &[("out", "Echoed")],
+    );
     heavy.upkeep = Some(0.01);
-    let mut light = tf("light", "builtin", "dyknow/relay", &[], &[("in", "Count")], &[("out", "Echoed")]);
+    let mut light = tf(
+        "light",
+        "builtin",
+        "dyknow/relay",
+        &[],
+        &[("in", "Count")],
+        &[("out", "Echoed")],
+    );
     light.upkeep = Some(0.2);
     for spec in [
-        tf("counter", "builtin", "dyknow/signal", &[("period_ms", "10")], &[], &[("out", "Count")]),
+        tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "10")],
+            &[],
+            &[("out", "Count")],
+        ),
         heavy,
         light,
     ] {
@@ -510,17 +649,34 @@ fn measured_costs_make_the_next_review_choose_the_cheaper_transformation() {
             .iter()
             .any(|a| a["action"] == "spawn" && a["transformation"] == t)
     };
-    assert!(spawns(&first, "heavy"), "by its posted cost, heavy is the cheaper: {first}");
-    let switch = eventually("a review switching to light", Duration::from_secs(60), || {
-        service.change_sets().into_iter().find(|c| spawns(c, "light"))
-    });
     assert!(
-        switch["actions"].as_array().unwrap().iter().any(|a| a["action"] == "destroy"),
+        spawns(&first, "heavy"),
+        "by its posted cost, heavy is the cheaper: {first}"
+    );
+    let switch = eventually(
+        "a review switching to light",
+        Duration::from_secs(60),
+        || {
+            service
+                .change_sets()
+                .into_iter()
+                .find(|c| spawns(c, "light"))
+        },
+    );
+    assert!(
+        switch["actions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a["action"] == "destroy"),
         "{switch}"
     );
     let statistics = service.get("/statistics");
     let measured = &statistics["transformations"]["heavy"]["learned_upkeep"];
-    assert!(measured["observations"].as_u64().unwrap() >= 1, "{statistics}");
+    assert!(
+        measured["observations"].as_u64().unwrap() >= 1,
+        "{statistics}"
+    );
     assert!(measured["average"].as_f64().unwrap() > 0.2, "{statistics}");
 }
 
@@ -530,8 +686,22 @@ fn python_reads_a_channel_and_a_python_cu_computes() {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/python/scale_cu.py");
     let source = format!("python3 {}", script.display());
     for spec in [
-        tf("sevens", "builtin", "dyknow/signal", &[("period_ms", "20"), ("value", "7")], &[], &[("out", "Seven")]),
-        tf("triple", "process", &source, &[("factor", "3")], &[("in", "Seven")], &[("out", "Tripled")]),
+        tf(
+            "sevens",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20"), ("value", "7")],
+            &[],
+            &[("out", "Seven")],
+        ),
+        tf(
+            "triple",
+            "process",
+            &source,
+            &[("factor", "3")],
+            &[("in", "Seven")],
+            &[("out", "Tripled")],
+        ),
     ] {
         service.post("/transformations", &spec.turtle());
     }
@@ -567,10 +737,20 @@ print("\n".join(json.dumps(v) for v in got[:3]))
         .args(["-c", reader, &service.zenoh])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert_eq!(String::from_utf8(out.stdout).unwrap().trim(), "21\n21\n21");
     let triple = service.cu_of("triple").unwrap();
     let detail = service.get(&format!("/cus/{}", triple["name"].as_str().unwrap()));
     assert_eq!(detail["state"], "running");
-    assert!(detail["statistics"]["ports"]["in"]["messages"].as_u64().unwrap() >= 3, "{detail}");
+    assert!(
+        detail["statistics"]["ports"]["in"]["messages"]
+            .as_u64()
+            .unwrap()
+            >= 3,
+        "{detail}"
+    );
 }

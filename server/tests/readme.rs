@@ -2,6 +2,7 @@
 //! bash against a fresh `dyknow serve --in-memory`, and its output must be what the README shows.
 
 #![expect(
+    clippy::unwrap_used,
     clippy::expect_used,
     reason = "test harness: a failed set-up is a failed test"
 )]
@@ -71,7 +72,12 @@ fn the_readme_tour_gives_the_answers_the_readme_shows() {
 #[test]
 fn the_live_tour_runs_a_pipeline_and_repairs_it() {
     let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    run_tour("live-tour", &["--zenoh-listen", &zenoh], &[("DYKNOW_ZENOH", &zenoh)], 7);
+    run_tour(
+        "live-tour",
+        &["--zenoh-listen", &zenoh],
+        &[("DYKNOW_ZENOH", &zenoh)],
+        7,
+    );
 }
 
 /// Runs the console blocks between the `name` markers against a fresh `dyknow serve
@@ -80,7 +86,11 @@ fn run_tour(name: &str, args: &[&str], env: &[(&str, &str)], at_least: usize) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
     let steps = tour(&readme, name);
-    assert!(steps.len() >= at_least, "found only {} tour steps", steps.len());
+    assert!(
+        steps.len() >= at_least,
+        "found only {} tour steps",
+        steps.len()
+    );
 
     let mut child = Command::new(env!("CARGO_BIN_EXE_dyknow"))
         .args(["serve", "--in-memory", "--bind", "127.0.0.1:0"])

@@ -15,7 +15,7 @@ use dyknow_store::oxigraph::sparql::results::{
     QueryResultsFormat, QueryResultsParser, SliceQueryResultsParserOutput,
 };
 use dyknow_store::spec::{
-    Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec,
+    Param, Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec,
 };
 use dyknow_store::{
     IngestError, InputFormat, KnowledgeBase, ModelFormat, ParsedQuery, PostReport, ResultFormat,
@@ -185,6 +185,13 @@ fn undistort_expected() -> TransformationSpec {
         upkeep: 1.0,
         exec_type: Some("nodelet".to_owned()),
         source: Some("package/Undistort".to_owned()),
+        params: vec![Param {
+            name: "configPath".to_owned(),
+            value: "/path/to/configuration/cam1/".to_owned(),
+            datatype: "string".to_owned(),
+            param_type: Some("string".to_owned()),
+        }],
+        executor: None,
     }
 }
 
@@ -2340,5 +2347,59 @@ fn a_stored_spec_posts_again_as_the_same_spec() {
             .expect("read")
             .len(),
         graph.len()
+    );
+}
+
+/// Parameters and the executor pin are read as executors need them (`executors.md`): the
+/// lexical form with its datatype's local name, in document order.
+#[test]
+fn parameters_and_the_executor_pin_are_read() {
+    let kb = kb();
+    post_tf(
+        &kb,
+        &ttl(r#"[] a dkros:ROSTransformation ; rdfs:label "sig" ;
+   dkros:hasType "builtin" ; dkros:hasSource "dyknow/signal" ; dkros:hasExecutor "piff" ;
+   dkros:hasParam [ dyknow:hasName "period_ms" ; dyknow:hasValue 50 ] ,
+                  [ dyknow:hasName "value" ; dyknow:hasValue "[1, 2]" ] ,
+                  [ dyknow:hasName "on" ; dyknow:hasValue true ] ;
+   dyknow:hasOutPort [ dyknow:hasName "out" ; dyknow:hasTag [ dyknow:hasValue "S" ] ] ."#),
+    )
+    .expect("accepted");
+    let t = transformation(&kb, "sig");
+    assert_eq!(t.executor.as_deref(), Some("piff"));
+    let mut params: Vec<(String, String, String)> = t
+        .params
+        .into_iter()
+        .map(|p| (p.name, p.value, p.datatype))
+        .collect();
+    params.sort();
+    assert_eq!(
+        params,
+        [
+            ("on".into(), "true".into(), "boolean".into()),
+            ("period_ms".into(), "50".into(), "integer".into()),
+            ("value".into(), "[1, 2]".into(), "string".into()),
+        ]
+    );
+}
+
+#[test]
+fn rejects_a_parameter_without_a_value_or_named_twice() {
+    assert_rejected(
+        &tf_with(r#"dkros:hasParam [ dyknow:hasName "x" ]"#),
+        SpecKind::Transformation,
+        "a parameter has exactly 1 dyknow:hasName and exactly 1 dyknow:hasValue",
+    );
+    assert_rejected(
+        &tf_with(
+            r#"dkros:hasParam [ dyknow:hasName "x" ; dyknow:hasValue 1 ] , [ dyknow:hasName "x" ; dyknow:hasValue 2 ]"#,
+        ),
+        SpecKind::Transformation,
+        "parameter names are unique within a transformation",
+    );
+    assert_rejected(
+        &tf_with(r#"dkros:hasExecutor "a" , "b""#),
+        SpecKind::Transformation,
+        "at most 1 dkros:hasExecutor",
     );
 }

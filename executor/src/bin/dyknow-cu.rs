@@ -9,11 +9,17 @@ use dyknow_executor::builtins::{self, Host};
 
 fn main() -> ExitCode {
     let Some(name) = std::env::args().nth(1) else {
-        eprintln!("usage: dyknow-cu BUILTIN   (one of: {})", builtins::names().join(", "));
+        eprintln!(
+            "usage: dyknow-cu BUILTIN   (one of: {})",
+            builtins::names().join(", ")
+        );
         return ExitCode::from(64);
     };
     let Some(factory) = builtins::builtin(&name) else {
-        eprintln!("no builtin {name:?} (one of: {})", builtins::names().join(", "));
+        eprintln!(
+            "no builtin {name:?} (one of: {})",
+            builtins::names().join(", ")
+        );
         return ExitCode::from(64);
     };
     dyknow_cu::run_process(|spec| factory(spec, Host::Process))

@@ -149,7 +149,10 @@ pub(crate) fn spec_json(
 ) -> Result<serde_json::Value, ApiError> {
     let value = match spec {
         Spec::Transformation(t) => serde_json::to_value(TransformationJson {
-            params: dyknow_lifecycle::fleet::implementation(&t).params.into_iter().collect(),
+            params: dyknow_lifecycle::fleet::implementation(&t)
+                .params
+                .into_iter()
+                .collect(),
             executor: t.executor.clone(),
             why: runnable(&t).err(),
             runnable: runnable(&t).is_ok(),

@@ -742,7 +742,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         let mut params: Vec<Param> = Vec::new();
         for term in nodes {
             let Some(node) = term_node(&term) else {
-                self.violation("dkros:hasParam links to a Parameter node, not a literal", root);
+                self.violation(
+                    "dkros:hasParam links to a Parameter node, not a literal",
+                    root,
+                );
                 continue;
             };
             let (names, _) = self.index.literals(&node, &[dyknow::HAS_NAME]);
@@ -751,7 +754,8 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             let (name, value) = match (names.as_slice(), values.as_slice()) {
                 ([name], [value]) => ((*name).clone(), (*value).clone()),
                 _ => {
-                    self.names.insert(node.clone(), format!("{}/parameter", self.label));
+                    self.names
+                        .insert(node.clone(), format!("{}/parameter", self.label));
                     self.violation(
                         "a parameter has exactly 1 dyknow:hasName and exactly 1 dyknow:hasValue",
                         &node,
@@ -760,7 +764,8 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                 }
             };
             if params.iter().any(|p| p.name == name.value()) {
-                self.names.insert(node.clone(), format!("{}/parameter", self.label));
+                self.names
+                    .insert(node.clone(), format!("{}/parameter", self.label));
                 self.violation("parameter names are unique within a transformation", &node);
                 continue;
             }

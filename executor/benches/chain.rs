@@ -1,0 +1,406 @@
+//! The seed's Figure 5.5, on Zenoh: the time a sample takes through a linear chain of n relay
+//! CUs, for DyKnow builtin CUs (threads of one executor), DyKnow process CUs (one process
+//! each), and, side by side in the same run, plain Zenoh forwarders written directly against
+//! the `zenoh` crate (in one process, and one process per hop). Then the steady idle CPU of
+//! one executor running 1,000 CUs.
+//!
+//! `cargo bench -p dyknow-executor --bench chain -- [--messages N] [--rate HZ] [--hops 1,10,25,50]`
+//! (`--rate 0`, the default, sends back to back: the next sample when the last arrived).
+
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
+use std::io::{BufRead, BufReader, Write};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dyknow_cu::protocol::{ApplyRequest, CuAction, Implementation};
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{Namespace, Sample};
+use dyknow_executor::{Executor, ExecutorConfig};
+
+const CU_BIN: &str = env!("CARGO_BIN_EXE_dyknow-cu");
+const FORWARD_BIN: &str = env!("CARGO_BIN_EXE_dyknow-bench-forward");
+
+struct Args {
+    messages: usize,
+    rate: f64,
+    hops: Vec<usize>,
+    idle_cus: usize,
+}
+
+fn args() -> Args {
+    let mut a = Args {
+        messages: 1000,
+        rate: 0.0,
+        hops: vec![1, 10, 25, 50],
+        idle_cus: 1000,
+    };
+    let argv: Vec<String> = std::env::args().skip(1).collect();
+    let mut i = 0;
+    while i < argv.len() {
+        let value = argv.get(i + 1).cloned().unwrap_or_default();
+        match argv[i].as_str() {
+            "--messages" => a.messages = value.parse().expect("--messages N"),
+            "--rate" => a.rate = value.parse().expect("--rate HZ"),
+            "--hops" => {
+                a.hops = value
+                    .split(',')
+                    .map(|h| h.parse().expect("--hops 1,10"))
+                    .collect()
+            }
+            "--idle-cus" => a.idle_cus = value.parse().expect("--idle-cus N"),
+            _ => {
+                i += 1;
+                continue;
+            }
+        }
+        i += 2;
+    }
+    a
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn router(endpoint: &str) -> zenoh::Session {
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"router\"").unwrap();
+    config
+        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    config
+        .insert_json5("scouting/gossip/enabled", "false")
+        .unwrap();
+    zenoh::open(config).wait().unwrap()
+}
+
+/// Sends samples into `first` and times their arrival on `last`.
+fn measure(
+    session: &zenoh::Session,
+    first: &str,
+    last: &str,
+    messages: usize,
+    rate: f64,
+) -> Vec<Duration> {
+    let (tx, rx) = mpsc::channel::<(u64, Instant)>();
+    let _sink = session
+        .declare_subscriber(last.to_owned())
+        .callback(move |s| {
+            let at = Instant::now();
+            if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes())
+                && let Some(seq) = sample.value.as_u64()
+            {
+                let _ = tx.send((seq, at));
+            }
+        })
+        .wait()
+        .unwrap();
+    let source = session
+        .declare_publisher(first.to_owned())
+        .express(true)
+        .wait()
+        .unwrap();
+    // Until the chain carries samples (routes are declared asynchronously).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        source.put(Sample::now(u64::MAX).to_bytes()).wait().unwrap();
+        if rx.recv_timeout(Duration::from_millis(50)).is_ok() {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the chain {first} → {last} carries nothing"
+        );
+    }
+    while rx.try_recv().is_ok() {}
+    let period = (rate > 0.0).then(|| Duration::from_secs_f64(1.0 / rate));
+    let warmup = 50;
+    let mut times = Vec::with_capacity(messages);
+    for seq in 0..(warmup + messages) as u64 {
+        let started = Instant::now();
+        source.put(Sample::now(seq).to_bytes()).wait().unwrap();
+        loop {
+            let (got, at) = rx
+                .recv_timeout(Duration::from_secs(10))
+                .expect("a sample through the chain");
+            if got == seq {
+                if seq >= warmup as u64 {
+                    times.push(at - started);
+                }
+                break;
+            }
+        }
+        if let Some(p) = period.filter(|_| seq >= warmup as u64) {
+            let next = started + p;
+            while Instant::now() < next {
+                std::thread::sleep(next - Instant::now());
+            }
+        }
+    }
+    times
+}
+
+struct Stats {
+    mean: f64,
+    p50: f64,
+    p99: f64,
+}
+
+fn stats(mut t: Vec<Duration>) -> Stats {
+    t.sort();
+    let us = |d: Duration| d.as_secs_f64() * 1e6;
+    let mean = t.iter().map(|d| us(*d)).sum::<f64>() / t.len() as f64;
+    let pct = |p: f64| us(t[((t.len() as f64 * p) as usize).min(t.len() - 1)]);
+    Stats {
+        mean,
+        p50: pct(0.5),
+        p99: pct(0.99),
+    }
+}
+
+fn relay(kind: &str, source: &str) -> Implementation {
+    Implementation {
+        kind: kind.into(),
+        source: source.into(),
+        params: Default::default(),
+        executor: None,
+        inputs: vec!["in".into()],
+        outputs: vec!["out".into()],
+    }
+}
+
+/// A chain of n relay CUs in `executor`, from channel `{prefix}0` to `{prefix}{n}`.
+fn dyknow_chain(
+    executor: &Executor,
+    prefix: &str,
+    n: usize,
+    implementation: &Implementation,
+) -> Vec<String> {
+    let mut actions = Vec::new();
+    let mut names = Vec::new();
+    for i in 0..n {
+        let cu = format!("{prefix}-cu{i}");
+        actions.push(CuAction::Spawn {
+            cu: cu.clone(),
+            transformation: "relay".into(),
+            implementation: implementation.clone(),
+        });
+        actions.push(CuAction::ConnectOut {
+            cu: cu.clone(),
+            port: "out".into(),
+            channel: format!("{prefix}{}", i + 1),
+        });
+        actions.push(CuAction::ConnectIn {
+            cu: cu.clone(),
+            port: "in".into(),
+            channel: format!("{prefix}{i}"),
+        });
+        names.push(cu);
+    }
+    let reply = executor.apply(&ApplyRequest {
+        change_set: "bench".into(),
+        actions,
+    });
+    assert!(reply.failures.is_empty(), "{:?}", reply.failures);
+    names
+}
+
+fn destroy(executor: &Executor, names: Vec<String>) {
+    let actions = names
+        .into_iter()
+        .map(|cu| CuAction::Destroy { cu })
+        .collect();
+    executor.apply(&ApplyRequest {
+        change_set: "bench".into(),
+        actions,
+    });
+}
+
+fn main() {
+    let args = args();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let session = router(&endpoint);
+    let ns = Namespace::default();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("bench", ns.clone(), vec![endpoint.clone()]),
+    )
+    .unwrap();
+    println!(
+        "chain of n relays: {} messages {}, after 50 to warm up; latency source → sink in µs",
+        args.messages,
+        if args.rate > 0.0 {
+            format!("at {} Hz", args.rate)
+        } else {
+            "back to back".into()
+        }
+    );
+    println!(
+        "{:<28} {:>4} {:>10} {:>10} {:>10} {:>12} {:>14}",
+        "variant", "n", "mean", "p50", "p99", "p50 per hop", "vs plain/hop"
+    );
+    for &n in &args.hops {
+        // Plain Zenoh forwarders in this process (the baseline for builtin CUs).
+        let mut forwarders = Vec::new();
+        for i in 0..n {
+            let publisher = session
+                .declare_publisher(format!("bench/plain/{}", i + 1))
+                .express(true)
+                .wait()
+                .unwrap();
+            forwarders.push(
+                session
+                    .declare_subscriber(format!("bench/plain/{i}"))
+                    .callback(move |s| {
+                        let _ = publisher.put(s.payload().clone()).wait();
+                    })
+                    .wait()
+                    .unwrap(),
+            );
+        }
+        let plain = stats(measure(
+            &session,
+            "bench/plain/0",
+            &format!("bench/plain/{n}"),
+            args.messages,
+            args.rate,
+        ));
+        drop(forwarders);
+        // DyKnow builtin relays in the executor.
+        let names = dyknow_chain(&executor, "b", n, &relay("builtin", "dyknow/relay"));
+        let builtin = stats(measure(
+            &session,
+            &ns.channel("b0").unwrap(),
+            &ns.channel(&format!("b{n}")).unwrap(),
+            args.messages,
+            args.rate,
+        ));
+        destroy(&executor, names);
+        // Plain Zenoh forwarders, one process per hop.
+        let mut children: Vec<Child> = (0..n)
+            .map(|i| {
+                Command::new(FORWARD_BIN)
+                    .args([
+                        &endpoint,
+                        &format!("bench/pp/{i}"),
+                        &format!("bench/pp/{}", i + 1),
+                    ])
+                    .stdin(Stdio::piped())
+                    .stdout(Stdio::piped())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect();
+        for child in &mut children {
+            let mut line = String::new();
+            BufReader::new(child.stdout.as_mut().unwrap())
+                .read_line(&mut line)
+                .unwrap();
+            assert_eq!(line.trim(), "ready");
+        }
+        let plain_proc = stats(measure(
+            &session,
+            "bench/pp/0",
+            &format!("bench/pp/{n}"),
+            args.messages,
+            args.rate,
+        ));
+        for mut child in children {
+            let _ = child.stdin.take().map(|mut s| s.write_all(b"\n"));
+            let _ = child.wait();
+        }
+        // DyKnow process CUs.
+        let names = dyknow_chain(
+            &executor,
+            "p",
+            n,
+            &relay("process", &format!("{CU_BIN} dyknow/relay")),
+        );
+        let process = stats(measure(
+            &session,
+            &ns.channel("p0").unwrap(),
+            &ns.channel(&format!("p{n}")).unwrap(),
+            args.messages,
+            args.rate,
+        ));
+        destroy(&executor, names);
+        let hop = |s: &Stats| s.p50 / n as f64;
+        let row = |name: &str, s: &Stats, base: Option<&Stats>| {
+            let vs = base.map_or("".to_owned(), |b| format!("{:+.2} µs", hop(s) - hop(b)));
+            println!(
+                "{:<28} {:>4} {:>10.1} {:>10.1} {:>10.1} {:>12.2} {:>14}",
+                name,
+                n,
+                s.mean,
+                s.p50,
+                s.p99,
+                hop(s),
+                vs
+            );
+        };
+        row("plain zenoh, in-process", &plain, None);
+        row("dyknow builtin CUs", &builtin, Some(&plain));
+        row("plain zenoh, process/hop", &plain_proc, None);
+        row("dyknow process CUs", &process, Some(&plain_proc));
+    }
+    // 1,000 CUs idle in one executor.
+    let idle: Vec<String> = {
+        let mut actions = Vec::new();
+        let mut names = Vec::new();
+        for i in 0..args.idle_cus {
+            let cu = format!("idle{i}");
+            actions.push(CuAction::Spawn {
+                cu: cu.clone(),
+                transformation: "relay".into(),
+                implementation: relay("builtin", "dyknow/relay"),
+            });
+            actions.push(CuAction::ConnectIn {
+                cu: cu.clone(),
+                port: "in".into(),
+                channel: format!("idle/in{i}"),
+            });
+            actions.push(CuAction::ConnectOut {
+                cu: cu.clone(),
+                port: "out".into(),
+                channel: format!("idle/out{i}"),
+            });
+            names.push(cu);
+        }
+        let started = Instant::now();
+        let reply = executor.apply(&ApplyRequest {
+            change_set: "idle".into(),
+            actions,
+        });
+        assert!(reply.failures.is_empty());
+        println!(
+            "\n{} builtin CUs spawned and bound in {:?}",
+            args.idle_cus,
+            started.elapsed()
+        );
+        names
+    };
+    std::thread::sleep(Duration::from_secs(2));
+    let pid = std::process::id();
+    let cpu0 = dyknow_executor::process::process_cpu_total(pid).unwrap();
+    let wall0 = Instant::now();
+    std::thread::sleep(Duration::from_secs(10));
+    let cpu = dyknow_executor::process::process_cpu_total(pid).unwrap() - cpu0;
+    let wall = wall0.elapsed();
+    println!(
+        "idle: {} CUs in one executor (and its Zenoh router): {:.2} % of a core over {:?}",
+        args.idle_cus,
+        100.0 * cpu.as_secs_f64() / wall.as_secs_f64(),
+        wall
+    );
+    destroy(&executor, idle);
+    executor.shutdown();
+}

@@ -1,0 +1,203 @@
+//! Crash to flowing again: how long after a CU of a running pipeline crashes its target's
+//! stream carries samples again, with nobody reporting the crash (the executor detects it, the
+//! life-cycle reviews, the executor spawns and wires the replacement). A `dyknow serve`
+//! process with its embedded executor; a source publishing every 2 ms through a guard CU to
+//! the target's channel; the guard crashed 50 times: a builtin by a panic on command, a
+//! process CU by `kill -9`.
+//!
+//! `cargo bench -p dyknow-server --bench recovery -- [--crashes N]`
+
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{Namespace, Sample};
+use serde_json::{Value, json};
+
+const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+struct Service {
+    child: Child,
+    url: String,
+    zenoh: String,
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let _ = self.child.wait();
+    }
+}
+
+fn start() -> Service {
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let mut child = Command::new(BIN)
+        .args(["serve", "--in-memory", "--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let url = loop {
+        let line = lines.next().expect("the service exited").unwrap();
+        if let Some(rest) = line.split("listening on ").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines {});
+    Service { child, url, zenoh }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder().http_status_as_error(false).build().into()
+}
+
+fn get(s: &Service, path: &str) -> Value {
+    let mut r = agent().get(&format!("{}{path}", s.url)).call().unwrap();
+    serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap()
+}
+
+fn post(s: &Service, path: &str, body: &str) {
+    let r = agent()
+        .post(&format!("{}{path}", s.url))
+        .header("Content-Type", "text/turtle")
+        .send(body.as_bytes())
+        .unwrap();
+    assert_eq!(r.status().as_u16(), 201);
+}
+
+const PREFIXES: &str = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+    @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
+    @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n";
+
+fn specs(guard_type: &str, guard_source: &str, tag: &str, channel: &str) -> (String, String) {
+    (
+        format!(
+            "{PREFIXES}[] a dkros:ROSTransformation ; rdfs:label \"source-{tag}\" ; dkros:hasType \"builtin\" ; dkros:hasSource \"dyknow/signal\" ;\n\
+             dkros:hasParam [ dyknow:hasName \"period_ms\" ; dyknow:hasValue 2 ] ;\n\
+             dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"Raw{tag}\" ] ] .\n\
+             [] a dkros:ROSTransformation ; rdfs:label \"guard-{tag}\" ; dkros:hasType \"{guard_type}\" ; dkros:hasSource \"{guard_source}\" ;\n\
+             dyknow:hasInPort [ dyknow:hasName \"in\" ; dyknow:hasTag [ dyknow:hasValue \"Raw{tag}\" ] ] ;\n\
+             dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"Guarded{tag}\" ] ] .\n"
+        ),
+        format!(
+            "{PREFIXES}[] a dyknow:Target ; rdfs:label \"q-{tag}\" ; dyknow:hasChannel [ dyknow:hasChannelName \"{channel}\" ] ;\n\
+             dyknow:hasTag [ dyknow:hasValue \"Guarded{tag}\" ] .\n"
+        ),
+    )
+}
+
+fn guard(s: &Service, tag: &str) -> Value {
+    let cus = get(s, "/cus");
+    let cu = cus
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["transformation"] == format!("guard-{tag}"))
+        .cloned()
+        .expect("a guard CU");
+    get(s, &format!("/cus/{}", cu["name"].as_str().unwrap()))
+}
+
+/// Crashes the guard `crashes` times with `crash` and times each outage: from the crash to the
+/// first sample on the target's channel from the replacement.
+fn run(s: &Service, session: &zenoh::Session, tag: &str, crashes: usize, crash: &dyn Fn(&Value)) -> Vec<Duration> {
+    let channel = format!("/out-{tag}");
+    let (turtle, target) = specs(
+        if tag == "builtin" { "builtin" } else { "process" },
+        &if tag == "builtin" { "dyknow/fault".to_owned() } else { format!("{BIN} cu dyknow/relay") },
+        tag,
+        &channel,
+    );
+    post(s, "/transformations", &turtle);
+    let (tx, rx) = mpsc::channel::<Instant>();
+    let _sub = session
+        .declare_subscriber(Namespace::default().channel(&channel).unwrap())
+        .callback(move |_| {
+            let _ = tx.send(Instant::now());
+        })
+        .wait()
+        .unwrap();
+    post(s, "/targets", &target);
+    rx.recv_timeout(Duration::from_secs(30)).expect("the pipeline flows");
+    let mut outages = Vec::new();
+    for _ in 0..crashes {
+        let before = guard(s, tag);
+        // Flowing: a fresh sample.
+        while rx.try_recv().is_ok() {}
+        rx.recv_timeout(Duration::from_secs(30)).expect("flowing before the crash");
+        let crashed_at = Instant::now();
+        crash(&before);
+        // Samples the old guard forwarded just before it crashed may still be on the wire
+        // (the source publishes every 2 ms): those within 1 ms of the crash do not count.
+        let flowing = loop {
+            let at = rx.recv_timeout(Duration::from_secs(30)).expect("flowing again");
+            if at > crashed_at + Duration::from_millis(1) {
+                break at;
+            }
+        };
+        outages.push(flowing - crashed_at);
+        // The replacement is in the model before the next round.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while guard(s, tag)["name"] == before["name"] {
+            assert!(Instant::now() < deadline, "no replacement");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    outages
+}
+
+fn report(what: &str, mut t: Vec<Duration>) {
+    t.sort();
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    let mean = t.iter().map(|d| ms(*d)).sum::<f64>() / t.len() as f64;
+    println!(
+        "{what:<34} {:>4} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+        t.len(),
+        mean,
+        ms(t[t.len() / 2]),
+        ms(t[(t.len() * 9 / 10).min(t.len() - 1)]),
+        ms(t[t.len() - 1])
+    );
+}
+
+fn main() {
+    let argv: Vec<String> = std::env::args().collect();
+    let crashes = argv
+        .iter()
+        .position(|a| a == "--crashes")
+        .and_then(|i| argv.get(i + 1))
+        .map_or(50, |n| n.parse().unwrap());
+    let s = start();
+    let session = zenoh::open(dyknow_cu::client_config(std::slice::from_ref(&s.zenoh)).unwrap())
+        .wait()
+        .unwrap();
+    let publisher_session = session.clone();
+    let builtin = run(&s, &session, "builtin", crashes, &|guard| {
+        let channel = guard["inputs"]["in"].as_str().unwrap();
+        publisher_session
+            .put(
+                Namespace::default().channel(channel).unwrap(),
+                Sample::now(json!({"fault": "panic"})).to_bytes(),
+            )
+            .wait()
+            .unwrap();
+    });
+    let process = run(&s, &session, "process", crashes, &|guard| {
+        let pid = guard["pid"].as_u64().expect("a process CU has a pid");
+        Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap();
+    });
+    println!("crash → target stream flowing again, ms (no client reports the crash)");
+    println!("{:<34} {:>4} {:>9} {:>9} {:>9} {:>9}", "crash", "n", "mean", "p50", "p90", "max");
+    report("builtin CU panics", builtin);
+    report("process CU kill -9", process);
+}
