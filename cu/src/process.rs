@@ -10,7 +10,7 @@
 //! | `DYKNOW_TRANSFORMATION` | its transformation's label |
 //! | `DYKNOW_NAMESPACE` | the key namespace (`dyknow`) |
 //! | `DYKNOW_CONNECT` | Zenoh endpoints to connect to, comma-separated |
-//! | `DYKNOW_EXECUTOR` | the executor's name; the CU exits when its token vanishes |
+//! | `DYKNOW_EXECUTOR` | the executor's name (the CU exits when its parent, the executor, dies) |
 //! | `DYKNOW_INPUTS`, `DYKNOW_OUTPUTS` | port names, comma-separated |
 //! | `DYKNOW_PARAMS` | the parameters, a JSON object |
 //!
@@ -23,7 +23,6 @@ use std::process::ExitCode;
 use std::sync::{Arc, OnceLock, mpsc};
 
 use zenoh::Wait;
-use zenoh::sample::SampleKind;
 
 use crate::error::CuError;
 use crate::keys::Namespace;
@@ -185,23 +184,22 @@ fn serve<T: Transformation>(
     )?;
     let unit = started.unit;
     let _ = slot.set(unit.clone());
-    let _watch = match &env.executor {
-        Some(executor) => {
-            let orphan_tx = exit_tx.clone();
-            Some(
-                session
-                    .liveliness()
-                    .declare_subscriber(env.namespace.executor_token(executor))
-                    .callback(move |sample| {
-                        if sample.kind() == SampleKind::Delete {
-                            let _ = orphan_tx.send(Exit::Orphaned);
-                        }
-                    })
-                    .wait()?,
-            )
-        }
-        None => None,
-    };
+    // Orphaned when the executor is gone: its process is our parent, so a new parent (init or
+    // a subreaper) means it died. This needs no Zenoh at all, so it works whatever the state
+    // of the connection.
+    let parent = std::os::unix::process::parent_id();
+    let orphan_tx = exit_tx.clone();
+    let _ = std::thread::Builder::new()
+        .name("dyknow-parent-watch".into())
+        .spawn(move || {
+            loop {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+                if std::os::unix::process::parent_id() != parent {
+                    let _ = orphan_tx.send(Exit::Orphaned);
+                    return;
+                }
+            }
+        });
     drop(exit_tx);
     let exit = exit_rx.recv().unwrap_or(Exit::Orphaned);
     unit.stop();

@@ -4,7 +4,7 @@
 It speaks the CU protocol of docs/executor-protocol.md with nothing but a Zenoh binding:
 read the environment the executor sets, declare the control queryable, then the liveliness
 token, and answer bind-in / bind-out / statistics / stop until told to stop, until the
-executor's token vanishes, or until it crashes (exit status 1).
+executor (its parent process) dies, or until it crashes (exit status 1).
 
 Spec:  dkros:hasType "process" ; dkros:hasSource "python3 /path/to/scale_cu.py" ;
        dkros:hasParam [ dyknow:hasName "factor" ; dyknow:hasValue 3 ] .
@@ -108,10 +108,14 @@ def control(query):
     query.reply(query.key_expr, json.dumps(reply))
 
 
-def on_executor(sample):
-    if sample.kind == zenoh.SampleKind.DELETE:
-        status["code"] = 2
-        done.set()
+def watch_parent():
+    """Orphaned when the executor (our parent process) is gone."""
+    parent = os.getppid()
+    while not done.is_set():
+        time.sleep(0.2)
+        if os.getppid() != parent:
+            status["code"] = 2
+            done.set()
 
 
 config = zenoh.Config()
@@ -120,9 +124,7 @@ config.insert_json5("connect/endpoints", json.dumps(CONNECT))
 config.insert_json5("scouting/multicast/enabled", "false")
 session = zenoh.open(config)
 queryable = session.declare_queryable(f"{CONTROL}/cu-control/{NAME}", control)
-watch = None
-if EXECUTOR:
-    watch = session.liveliness().declare_subscriber(f"{CONTROL}/executor/{EXECUTOR}", on_executor)
+threading.Thread(target=watch_parent, daemon=True).start()
 token = session.liveliness().declare_token(f"{CONTROL}/cu/{NAME}")
 done.wait()
 session.close()

@@ -214,7 +214,37 @@ fn a_signal_relay_map_chain_computes_and_a_panic_is_a_crash() {
         executor.info().cus.iter().all(|c| c.cu != "bad"),
         "a crashed CU is gone"
     );
+    // The crash took the CU's liveliness token, not the executor's or another CU's. (The
+    // executor releases a crashed CU on its worker: poll.)
+    let tokens = |key: String| {
+        session
+            .liveliness()
+            .get(key)
+            .timeout(Duration::from_secs(2))
+            .wait()
+            .expect("a liveliness query")
+            .iter()
+            .filter(|r| r.result().is_ok())
+            .count()
+    };
+    let ns = Namespace::default();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while tokens(ns.cu_token("bad")) != 0 {
+        assert!(Instant::now() < deadline, "the crashed CU's token stays");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(
+        tokens(ns.cu_token("rel")),
+        1,
+        "a running CU's token is there"
+    );
+    assert_eq!(
+        tokens(ns.executor_token("t1")),
+        1,
+        "the executor's token is there"
+    );
     executor.shutdown();
+    assert_eq!(tokens(ns.executor_token("t1")), 0, "shut down: no token");
 }
 
 #[test]

@@ -42,6 +42,29 @@ pub enum LifecycleError {
         /// The executor's reason.
         reason: String,
     },
+    /// SetConfig named a port the CU's transformation does not have.
+    #[error("computation unit {cu:?} has no {direction} port {port:?}")]
+    UnknownPort {
+        /// The CU.
+        cu: Cid,
+        /// `in` or `out`.
+        direction: &'static str,
+        /// The port.
+        port: String,
+    },
+    /// SetConfig would make a second CU publish on a channel.
+    #[error(
+        "channel {channel:?} has a publisher already ({publisher:?}): one publisher per channel"
+    )]
+    SharedChannel {
+        /// The channel.
+        channel: String,
+        /// The CU publishing on it.
+        publisher: Cid,
+    },
+    /// A channel name that is not a key expression on the data plane.
+    #[error("{0}")]
+    InvalidChannel(String),
     /// Reading the model from the knowledge base failed.
     #[error(transparent)]
     Read(#[from] ModelReadError),

@@ -4,12 +4,12 @@
 //! *configuration lock*, held from reading the environment to recording the outcome, so two
 //! of them never hand out the same name or undo each other.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock};
 use std::time::Duration;
 
 use dyknow_engine::{
-    Action, Cause, ChangeSet, ChangeSetStatus, Cid, Compiled, ComputationUnit, CostKind,
+    Action, Cause, ChangeSet, ChangeSetStatus, Channel, Cid, Compiled, ComputationUnit, CostKind,
     CostSummary, Environment, ExploreOptions, Ids, Invalidity, Learned, Tid,
 };
 use dyknow_store::model::{self, Loaded, SpecCache};
@@ -114,6 +114,20 @@ struct Configuration {
 struct Committed {
     change_set: Arc<ChangeSet>,
     after: Environment,
+}
+
+impl Committed {
+    /// The error for a request whose change set an executor could not apply in full.
+    fn applied(&self) -> Result<(), LifecycleError> {
+        match self.change_set.failures.first() {
+            None => Ok(()),
+            Some(failure) => Err(LifecycleError::NotApplied {
+                change_set: self.change_set.id.clone(),
+                cu: failure.cu.clone(),
+                reason: failure.reason.clone(),
+            }),
+        }
+    }
 }
 
 /// The life-cycle manager: owns the configuration of one knowledge base, driven by
@@ -358,19 +372,86 @@ impl Manager {
                 }
             },
         )?;
-        if let Some(failure) = committed.change_set.failures.first() {
-            return Err(LifecycleError::NotApplied {
-                change_set: committed.change_set.id.clone(),
-                cu: failure.cu.clone(),
-                reason: failure.reason.clone(),
-            });
-        }
+        committed.applied()?;
         committed
             .after
             .cus
             .get(&cid)
             .cloned()
             .ok_or(LifecycleError::UnknownCu(cid))
+    }
+
+    /// SetConfig (the proxy's service, seed Ch. 5.2.1): binds the given ports of a CU to the
+    /// given channels (`None`: unbound), as a change set (cause `manual`) the executor applies
+    /// make before break. Ports not named keep their binding. Refused, with nothing changed:
+    /// an unknown CU or port, a channel name that is not a key expression, a channel another
+    /// CU publishes on. Returns the CU as the model has it now.
+    pub fn set_config(
+        &self,
+        cid: &Cid,
+        inputs: &BTreeMap<String, Option<Channel>>,
+        outputs: &BTreeMap<String, Option<Channel>>,
+    ) -> Result<ComputationUnit, LifecycleError> {
+        let mut configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let Some(cu) = loaded.env.cus.get(cid) else {
+            return Err(LifecycleError::UnknownCu(cid.clone()));
+        };
+        let mut actions = Vec::new();
+        let mut ids = configuration.ids.clone();
+        for (direction, wanted, current) in
+            [("in", inputs, &cu.inputs), ("out", outputs, &cu.outputs)]
+        {
+            for (port, channel) in wanted {
+                let Some(now) = current.get(port) else {
+                    return Err(LifecycleError::UnknownPort {
+                        cu: cid.clone(),
+                        direction,
+                        port: port.clone(),
+                    });
+                };
+                if let Some(channel) = channel {
+                    dyknow_cu::keys::check_channel(channel)
+                        .map_err(|e| LifecycleError::InvalidChannel(e.to_string()))?;
+                    ids.reserve_channel(channel);
+                }
+                if now == channel {
+                    continue;
+                }
+                let (cu, port) = (cid.clone(), port.clone());
+                actions.push(match (direction, channel.clone()) {
+                    ("in", Some(channel)) => Action::ConnectIn { cu, port, channel },
+                    ("in", None) => Action::DisconnectIn { cu, port },
+                    (_, Some(channel)) => Action::ConnectOut { cu, port, channel },
+                    (_, None) => Action::DisconnectOut { cu, port },
+                });
+            }
+        }
+        for channel in outputs.values().flatten() {
+            if let Some(other) = loaded
+                .env
+                .publishers()
+                .get(channel.as_str())
+                .and_then(|p| p.iter().find(|(c, _)| *c != cid.as_str()))
+            {
+                return Err(LifecycleError::SharedChannel {
+                    channel: channel.to_string(),
+                    publisher: other.0.into(),
+                });
+            }
+        }
+        if actions.is_empty() {
+            return Ok(cu.clone());
+        }
+        let committed =
+            self.commit_manual(&mut configuration, ids, &loaded, actions, 0.0, |_| {})?;
+        committed.applied()?;
+        committed
+            .after
+            .cus
+            .get(cid)
+            .cloned()
+            .ok_or_else(|| LifecycleError::UnknownCu(cid.clone()))
     }
 
     /// Destroy: removes a CU, as a change set (cause `manual`) the executor applies; protected
@@ -389,14 +470,9 @@ impl Manager {
         let ids = configuration.ids.clone();
         let committed =
             self.commit_manual(&mut configuration, ids, &loaded, actions, 0.0, |_| {})?;
-        if let Some(failure) = committed.change_set.failures.first() {
-            // Treated as crashed by the commit: gone from the model, a review follows.
-            return Err(LifecycleError::NotApplied {
-                change_set: committed.change_set.id.clone(),
-                cu: failure.cu.clone(),
-                reason: failure.reason.clone(),
-            });
-        }
+        // A failed action: treated as crashed by the commit, gone from the model, a review
+        // follows.
+        committed.applied()?;
         // Under the configuration lock, so a review waiting for it replans with it.
         let mut schedule = lock(&self.schedule);
         schedule.prefer(cu.tid.clone());

@@ -9,7 +9,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -21,7 +21,11 @@ use serde_json::{Value, json};
 const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
 
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
 }
 
 struct Service {
@@ -32,7 +36,9 @@ struct Service {
 
 impl Drop for Service {
     fn drop(&mut self) {
-        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
         let _ = self.child.wait();
     }
 }
@@ -40,7 +46,14 @@ impl Drop for Service {
 fn start() -> Service {
     let zenoh = format!("tcp/127.0.0.1:{}", free_port());
     let mut child = Command::new(BIN)
-        .args(["serve", "--in-memory", "--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh])
+        .args([
+            "serve",
+            "--in-memory",
+            "--bind",
+            "127.0.0.1:0",
+            "--zenoh-listen",
+            &zenoh,
+        ])
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -53,12 +66,24 @@ fn start() -> Service {
             break rest.split_whitespace().next().unwrap().to_owned();
         }
     };
-    std::thread::spawn(move || for _ in lines {});
+    // The service's log, for a look after a run.
+    let log = std::env::temp_dir().join("dyknow-recovery-bench.log");
+    std::thread::spawn(move || {
+        let mut file = std::fs::File::create(log).ok();
+        for line in lines.map_while(Result::ok) {
+            if let Some(f) = file.as_mut() {
+                let _ = writeln!(f, "{line}");
+            }
+        }
+    });
     Service { child, url, zenoh }
 }
 
 fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder().http_status_as_error(false).build().into()
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into()
 }
 
 fn get(s: &Service, path: &str) -> Value {
@@ -96,25 +121,41 @@ fn specs(guard_type: &str, guard_source: &str, tag: &str, channel: &str) -> (Str
     )
 }
 
-fn guard(s: &Service, tag: &str) -> Value {
+/// The guard CU with its executor's view, if the model has one now.
+fn guard(s: &Service, tag: &str) -> Option<Value> {
     let cus = get(s, "/cus");
     let cu = cus
         .as_array()
         .unwrap()
         .iter()
         .find(|c| c["transformation"] == format!("guard-{tag}"))
-        .cloned()
-        .expect("a guard CU");
-    get(s, &format!("/cus/{}", cu["name"].as_str().unwrap()))
+        .cloned()?;
+    // Gone between the two requests (a 404): none.
+    Some(get(s, &format!("/cus/{}", cu["name"].as_str().unwrap())))
+        .filter(|d| d["name"].is_string())
 }
 
 /// Crashes the guard `crashes` times with `crash` and times each outage: from the crash to the
 /// first sample on the target's channel from the replacement.
-fn run(s: &Service, session: &zenoh::Session, tag: &str, crashes: usize, crash: &dyn Fn(&Value)) -> Vec<Duration> {
+fn run(
+    s: &Service,
+    session: &zenoh::Session,
+    tag: &str,
+    crashes: usize,
+    crash: &dyn Fn(&Value),
+) -> Vec<Duration> {
     let channel = format!("/out-{tag}");
     let (turtle, target) = specs(
-        if tag == "builtin" { "builtin" } else { "process" },
-        &if tag == "builtin" { "dyknow/fault".to_owned() } else { format!("{BIN} cu dyknow/relay") },
+        if tag == "builtin" {
+            "builtin"
+        } else {
+            "process"
+        },
+        &if tag == "builtin" {
+            "dyknow/fault".to_owned()
+        } else {
+            format!("{BIN} cu dyknow/relay")
+        },
         tag,
         &channel,
     );
@@ -128,19 +169,39 @@ fn run(s: &Service, session: &zenoh::Session, tag: &str, crashes: usize, crash: 
         .wait()
         .unwrap();
     post(s, "/targets", &target);
-    rx.recv_timeout(Duration::from_secs(30)).expect("the pipeline flows");
+    rx.recv_timeout(Duration::from_secs(30))
+        .expect("the pipeline flows");
     let mut outages = Vec::new();
     for _ in 0..crashes {
-        let before = guard(s, tag);
+        let Some(before) = guard(s, tag) else {
+            let sets = get(s, "/changesets");
+            let last: Vec<String> = sets
+                .as_array()
+                .unwrap()
+                .iter()
+                .rev()
+                .take(3)
+                .map(|c| {
+                    format!(
+                        "{} {} {} {} {}",
+                        c["id"], c["cause"], c["status"], c["actions"], c["failures"]
+                    )
+                })
+                .collect();
+            panic!("no guard CU: {}\n{}", get(s, "/cus"), last.join("\n"));
+        };
         // Flowing: a fresh sample.
         while rx.try_recv().is_ok() {}
-        rx.recv_timeout(Duration::from_secs(30)).expect("flowing before the crash");
+        rx.recv_timeout(Duration::from_secs(30))
+            .expect("flowing before the crash");
         let crashed_at = Instant::now();
         crash(&before);
         // Samples the old guard forwarded just before it crashed may still be on the wire
         // (the source publishes every 2 ms): those within 1 ms of the crash do not count.
         let flowing = loop {
-            let at = rx.recv_timeout(Duration::from_secs(30)).expect("flowing again");
+            let at = rx
+                .recv_timeout(Duration::from_secs(30))
+                .expect("flowing again");
             if at > crashed_at + Duration::from_millis(1) {
                 break at;
             }
@@ -148,7 +209,7 @@ fn run(s: &Service, session: &zenoh::Session, tag: &str, crashes: usize, crash: 
         outages.push(flowing - crashed_at);
         // The replacement is in the model before the next round.
         let deadline = Instant::now() + Duration::from_secs(30);
-        while guard(s, tag)["name"] == before["name"] {
+        while guard(s, tag).is_none_or(|g| g["name"] == before["name"]) {
             assert!(Instant::now() < deadline, "no replacement");
             std::thread::sleep(Duration::from_millis(5));
         }
@@ -194,10 +255,16 @@ fn main() {
     });
     let process = run(&s, &session, "process", crashes, &|guard| {
         let pid = guard["pid"].as_u64().expect("a process CU has a pid");
-        Command::new("kill").args(["-9", &pid.to_string()]).status().unwrap();
+        Command::new("kill")
+            .args(["-9", &pid.to_string()])
+            .status()
+            .unwrap();
     });
     println!("crash → target stream flowing again, ms (no client reports the crash)");
-    println!("{:<34} {:>4} {:>9} {:>9} {:>9} {:>9}", "crash", "n", "mean", "p50", "p90", "max");
+    println!(
+        "{:<34} {:>4} {:>9} {:>9} {:>9} {:>9}",
+        "crash", "n", "mean", "p50", "p90", "max"
+    );
     report("builtin CU panics", builtin);
     report("process CU kill -9", process);
 }

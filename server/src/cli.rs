@@ -44,17 +44,9 @@ pub enum Command {
     Listen {
         /// The channel's name (`/ball/position`, `101`).
         channel: String,
-        /// The service's Zenoh endpoint.
-        #[arg(
-            long,
-            value_name = "ENDPOINT",
-            env = "DYKNOW_ZENOH",
-            default_value = "tcp/127.0.0.1:7447"
-        )]
-        connect: String,
-        /// The key namespace.
-        #[arg(long, value_name = "NS", default_value = "dyknow")]
-        namespace: String,
+        /// Where the data plane is.
+        #[command(flatten)]
+        client: ClientArgs,
         /// Stop after this many samples.
         #[arg(long, value_name = "N")]
         count: Option<u64>,
@@ -69,17 +61,9 @@ pub enum Command {
         channel: String,
         /// The value.
         value: String,
-        /// The service's Zenoh endpoint.
-        #[arg(
-            long,
-            value_name = "ENDPOINT",
-            env = "DYKNOW_ZENOH",
-            default_value = "tcp/127.0.0.1:7447"
-        )]
-        connect: String,
-        /// The key namespace.
-        #[arg(long, value_name = "NS", default_value = "dyknow")]
-        namespace: String,
+        /// Where the data plane is.
+        #[command(flatten)]
+        client: ClientArgs,
     },
     /// Loads Turtle specs and ontology extensions into a store offline.
     Load {
@@ -237,6 +221,44 @@ pub struct ServeArgs {
     pub model_only: bool,
 }
 
+/// How `dyknow listen` and `dyknow publish` reach the data plane.
+#[derive(Debug, clap::Args)]
+pub struct ClientArgs {
+    /// The service's Zenoh endpoint.
+    #[arg(
+        long,
+        value_name = "ENDPOINT",
+        env = "DYKNOW_ZENOH",
+        default_value = "tcp/127.0.0.1:7447"
+    )]
+    pub connect: String,
+    /// The key namespace.
+    #[arg(long, value_name = "NS", default_value = "dyknow")]
+    pub namespace: String,
+}
+
+impl ClientArgs {
+    /// A client session and the key of `channel`.
+    fn open(&self, channel: &str) -> Result<(dyknow_cu::zenoh::Session, String), Failure> {
+        let namespace = dyknow_cu::Namespace::new(self.namespace.clone())
+            .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
+        let key = namespace
+            .channel(channel)
+            .map_err(|e| Failure(2, e.to_string()))?;
+        let session = dataplane::open(
+            dataplane::client_config(std::slice::from_ref(&self.connect))
+                .map_err(|e| Failure(2, e))?,
+        )
+        .map_err(|e| {
+            Failure(
+                2,
+                format!("{e} (is `dyknow serve` running at {}?)", self.connect),
+            )
+        })?;
+        Ok((session, key))
+    }
+}
+
 /// Options of `dyknow executor`.
 #[derive(Debug, clap::Args)]
 pub struct ExecutorArgs {
@@ -272,17 +294,15 @@ pub fn main() -> ExitCode {
         Command::Cu { builtin } => return cu(&builtin),
         Command::Listen {
             channel,
-            connect,
-            namespace,
+            client,
             count,
             values,
-        } => listen(&channel, &connect, &namespace, count, values),
+        } => listen(&channel, &client, count, values),
         Command::Publish {
             channel,
             value,
-            connect,
-            namespace,
-        } => publish(&channel, &value, &connect, &namespace),
+            client,
+        } => publish(&channel, &value, &client),
         Command::Load { data, files } => load(&data, &files),
         Command::Export {
             data,
@@ -885,18 +905,10 @@ fn cu(builtin: &str) -> ExitCode {
 }
 
 /// `dyknow publish`.
-fn publish(channel: &str, value: &str, connect: &str, namespace: &str) -> Result<(), Failure> {
-    let namespace = dyknow_cu::Namespace::new(namespace.to_owned())
-        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
-    let key = namespace
-        .channel(channel)
-        .map_err(|e| Failure(2, e.to_string()))?;
+fn publish(channel: &str, value: &str, client: &ClientArgs) -> Result<(), Failure> {
     let value: serde_json::Value =
         serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.to_owned()));
-    let session = dataplane::open(
-        dataplane::client_config(&[connect.to_owned()]).map_err(|e| Failure(2, e))?,
-    )
-    .map_err(|e| Failure(2, format!("{e} (is `dyknow serve` running at {connect}?)")))?;
+    let (session, key) = client.open(channel)?;
     let payload = dyknow_cu::Sample::now(value).to_bytes();
     dyknow_cu::zenoh::Wait::wait(
         session
@@ -911,21 +923,12 @@ fn publish(channel: &str, value: &str, connect: &str, namespace: &str) -> Result
 /// `dyknow listen`.
 fn listen(
     channel: &str,
-    connect: &str,
-    namespace: &str,
+    client: &ClientArgs,
     count: Option<u64>,
     values: bool,
 ) -> Result<(), Failure> {
     use std::io::Write as _;
-    let namespace = dyknow_cu::Namespace::new(namespace.to_owned())
-        .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
-    let key = namespace
-        .channel(channel)
-        .map_err(|e| Failure(2, e.to_string()))?;
-    let session = dataplane::open(
-        dataplane::client_config(&[connect.to_owned()]).map_err(|e| Failure(2, e))?,
-    )
-    .map_err(|e| Failure(2, format!("{e} (is `dyknow serve` running at {connect}?)")))?;
+    let (session, key) = client.open(channel)?;
     let subscriber = dyknow_cu::zenoh::Wait::wait(session.declare_subscriber(key))
         .map_err(|e| Failure(2, format!("cannot subscribe: {e}")))?;
     let mut seen = 0u64;

@@ -182,7 +182,11 @@ impl From<LifecycleError> for ApiError {
             LifecycleError::NameTaken(_) | LifecycleError::Protected(_) => {
                 Self::new(StatusCode::CONFLICT, e.to_string())
             }
-            LifecycleError::EmptyName | LifecycleError::InvalidCost { .. } => {
+            LifecycleError::EmptyName
+            | LifecycleError::InvalidCost { .. }
+            | LifecycleError::UnknownPort { .. }
+            | LifecycleError::SharedChannel { .. }
+            | LifecycleError::InvalidChannel(_) => {
                 Self::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string())
             }
             // A real fault, but the client needs to know what is recorded: say it.

@@ -30,6 +30,7 @@ use crate::routes::{executors, model, ontology, ops, reconfig, sparql, specs};
         reconfig::list_cus,
         executors::get_cu,
         executors::list_executors,
+        executors::set_config,
         reconfig::spawn_cu,
         reconfig::destroy_cu,
         reconfig::list_change_sets,

@@ -432,16 +432,14 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     assert!(!alive(new_pid), "process CU {new_pid} survived the service");
 }
 
-#[test]
-fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
-    let service = Service::start(&["--no-executor"]);
-    assert_eq!(service.get("/executors"), json!([]));
+/// A counter (`dyknow/signal` every `period_ms`) and an echo (`dyknow/relay`) of its counts.
+fn post_counter_echo(service: &Service, period_ms: &str) {
     for spec in [
         tf(
             "counter",
             "builtin",
             "dyknow/signal",
-            &[("period_ms", "20")],
+            &[("period_ms", period_ms)],
             &[],
             &[("out", "Count")],
         ),
@@ -456,6 +454,13 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     ] {
         service.post("/transformations", &spec.turtle());
     }
+}
+
+#[test]
+fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
+    let service = Service::start(&["--no-executor"]);
+    assert_eq!(service.get("/executors"), json!([]));
+    post_counter_echo(&service, "20");
     let echo = service.get("/transformations/echo");
     assert_eq!(echo["runnable"], false);
     assert!(
@@ -751,6 +756,83 @@ print("\n".join(json.dumps(v) for v in got[:3]))
             .as_u64()
             .unwrap()
             >= 3,
+        "{detail}"
+    );
+}
+
+#[test]
+fn set_config_rewires_make_before_break_and_refuses_what_would_break_the_environment() {
+    // A long stable interval: no scheduled review rewires the input SetConfig leaves unfed.
+    let service = Service::start(&["--time-unit", "100"]);
+    post_counter_echo(&service, "10");
+    let session = service.session();
+    let out = Listener::new(&session, "/echoed");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    out.next();
+    let echo = service.cu_of("echo").unwrap();
+    let name = echo["name"].as_str().unwrap().to_owned();
+    let counter_channel = service.cu_of("counter").unwrap()["outputs"]["out"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let put = |body: Value| {
+        let mut r = agent()
+            .put(&format!("{}/cus/{name}/config", service.url))
+            .header("Content-Type", "application/json")
+            .send(body.to_string().as_bytes())
+            .unwrap();
+        let text = r.body_mut().read_to_string().unwrap();
+        (r.status().as_u16(), text)
+    };
+    // Refused, nothing changed.
+    let before = (service.get("/cus"), service.change_sets().len());
+    for (body, needle) in [
+        (json!({"inputs": {"nope": "x"}}), "no in port"),
+        (
+            json!({"outputs": {"out": counter_channel}}),
+            "has a publisher",
+        ),
+        (json!({"inputs": {"in": "a*b"}}), "reserve"),
+    ] {
+        let (status, text) = put(body);
+        assert_eq!(status, 422, "{text}");
+        assert!(text.contains(needle), "{text}");
+    }
+    assert_eq!(put(json!({"bogus": {}})).0, 400);
+    assert_eq!((service.get("/cus"), service.change_sets().len()), before);
+    // Rewired while samples flow: a sample published once the rebinding is acknowledged
+    // arrives.
+    for round in 0..10 {
+        let channel = format!("manual-{}", round % 2);
+        let (status, text) = put(json!({"inputs": {"in": channel}}));
+        assert_eq!(status, 200, "{text}");
+        let cu: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(cu["inputs"]["in"], channel.as_str());
+        session
+            .put(
+                Namespace::default().channel(&channel).unwrap(),
+                Sample::new(round, json!({"round": round})).to_bytes(),
+            )
+            .wait()
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            let (_, sample) = out.next();
+            if sample.value == json!({"round": round}) {
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "round {round}: the sample was lost"
+            );
+        }
+    }
+    let last = service.change_sets().pop().unwrap();
+    assert_eq!(last["cause"]["kind"], "manual");
+    assert_eq!(last["status"], "applied");
+    let detail = service.get(&format!("/cus/{name}"));
+    assert!(
+        detail["statistics"]["reconfigurations"].as_u64().unwrap() >= 11,
         "{detail}"
     );
 }

@@ -15,7 +15,9 @@ use crate::routes::reconfig::{CuJson, cus};
 
 /// The routes.
 pub fn router() -> Router<AppState> {
-    Router::new().route("/executors", get(list_executors))
+    Router::new()
+        .route("/executors", get(list_executors))
+        .route("/cus/{name}/config", axum::routing::put(set_config))
 }
 
 /// An executor.
@@ -57,6 +59,51 @@ pub async fn list_executors(
     })
     .await?;
     Ok(Json(list.into_iter().map(ExecutorJson::from).collect()))
+}
+
+/// SetConfig's body: ports to bind (a channel) or unbind (null); ports not named keep their
+/// binding.
+#[derive(Debug, serde::Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SetConfigJson {
+    /// In port → channel or null.
+    #[serde(default)]
+    pub inputs: std::collections::BTreeMap<String, Option<String>>,
+    /// Out port → channel or null.
+    #[serde(default)]
+    pub outputs: std::collections::BTreeMap<String, Option<String>>,
+}
+
+/// SetConfig: rebinds a CU's ports, recorded as a change set with cause `manual` and applied
+/// make before break. 200 with the CU; 404 unknown CU; 422 unknown port, a channel another CU
+/// publishes on, or a channel name that is not a key expression (nothing changed).
+#[utoipa::path(put, path = "/cus/{name}/config", tag = "reconfiguration",
+    params(("name" = String, Path, description = "the CU's name")),
+    request_body = SetConfigJson,
+    responses((status = 200, body = CuJson), (status = 404, body = crate::error::ErrorBody),
+              (status = 422, body = crate::error::ErrorBody)))]
+pub async fn set_config(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+    body: Result<Json<SetConfigJson>, axum::extract::rejection::JsonRejection>,
+) -> Result<Json<CuJson>, ApiError> {
+    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    let s = state.clone();
+    blocking(move || {
+        let channels = |m: std::collections::BTreeMap<String, Option<String>>| {
+            m.into_iter()
+                .map(|(p, c)| (p, c.map(dyknow_engine::Channel::from)))
+                .collect()
+        };
+        let cu = s.lifecycle.set_config(
+            &name.as_str().into(),
+            &channels(body.inputs),
+            &channels(body.outputs),
+        )?;
+        let loaded = s.lifecycle.load()?;
+        Ok(Json(crate::routes::reconfig::cu_json(&cu, &loaded.env)))
+    })
+    .await
 }
 
 /// A CU with what its executor says of it (GetConfig + GetStatistics).
