@@ -836,3 +836,53 @@ fn set_config_rewires_make_before_break_and_refuses_what_would_break_the_environ
         "{detail}"
     );
 }
+
+#[test]
+fn a_stand_alone_executor_stops_its_process_cus_on_sigterm() {
+    let service = Service::start(&["--no-executor"]);
+    let process_relay = format!("{BIN} cu dyknow/relay");
+    for spec in [
+        tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20")],
+            &[],
+            &[("out", "Count")],
+        ),
+        tf(
+            "pecho",
+            "process",
+            &process_relay,
+            &[],
+            &[("in", "Count")],
+            &[("out", "Echoed")],
+        ),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let session = service.session();
+    let out = Listener::new(&session, "/echoed");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let mut executor = Command::new(BIN)
+        .args(["executor", "--name", "ext", "--connect", &service.zenoh])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_line(&mut executor, "connected to");
+    out.next();
+    let pecho = service.cu_of("pecho").unwrap();
+    let detail = service.get(&format!("/cus/{}", pecho["name"].as_str().unwrap()));
+    assert_eq!(detail["executor"], "ext");
+    let pid = detail["pid"].as_u64().unwrap();
+    assert!(alive(pid));
+    sigterm(&executor);
+    let status = wait_exit(&mut executor);
+    assert!(status.success(), "{status}");
+    assert!(
+        !alive(pid),
+        "process CU {pid} survived its executor's SIGTERM"
+    );
+}
