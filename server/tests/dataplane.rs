@@ -141,6 +141,16 @@ impl Drop for Service {
     }
 }
 
+/// A child process killed when dropped: a failed assertion leaves nothing running.
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 fn sigterm(child: &Child) {
     Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
@@ -479,7 +489,7 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
             .spawn()
             .unwrap();
         wait_for_line(&mut child, "connected to");
-        child
+        Killed(child)
     };
     let mut first = start("ext1");
     out.next();
@@ -489,8 +499,8 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     assert_eq!(service.get("/transformations/echo")["runnable"], true);
 
     // kill -9 of the whole executor: its CUs are lost, what only it ran is unavailable.
-    first.kill().unwrap();
-    first.wait().unwrap();
+    first.0.kill().unwrap();
+    first.0.wait().unwrap();
     eventually(
         "the executor's CUs to be lost",
         Duration::from_secs(30),
@@ -505,8 +515,8 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
         "executor replaced: stream flowing again {:?} after the new one started",
         flowing - lost_at
     );
-    sigterm(&second);
-    let status = wait_exit(&mut second);
+    sigterm(&second.0);
+    let status = wait_exit(&mut second.0);
     assert!(status.success(), "{status}");
     eventually("the executor to be gone", Duration::from_secs(30), || {
         (service.get("/cus") == json!([])).then_some(())
@@ -864,22 +874,24 @@ fn a_stand_alone_executor_stops_its_process_cus_on_sigterm() {
     let session = service.session();
     let out = Listener::new(&session, "/echoed");
     service.post("/targets", &target("echoed", "/echoed", "Echoed"));
-    let mut executor = Command::new(BIN)
-        .args(["executor", "--name", "ext", "--connect", &service.zenoh])
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_line(&mut executor, "connected to");
+    let mut executor = Killed(
+        Command::new(BIN)
+            .args(["executor", "--name", "ext", "--connect", &service.zenoh])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    wait_for_line(&mut executor.0, "connected to");
     out.next();
     let pecho = service.cu_of("pecho").unwrap();
     let detail = service.get(&format!("/cus/{}", pecho["name"].as_str().unwrap()));
     assert_eq!(detail["executor"], "ext");
     let pid = detail["pid"].as_u64().unwrap();
     assert!(alive(pid));
-    sigterm(&executor);
-    let status = wait_exit(&mut executor);
+    sigterm(&executor.0);
+    let status = wait_exit(&mut executor.0);
     assert!(status.success(), "{status}");
     assert!(
         !alive(pid),

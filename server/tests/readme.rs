@@ -92,14 +92,16 @@ fn run_tour(name: &str, args: &[&str], env: &[(&str, &str)], at_least: usize) {
         steps.len()
     );
 
-    let mut child = Command::new(env!("CARGO_BIN_EXE_dyknow"))
-        .args(["serve", "--in-memory", "--bind", "127.0.0.1:0"])
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut child = Killed(
+        Command::new(env!("CARGO_BIN_EXE_dyknow"))
+            .args(["serve", "--in-memory", "--bind", "127.0.0.1:0"])
+            .args(args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = BufReader::new(child.0.stderr.take().unwrap()).lines();
     let deadline = Instant::now() + Duration::from_secs(60);
     let address = loop {
         assert!(Instant::now() < deadline, "server did not start");
@@ -141,6 +143,15 @@ fn run_tour(name: &str, args: &[&str], env: &[(&str, &str)], at_least: usize) {
             "the README's command\n{command}\nprinted something else"
         );
     }
-    let _ = child.kill();
-    let _ = child.wait();
+    drop(child);
+}
+
+/// A child process killed when dropped: a failed step does not leave the service running.
+struct Killed(std::process::Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
