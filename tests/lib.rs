@@ -78,6 +78,23 @@ pub struct Answer {
 }
 
 impl Answer {
+    /// Reads a response whole.
+    async fn read(response: axum::response::Response) -> Self {
+        let (parts, body) = response.into_parts();
+        let body = body
+            .collect()
+            .await
+            .expect("the body can be read")
+            .to_bytes();
+        Self {
+            status: parts.status,
+            headers: parts.headers,
+            body,
+        }
+    }
+}
+
+impl Answer {
     pub fn text(&self) -> String {
         String::from_utf8(self.body.to_vec()).expect("the body is UTF-8")
     }
@@ -204,17 +221,7 @@ impl Api {
             .call(request)
             .await
             .expect("the router is infallible");
-        let (parts, body) = response.into_parts();
-        let body = body
-            .collect()
-            .await
-            .expect("the body can be read")
-            .to_bytes();
-        Answer {
-            status: parts.status,
-            headers: parts.headers,
-            body,
-        }
+        Answer::read(response).await
     }
 
     /// Sends one request with `oneshot` on a clone of the router.
@@ -225,17 +232,7 @@ impl Api {
             .oneshot(request)
             .await
             .expect("the router is infallible");
-        let (parts, body) = response.into_parts();
-        let body = body
-            .collect()
-            .await
-            .expect("the body can be read")
-            .to_bytes();
-        Answer {
-            status: parts.status,
-            headers: parts.headers,
-            body,
-        }
+        Answer::read(response).await
     }
 
     pub async fn get(&self, uri: &str) -> Answer {

@@ -148,23 +148,26 @@ pub(crate) fn spec_json(
     spec: Spec,
 ) -> Result<serde_json::Value, ApiError> {
     let value = match spec {
-        Spec::Transformation(t) => serde_json::to_value(TransformationJson {
-            params: dyknow_lifecycle::fleet::implementation(&t)
-                .params
-                .into_iter()
-                .collect(),
-            executor: t.executor.clone(),
-            why: runnable(&t).err(),
-            runnable: runnable(&t).is_ok(),
-            inputs: t.inputs.iter().map(port_json).collect(),
-            outputs: t.outputs.iter().map(port_json).collect(),
-            label: t.label,
-            labour: t.labour,
-            upkeep: t.upkeep,
-            iri: t.iri,
-            exec_type: t.exec_type,
-            source: t.source,
-        }),
+        Spec::Transformation(t) => {
+            let why = runnable(&t).err();
+            serde_json::to_value(TransformationJson {
+                params: dyknow_lifecycle::fleet::implementation(&t)
+                    .params
+                    .into_iter()
+                    .collect(),
+                executor: t.executor.clone(),
+                runnable: why.is_none(),
+                why,
+                inputs: t.inputs.iter().map(port_json).collect(),
+                outputs: t.outputs.iter().map(port_json).collect(),
+                label: t.label,
+                labour: t.labour,
+                upkeep: t.upkeep,
+                iri: t.iri,
+                exec_type: t.exec_type,
+                source: t.source,
+            })
+        }
         Spec::Target(t) => {
             let producer = kb.channel_producer(&t.channel)?;
             let (tags, tag_details) = tags_json(&t.tags);
