@@ -2403,3 +2403,25 @@ fn rejects_a_parameter_without_a_value_or_named_twice() {
         "at most 1 dkros:hasExecutor",
     );
 }
+
+/// `executors.md`: a target's channel is a Zenoh key expression; a name that is not one is
+/// refused (422 over HTTP), nothing written.
+#[test]
+fn rejects_a_channel_name_that_is_not_a_key_expression() {
+    for name in ["a*b", "/x//y", "$", "q?", "/@hidden", ""] {
+        assert_rejected(
+            &ttl(&format!(
+                r#"[] a dyknow:Target ; rdfs:label "bad" ;
+   dyknow:hasChannel [ dyknow:hasChannelName "{name}" ] ; dyknow:hasTag [ dyknow:hasValue "T" ] ."#
+            )),
+            SpecKind::Target,
+            "a channel name maps to a key expression",
+        );
+    }
+    post_tg(
+        &kb(),
+        &ttl(r#"[] a dyknow:Target ; rdfs:label "ok" ;
+   dyknow:hasChannel [ dyknow:hasChannelName "/ball/position" ] ; dyknow:hasTag [ dyknow:hasValue "T" ] ."#),
+    )
+    .expect("a key expression is fine");
+}

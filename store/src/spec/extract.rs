@@ -86,6 +86,18 @@ const STRUCTURAL: [NamedNodeRef<'static>; 7] = [
 
 type Node = NamedOrBlankNode;
 
+/// Whether a channel name maps to a key expression on the data plane (`executors.md`): after
+/// one leading '/', non-empty chunks without Zenoh's reserved characters or DyKnow's hermetic
+/// '@' prefix. (The same rule as `dyknow_cu::keys::check_channel`, which the store does not
+/// depend on.)
+fn is_key_expression(name: &str) -> bool {
+    let chunks = name.strip_prefix('/').unwrap_or(name);
+    !chunks.is_empty()
+        && chunks
+            .split('/')
+            .all(|c| !c.is_empty() && !c.starts_with('@') && !c.contains(['*', '$', '?', '#']))
+}
+
 fn term_node(term: &Term) -> Option<Node> {
     match term {
         Term::NamedNode(n) => Some(n.clone().into()),
@@ -898,6 +910,13 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
                     match names.as_slice() {
                         [name] if !not_literal => {
                             let name = name.value().to_owned();
+                            if !is_key_expression(&name) {
+                                // `executors.md`: the channel is a Zenoh key expression.
+                                self.violation(
+                                    "a channel name maps to a key expression: non-empty '/'-separated chunks without '*', '$', '?', '#' or a leading '@'",
+                                    &node,
+                                );
+                            }
                             let iri = self.name_node(&node, || channel_resource(&name));
                             self.emit(root_iri, dyknow::HAS_CHANNEL, iri.clone());
                             self.emit(&iri, rdf::TYPE, dyknow::CHANNEL);
