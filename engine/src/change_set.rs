@@ -3,6 +3,7 @@
 //! graph; and whether the executors applied it. Serialises and deserialises, so the history
 //! read back from the knowledge base is typed.
 
+use std::collections::BTreeMap;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
@@ -93,6 +94,27 @@ pub struct ActionFailure {
     pub reason: String,
 }
 
+/// A CU's life after a change set touched it, as its executor acknowledged it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CuOutcomeState {
+    /// Spawned or rewired, and running.
+    Running,
+    /// Destroyed.
+    Stopped,
+    /// An action on it failed (or its executor vanished): treated as crashed.
+    Crashed,
+}
+
+/// What became of a CU a change set touched: the executor hosting it and its state.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CuOutcome {
+    /// The executor that applied its actions (none when no executor could take it).
+    pub executor: Option<String>,
+    /// Its state once the change set was applied.
+    pub state: CuOutcomeState,
+}
+
 /// A change set as the contract's change set JSON gives it, plus what the search could not do
 /// and how its application went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -120,6 +142,10 @@ pub struct ChangeSet {
     /// The actions that failed, when the status is `failed`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub failures: Vec<ActionFailure>,
+    /// The CUs its actions touched, with their executor and state once applied (empty in
+    /// model-only mode, where nothing runs).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub cus: BTreeMap<Cid, CuOutcome>,
 }
 
 impl ChangeSet {
@@ -136,6 +162,7 @@ impl ChangeSet {
             optimal: compiled.optimal,
             status: ChangeSetStatus::Planned,
             failures: Vec::new(),
+            cus: BTreeMap::new(),
         }
     }
 }
@@ -207,6 +234,22 @@ mod tests {
                 cu: "cu-4".into(),
                 reason: "no executor runs tid2".to_owned(),
             }],
+            cus: BTreeMap::from([
+                (
+                    "cu-4".into(),
+                    CuOutcome {
+                        executor: None,
+                        state: CuOutcomeState::Crashed,
+                    },
+                ),
+                (
+                    "cu-2".into(),
+                    CuOutcome {
+                        executor: Some("local".to_owned()),
+                        state: CuOutcomeState::Running,
+                    },
+                ),
+            ]),
         };
         let json = serde_json::to_value(&change_set).expect("serialise");
         // The contract's field names and spellings.
@@ -220,6 +263,13 @@ mod tests {
             serde_json::json!({"action": "connect-in", "cu": "cu-4", "port": "in", "channel": "ch-1"})
         );
         assert_eq!(json["status"], "failed");
+        assert_eq!(
+            json["cus"],
+            serde_json::json!({
+                "cu-2": {"executor": "local", "state": "running"},
+                "cu-4": {"executor": null, "state": "crashed"}
+            })
+        );
         assert_eq!(json["cause"]["kind"], change_set.cause.kind());
         let back: ChangeSet = serde_json::from_value(json).expect("deserialise");
         assert_eq!(back, change_set);
@@ -228,9 +278,11 @@ mod tests {
         let fields = old.as_object_mut().expect("an object");
         fields.remove("status");
         fields.remove("failures");
+        fields.remove("cus");
         let old: ChangeSet = serde_json::from_value(old).expect("deserialise");
         assert_eq!(old.status, ChangeSetStatus::Applied);
         assert!(old.failures.is_empty());
+        assert!(old.cus.is_empty());
     }
 
     #[test]

@@ -32,7 +32,10 @@ pub mod model;
 mod review;
 
 pub use candidates::{Candidates, Provider};
-pub use change_set::{ActionFailure, Cause, ChangeSet, ChangeSetStatus, NTriplesDelta, rfc3339};
+pub use change_set::{
+    ActionFailure, Cause, ChangeSet, ChangeSetStatus, CuOutcome, CuOutcomeState, NTriplesDelta,
+    rfc3339,
+};
 pub use compile::{Compiled, CostSummary, compile};
 pub use estimate::{CostKind, Estimate, Learned};
 pub use explore::{Cost, Exploration, ExploreOptions, Plan, explore};

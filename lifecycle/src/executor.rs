@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use dyknow_engine::{ActionFailure, ChangeSet, Cid, Tid};
+use dyknow_engine::{ActionFailure, ChangeSet, Cid, CuOutcome, Tid};
 use dyknow_store::spec::TransformationSpec;
 use serde::Serialize;
 
@@ -14,6 +14,9 @@ use serde::Serialize;
 pub struct Applied {
     /// The actions that failed, with their CU and why; empty when every action was applied.
     pub failures: Vec<ActionFailure>,
+    /// The CUs its actions touched, with the executor hosting each and its state after it
+    /// (empty when nothing runs).
+    pub cus: BTreeMap<Cid, CuOutcome>,
 }
 
 impl Applied {
@@ -58,6 +61,14 @@ pub trait Executor: Send + Sync {
     fn describe(&self, cu: &Cid) -> Option<CuView> {
         let _ = cu;
         None
+    }
+
+    /// What the running system says of several CUs (`GET /cus`); those it says nothing of
+    /// are missing. Executors that can answer for many CUs at once override it.
+    fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        cus.iter()
+            .filter_map(|cu| Some((cu.clone(), self.describe(cu)?)))
+            .collect()
     }
 }
 

@@ -11,13 +11,13 @@ use std::time::Duration;
 
 use dyknow_cu::Namespace;
 use dyknow_cu::protocol::{
-    ApplyReply, ApplyRequest, CheckReply, CuAction, Event, ExecutorInfo, Implementation, Kind,
-    param_value,
+    ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Implementation,
+    Kind, param_value,
 };
 use dyknow_cu::zenoh::pubsub::Subscriber;
 use dyknow_cu::zenoh::sample::SampleKind;
 use dyknow_cu::zenoh::{self, Wait};
-use dyknow_engine::{Action, ActionFailure, ChangeSet, Cid, Tid};
+use dyknow_engine::{Action, ActionFailure, ChangeSet, Cid, CuOutcome, CuOutcomeState, Tid};
 use dyknow_store::spec::TransformationSpec;
 use serde::Serialize;
 use tokio::sync::mpsc;
@@ -538,6 +538,22 @@ impl Executor for Fleet {
                 }
             }
         }
+        // What became of each CU it touched, before the placement forgets the lost ones.
+        let mut cus = BTreeMap::new();
+        for action in &change_set.actions {
+            let Some(cu) = action.cu() else { continue };
+            let state = if failures.iter().any(|f| &f.cu == cu) {
+                CuOutcomeState::Crashed
+            } else if matches!(action, Action::Destroy { .. }) {
+                CuOutcomeState::Stopped
+            } else if cus.contains_key(cu) {
+                continue;
+            } else {
+                CuOutcomeState::Running
+            };
+            let executor = placed.get(cu).cloned();
+            cus.insert(cu.clone(), CuOutcome { executor, state });
+        }
         for action in &change_set.actions {
             if let Action::Destroy { cu } = action {
                 placed.remove(cu);
@@ -548,37 +564,58 @@ impl Executor for Fleet {
         }
         *lock(&inner.placement) = placed;
         failures.sort_by_key(|f| f.action);
-        Applied { failures }
+        Applied { failures, cus }
     }
 
     fn describe(&self, cu: &Cid) -> Option<CuView> {
-        let executor = lock(&self.inner.placement).get(cu).cloned();
-        let Some(executor) = executor else {
-            return Some(CuView {
-                executor: None,
-                state: "crashed".into(),
-                statistics: serde_json::json!({}),
-                pid: None,
-            });
-        };
-        let info: Option<ExecutorInfo> = self.inner.query(&executor, "info", Vec::new());
-        let report = info.and_then(|i| i.cus.into_iter().find(|c| c.cu == cu.as_str()));
-        Some(match report {
-            Some(report) => CuView {
-                executor: Some(executor),
-                state: serde_json::to_value(report.state)
-                    .ok()
-                    .and_then(|v| v.as_str().map(str::to_owned))
-                    .unwrap_or_default(),
-                statistics: serde_json::to_value(report.statistics).unwrap_or_default(),
-                pid: report.pid,
-            },
-            None => CuView {
-                executor: Some(executor),
-                state: "crashed".into(),
-                statistics: serde_json::json!({}),
-                pid: None,
-            },
-        })
+        self.describe_all(std::slice::from_ref(cu)).remove(cu)
+    }
+
+    /// One `info` query per executor involved, however many CUs it hosts.
+    fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        let placement = lock(&self.inner.placement).clone();
+        let mut by_executor: BTreeMap<&str, Vec<&Cid>> = BTreeMap::new();
+        let mut views = BTreeMap::new();
+        for cu in cus {
+            match placement.get(cu) {
+                Some(executor) => by_executor.entry(executor).or_default().push(cu),
+                // Planned, but no executor hosts it (lost with its executor, or failed).
+                None => {
+                    views.insert(cu.clone(), lost_view(None));
+                }
+            }
+        }
+        for (executor, hosted) in by_executor {
+            let info: Option<ExecutorInfo> = self.inner.query(executor, "info", Vec::new());
+            let mut reports: BTreeMap<String, CuReport> = info
+                .map(|i| i.cus.into_iter().map(|c| (c.cu.clone(), c)).collect())
+                .unwrap_or_default();
+            for cu in hosted {
+                let view = match reports.remove(cu.as_str()) {
+                    Some(report) => CuView {
+                        executor: Some(executor.to_owned()),
+                        state: serde_json::to_value(report.state)
+                            .ok()
+                            .and_then(|v| v.as_str().map(str::to_owned))
+                            .unwrap_or_default(),
+                        statistics: serde_json::to_value(report.statistics).unwrap_or_default(),
+                        pid: report.pid,
+                    },
+                    None => lost_view(Some(executor.to_owned())),
+                };
+                views.insert(cu.clone(), view);
+            }
+        }
+        views
+    }
+}
+
+/// A CU the model has and no executor reports: crashed, until a review repairs it.
+fn lost_view(executor: Option<String>) -> CuView {
+    CuView {
+        executor,
+        state: "crashed".into(),
+        statistics: serde_json::json!({}),
+        pid: None,
     }
 }

@@ -239,6 +239,11 @@ impl Manager {
         self.executor.describe(cu)
     }
 
+    /// What the running system says of several CUs (empty in model-only mode).
+    pub fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        self.executor.describe_all(cus)
+    }
+
     /// The executors changed (one appeared or vanished): the transformations that became
     /// runnable are a registration, those that no longer are a deregistration (seed Def. 36),
     /// so a review replans when the environment is no longer valid.
@@ -581,7 +586,8 @@ impl Manager {
             .take_id();
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
-        let applied = self.executor.apply(&change_set, &loaded.specs);
+        let mut applied = self.executor.apply(&change_set, &loaded.specs);
+        change_set.cus = std::mem::take(&mut applied.cus);
         let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;

@@ -7,7 +7,9 @@ use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
-use dyknow_engine::{Action, ActionFailure, Cause, ChangeSet, ChangeSetStatus, Cid};
+use dyknow_engine::{
+    Action, ActionFailure, Cause, ChangeSet, ChangeSetStatus, Cid, CuOutcome, CuOutcomeState,
+};
 use dyknow_lifecycle::{
     Applied, Executor, LifecycleError, Manager, ModelOnly, Perturbation, Settings, SpawnRequest,
 };
@@ -62,7 +64,22 @@ impl Executor for Recording {
         if !failures.is_empty() {
             *fail = None;
         }
-        Applied { failures }
+        // What became of each CU, as a real executor reports it.
+        let cus = change_set
+            .actions
+            .iter()
+            .filter_map(|a| a.cu())
+            .map(|cu| {
+                let state = if failures.iter().any(|f| &f.cu == cu) {
+                    CuOutcomeState::Crashed
+                } else {
+                    CuOutcomeState::Running
+                };
+                let executor = Some("test".to_owned());
+                (cu.clone(), CuOutcome { executor, state })
+            })
+            .collect();
+        Applied { failures, cus }
     }
 }
 
@@ -96,6 +113,16 @@ fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
     assert!(
         matches!(&first.actions[failed.action], Action::Spawn { cu, transformation } if *cu == failed.cu && transformation == "tid2")
     );
+    // The record says what the executor said became of each CU.
+    assert_eq!(first.cus[&failed.cu].state, CuOutcomeState::Crashed);
+    assert_eq!(first.cus.len(), 3, "{:?}", first.cus);
+    assert!(
+        first
+            .cus
+            .iter()
+            .all(|(cu, o)| *cu == failed.cu || o.state == CuOutcomeState::Running)
+    );
+    assert_eq!(manager.change_sets(None)[0].cus, first.cus);
     // The failed CU is not in the model; the others are; a review is due at once, as after a
     // crash, with the crash as its cause.
     assert_eq!(cu_of(&manager, "tid2"), None);
@@ -280,6 +307,7 @@ impl Executor for RefusesDestroy {
                     _ => None,
                 })
                 .collect(),
+            cus: Default::default(),
         }
     }
 }

@@ -691,7 +691,7 @@ fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
     let kb = open_store(data)?;
     use std::io::Write;
     let body = if format == "dyknow" || format == "json" {
-        let json = crate::routes::model::model_json(&kb, &|_| Ok(()))
+        let json = crate::routes::model::model_json(&kb, &|_| Ok(()), &|_| Default::default())
             .map_err(|e| Failure(2, e.message))?;
         serde_json::to_vec_pretty(&json)?
     } else {

@@ -394,6 +394,23 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     assert_eq!(executors[0]["name"], "local");
     assert_eq!(executors[0]["present"], true);
     assert_eq!(executors[0]["cus"].as_array().unwrap().len(), 3);
+    // The list shows each CU's executor and state too, and so does the change set that
+    // spawned them.
+    for cu in service.get("/cus").as_array().unwrap() {
+        assert_eq!(cu["executor"], "local", "{cu}");
+        assert_eq!(cu["state"], "running", "{cu}");
+    }
+    let spawned = service
+        .change_sets()
+        .into_iter()
+        .find(|c| c["cause"]["kind"] == "target-added")
+        .unwrap();
+    assert_eq!(spawned["status"], "applied");
+    assert_eq!(
+        spawned["cus"][tenfold["name"].as_str().unwrap()],
+        json!({"executor": "local", "state": "running"}),
+        "{spawned}"
+    );
 
     // A panicking builtin CU: detected by the executor, repaired by a review.
     let guard_name = guard["name"].as_str().unwrap().to_owned();
@@ -408,6 +425,13 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
         .unwrap();
     let repair = crash_change_set(&service, &guard_name);
     assert_eq!(repair["status"], "applied");
+    let new_guard = service.cu_of("guard").unwrap();
+    assert_ne!(new_guard["name"], guard["name"]);
+    assert_eq!(
+        repair["cus"][new_guard["name"].as_str().unwrap()]["state"],
+        "running",
+        "{repair}"
+    );
     let flowing = out.first_after(crashed_at);
     eprintln!(
         "panicked builtin CU: stream flowing again after {:?}",
@@ -521,6 +545,131 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     eventually("the executor to be gone", Duration::from_secs(30), || {
         (service.get("/cus") == json!([])).then_some(())
     });
+}
+
+/// The direct children of a process.
+fn children(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+    {
+        let Ok(task) = task else { continue };
+        if let Ok(list) = std::fs::read_to_string(task.path().join("children")) {
+            out.extend(
+                list.split_whitespace()
+                    .filter_map(|p| p.parse::<u32>().ok()),
+            );
+        }
+    }
+    out
+}
+
+#[test]
+fn an_executor_that_vanishes_mid_change_set_fails_it_and_its_cus_count_as_crashed() {
+    let service = Service::start(&["--no-executor"]);
+    post_counter_echo(&service, "20");
+    // A process CU that never announces itself: its executor waits for it (up to its start
+    // timeout) while applying the change set, and dies meanwhile.
+    service.post(
+        "/transformations",
+        &tf(
+            "mute",
+            "process",
+            "sleep 60",
+            &[],
+            &[("in", "Count")],
+            &[("out", "Muted")],
+        )
+        .turtle(),
+    );
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let session = service.session();
+    let out = Listener::new(&session, "/echoed");
+    let mut executor = Command::new(BIN)
+        .args(["executor", "--name", "doomed", "--connect", &service.zenoh])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_line(&mut executor, "connected to");
+    let mut executor = Killed(executor);
+    out.next();
+    let hosted: Vec<String> = service
+        .get("/cus")
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["name"].as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(hosted.len(), 2);
+
+    // The change set spawning `mute` is under way: the executor has started `sleep`.
+    service.post("/targets", &target("muted", "/muted", "Muted"));
+    let pid = executor.0.id();
+    let sleeper = eventually(
+        "the executor to start the process CU",
+        Duration::from_secs(30),
+        || {
+            children(pid).into_iter().find(|c| {
+                std::fs::read_to_string(format!("/proc/{c}/comm"))
+                    .is_ok_and(|n| n.trim() == "sleep")
+            })
+        },
+    );
+    let killed_at = Instant::now();
+    executor.0.kill().unwrap();
+    executor.0.wait().unwrap();
+    // `sleep` knows nothing of DyKnow, so it does not notice its executor died (a CU written
+    // with the SDK exits then): the test cleans it up.
+    Command::new("kill")
+        .args(["-9", &sleeper.to_string()])
+        .status()
+        .unwrap();
+
+    let failed = eventually(
+        "the change set to be reported failed",
+        Duration::from_secs(60),
+        || {
+            service
+                .change_sets()
+                .into_iter()
+                .find(|c| c["cause"]["kind"] == "target-added" && c["cause"]["target"] == "muted")
+        },
+    );
+    eprintln!(
+        "executor killed mid-change-set: reported failed after {:?}",
+        killed_at.elapsed()
+    );
+    assert_eq!(failed["status"], "failed", "{failed}");
+    let mute = failed["actions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find_map(|a| (a["action"] == "spawn").then(|| a["cu"].clone()))
+        .unwrap();
+    assert!(
+        failed["failures"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|f| f["cu"] == mute),
+        "{failed}"
+    );
+    assert_eq!(failed["cus"][mute.as_str().unwrap()]["state"], "crashed");
+    // Its CUs count as crashed: none is left in the model, nothing claims to run them, and
+    // with no executor left the environment is invalid until one joins.
+    eventually(
+        "the executor's CUs to be lost",
+        Duration::from_secs(30),
+        || (service.get("/cus") == json!([])).then_some(()),
+    );
+    assert_eq!(service.get("/executors")[0]["present"], false);
+    for cu in &hosted {
+        assert_eq!(service.status(&format!("/cus/{cu}")), 404);
+    }
+    assert_eq!(service.get("/environment")["valid"], false);
 }
 
 #[test]

@@ -5,13 +5,14 @@ use axum::Json;
 use axum::Router;
 use axum::extract::{Path, State};
 use axum::routing::get;
+use dyknow_engine::Cid;
 use dyknow_lifecycle::ExecutorSummary;
 use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking};
 use crate::error::ApiError;
-use crate::routes::reconfig::{CuJson, cus};
+use crate::routes::reconfig::{CuJson, cu_json};
 
 /// The routes.
 pub fn router() -> Router<AppState> {
@@ -101,7 +102,11 @@ pub async fn set_config(
             &channels(body.outputs),
         )?;
         let loaded = s.lifecycle.load()?;
-        Ok(Json(crate::routes::reconfig::cu_json(&cu, &loaded.env)))
+        Ok(Json(crate::routes::reconfig::one_cu_json(
+            &s,
+            &cu,
+            &loaded.env,
+        )))
     })
     .await
 }
@@ -109,13 +114,9 @@ pub async fn set_config(
 /// A CU with what its executor says of it (GetConfig + GetStatistics).
 #[derive(Debug, Serialize, ToSchema)]
 pub struct CuDetailJson {
-    /// The CU as `GET /cus` lists it.
+    /// The CU as `GET /cus` lists it, with its executor and state.
     #[serde(flatten)]
     pub cu: CuJson,
-    /// The executor hosting it (null in model-only mode).
-    pub executor: Option<String>,
-    /// `starting`, `running`, `crashed`, `stopped`, or `model` in model-only mode.
-    pub state: String,
     /// `{"uptime_ms", "reconfigurations", "cpu_ms", "ports": {"<port>": {"messages", "bytes", "last_t"}}}`.
     #[schema(value_type = Object)]
     pub statistics: serde_json::Value,
@@ -134,29 +135,26 @@ pub async fn get_cu(
 ) -> Result<Json<CuDetailJson>, ApiError> {
     let s = state.clone();
     blocking(move || {
-        let Some(cu) = cus(&s)?.into_iter().find(|c| c.name == name) else {
+        let loaded = s.lifecycle.load()?;
+        let Some(cu) = loaded.env.cus.get(&Cid::from(name.as_str())) else {
             return Err(ApiError::not_found(format!(
                 "no computation unit named {name:?}"
             )));
         };
-        let view = s.lifecycle.describe(&cu.name.as_str().into());
-        Ok(Json(match view {
-            Some(view) => CuDetailJson {
-                cu,
-                executor: view.executor,
-                state: view.state,
-                statistics: view.statistics,
-                pid: view.pid,
-            },
-            None => CuDetailJson {
-                cu,
-                executor: None,
-                state: "model".into(),
-                statistics: serde_json::json!({
+        let view = s.lifecycle.describe(&cu.cid);
+        let (statistics, pid) = match &view {
+            Some(view) => (view.statistics.clone(), view.pid),
+            None => (
+                serde_json::json!({
                     "uptime_ms": 0, "reconfigurations": 0, "cpu_ms": 0.0, "ports": {}
                 }),
-                pid: None,
-            },
+                None,
+            ),
+        };
+        Ok(Json(CuDetailJson {
+            cu: cu_json(cu, &loaded.env, view.as_ref()),
+            statistics,
+            pid,
         }))
     })
     .await

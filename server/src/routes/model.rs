@@ -1,10 +1,14 @@
 //! GetModel (seed Ch. 5.3): the ontology and the environment, for other agents.
 
+use std::collections::BTreeMap;
+
 use axum::extract::{Query, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode};
 use axum::response::Response;
 use axum::routing::get;
 use axum::{Json, Router};
+use dyknow_engine::Cid;
+use dyknow_lifecycle::CuView;
 use dyknow_store::spec::SpecKind;
 use dyknow_store::{KnowledgeBase, ModelFormat};
 use serde::{Deserialize, Serialize};
@@ -67,8 +71,11 @@ const OFFERS: [&str; 7] = [
 pub fn model_json(
     kb: &KnowledgeBase,
     runnable: &dyn Fn(&dyknow_store::spec::TransformationSpec) -> Result<(), String>,
+    describe: &dyn Fn(&[Cid]) -> BTreeMap<Cid, CuView>,
 ) -> Result<ModelJson, ApiError> {
     let loaded = dyknow_store::model::load(kb)?;
+    let names: Vec<Cid> = loaded.env.cus.keys().cloned().collect();
+    let views = describe(&names);
     let mut channels = Vec::new();
     for (name, targets) in kb.channels()? {
         let producer = kb.channel_producer(&name)?;
@@ -93,7 +100,7 @@ pub fn model_json(
             .env
             .cus
             .values()
-            .map(|cu| cu_json(cu, &loaded.env))
+            .map(|cu| cu_json(cu, &loaded.env, views.get(&cu.cid)))
             .collect(),
         channels,
     })
@@ -126,7 +133,12 @@ pub async fn get_model(
     let kb = state.kb.clone();
     let Some(format) = format else {
         let lifecycle = state.lifecycle.clone();
-        let json = blocking(move || model_json(&kb, &|t| lifecycle.runnable(t))).await?;
+        let json = blocking(move || {
+            model_json(&kb, &|t| lifecycle.runnable(t), &|c| {
+                lifecycle.describe_all(c)
+            })
+        })
+        .await?;
         return Ok(axum::response::IntoResponse::into_response(Json(json)));
     };
     let exported = blocking(move || Ok(kb.export(format, inferred)?)).await?;

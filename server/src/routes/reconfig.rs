@@ -10,8 +10,8 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use dyknow_engine::{ChangeSet, ComputationUnit, Invalidity};
-use dyknow_lifecycle::{Observation, Perturbation, Phase, SpawnRequest};
+use dyknow_engine::{ChangeSet, Cid, ComputationUnit, Invalidity};
+use dyknow_lifecycle::{CuView, Observation, Perturbation, Phase, SpawnRequest};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
@@ -50,10 +50,19 @@ pub struct CuJson {
     pub protected: bool,
     /// The upkeep estimate of one time unit (learned, or the spec's).
     pub upkeep: f64,
+    /// The executor hosting it (null in model-only mode, or when no executor hosts it).
+    pub executor: Option<String>,
+    /// `starting`, `running`, `crashed`, `stopped`, or `model` in model-only mode.
+    pub state: String,
 }
 
-/// The JSON of a CU, with the upkeep estimate of its transformation in `env`.
-pub(crate) fn cu_json(cu: &ComputationUnit, env: &dyknow_engine::Environment) -> CuJson {
+/// The JSON of a CU, with the upkeep estimate of its transformation in `env` and what the
+/// running system says of it (`None` in model-only mode).
+pub(crate) fn cu_json(
+    cu: &ComputationUnit,
+    env: &dyknow_engine::Environment,
+    view: Option<&CuView>,
+) -> CuJson {
     let channels = |ports: &BTreeMap<String, Option<dyknow_engine::Channel>>| {
         ports
             .iter()
@@ -67,18 +76,35 @@ pub(crate) fn cu_json(cu: &ComputationUnit, env: &dyknow_engine::Environment) ->
         outputs: channels(&cu.outputs),
         protected: cu.protected,
         upkeep: env.library.get(&cu.tid).map_or(0.0, |t| t.upkeep),
+        executor: view.and_then(|v| v.executor.clone()),
+        state: view.map_or_else(|| "model".to_owned(), |v| v.state.clone()),
     }
 }
 
-/// The computation units, sorted by name (`GET /cus`, and the `cus` of the JSON model).
+/// The computation units of `env`, sorted by name, with what the running system says of
+/// them (one question per executor).
+pub(crate) fn cus_json(state: &AppState, env: &dyknow_engine::Environment) -> Vec<CuJson> {
+    let names: Vec<Cid> = env.cus.keys().cloned().collect();
+    let views = state.lifecycle.describe_all(&names);
+    env.cus
+        .values()
+        .map(|cu| cu_json(cu, env, views.get(&cu.cid)))
+        .collect()
+}
+
+/// One CU of `env` as [`cus_json`] gives it.
+pub(crate) fn one_cu_json(
+    state: &AppState,
+    cu: &ComputationUnit,
+    env: &dyknow_engine::Environment,
+) -> CuJson {
+    cu_json(cu, env, state.lifecycle.describe(&cu.cid).as_ref())
+}
+
+/// The computation units, sorted by name (`GET /cus`).
 pub(crate) fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
     let loaded = state.lifecycle.load()?;
-    Ok(loaded
-        .env
-        .cus
-        .values()
-        .map(|cu| cu_json(cu, &loaded.env))
-        .collect())
+    Ok(cus_json(state, &loaded.env))
 }
 
 /// The computation units, sorted by name.
@@ -118,7 +144,7 @@ pub async fn spawn_cu(
             name: body.name.map(Into::into),
             protected: body.protected,
         })?;
-        Ok(cu_json(&cu, &s.lifecycle.load()?.env))
+        Ok(one_cu_json(&s, &cu, &s.lifecycle.load()?.env))
     })
     .await?;
     Ok((StatusCode::CREATED, Json(cu)).into_response())
