@@ -6,7 +6,7 @@
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
 #   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
-#   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh; crash recovery
+#   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -49,6 +49,9 @@ if [ "$which" = all ] || [ "$which" = engine ]; then
 fi
 if [ "$which" = all ] || [ "$which" = dataplane ]; then
   cargo bench --locked --workspace --bench chain -- --messages 1000
-  cargo bench --locked --workspace --bench chain -- --messages 100 --rate 5 --idle-cus 0
+  # The dora peer (a standalone Cargo project; its own venv and target directory).
+  benches/peers/dora/run.sh --messages 1000
+  cargo bench --locked --workspace --bench chain -- --messages 1000 --rate 5 --idle-cus 0
+  benches/peers/dora/run.sh --messages 1000 --rate 5
   cargo bench --locked --workspace --bench recovery
 fi

@@ -49,6 +49,13 @@ pub trait Outputs {
     /// an error.
     fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError>;
 
+    /// Publishes on `port` the sample the running callback received, unchanged. A host that
+    /// kept the payload it received sends that as it is (no second serialisation, no copy);
+    /// by default it is published like any sample.
+    fn forward(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
+        self.publish(port, sample)
+    }
+
     /// Whether `port` is bound to a channel.
     fn is_bound(&self, port: &str) -> bool;
 }
@@ -120,6 +127,16 @@ impl<'a> NodeHandle<'a> {
     pub fn publish_all(&mut self, sample: &Sample) -> Result<(), CuError> {
         for port in self.outputs_names {
             self.outputs.publish(port, sample)?;
+        }
+        Ok(())
+    }
+
+    /// Publishes `sample`, the one this callback received, unchanged on every out port
+    /// (relays, throttles, merges): the host may send the payload it received as it is, so a
+    /// sample changed since must be published with [`Self::publish_all`] instead.
+    pub fn forward_all(&mut self, sample: &Sample) -> Result<(), CuError> {
+        for port in self.outputs_names {
+            self.outputs.forward(port, sample)?;
         }
         Ok(())
     }

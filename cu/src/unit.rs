@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use cpu_time::ThreadTime;
 use serde_json::Value;
 use zenoh::Wait;
-use zenoh::bytes::Encoding;
+use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::{Publisher, Subscriber};
 
@@ -65,6 +65,8 @@ struct OutBinding {
 struct OutPorts {
     cu: String,
     ports: BTreeMap<String, OutBinding>,
+    /// The payload of the sample the running callback received, for [`Outputs::forward`].
+    received: Option<ZBytes>,
 }
 
 impl Outputs for OutPorts {
@@ -80,6 +82,27 @@ impl Outputs for OutPorts {
             return Ok(());
         };
         let payload = sample.to_bytes();
+        out.stats.messages += 1;
+        out.stats.bytes += payload.len() as u64;
+        out.stats.last_t = Some(sample.t);
+        publisher.put(payload).wait()?;
+        Ok(())
+    }
+
+    fn forward(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
+        let Some(payload) = self.received.clone() else {
+            return self.publish(port, sample);
+        };
+        let Some(out) = self.ports.get_mut(port) else {
+            return Err(CuError::UnknownPort {
+                cu: self.cu.clone(),
+                direction: "out",
+                port: port.to_owned(),
+            });
+        };
+        let Some(publisher) = &out.publisher else {
+            return Ok(());
+        };
         out.stats.messages += 1;
         out.stats.bytes += payload.len() as u64;
         out.stats.last_t = Some(sample.t);
@@ -178,6 +201,7 @@ impl Unit {
                     )
                 })
                 .collect(),
+            received: None,
         };
         let mut core = Core {
             transformation,
@@ -284,8 +308,7 @@ impl Unit {
                     .declare_subscriber(key)
                     .callback(move |sample| {
                         if let Some(shared) = weak.upgrade() {
-                            let payload = sample.payload().to_bytes();
-                            shared.deliver(&name, &payload);
+                            shared.deliver(&name, sample.payload());
                         }
                     })
                     .wait()?;
@@ -364,8 +387,9 @@ impl Unit {
 
     fn reconfigured(&self) {
         self.shared.reconfigurations.fetch_add(1, Ordering::Relaxed);
-        self.shared
-            .guarded(|transformation, handle| transformation.on_reconfigure(&mut handle.node));
+        self.shared.guarded(None, |transformation, handle| {
+            transformation.on_reconfigure(&mut handle.node)
+        });
     }
 
     /// The in and out bindings now.
@@ -479,8 +503,8 @@ impl Unit {
 
 impl Shared {
     /// A sample on in port `port`.
-    fn deliver(&self, port: &str, payload: &[u8]) {
-        let sample = match Sample::from_slice(payload) {
+    fn deliver(&self, port: &str, payload: &ZBytes) {
+        let sample = match Sample::from_slice(&payload.to_bytes()) {
             Ok(s) => s,
             Err(e) => {
                 tracing::debug!("{} drops a sample on {port}: {e}", self.spec.name);
@@ -488,7 +512,7 @@ impl Shared {
             }
         };
         let bytes = payload.len() as u64;
-        self.guarded(|transformation, handle| {
+        self.guarded(Some(payload), |transformation, handle| {
             transformation_sample(transformation, handle, port, sample, bytes)
         });
     }
@@ -498,6 +522,7 @@ impl Shared {
     /// thread CPU time is charged to this CU less that of the callbacks nested in it.
     fn guarded(
         &self,
+        received: Option<&ZBytes>,
         callback: impl FnOnce(&mut dyn Transformation, &mut Handle<'_>) -> Result<(), CuError>,
     ) {
         if lock(&self.life).state != CuState::Running {
@@ -514,6 +539,7 @@ impl Shared {
         ACTIVE.with(|a| a.borrow_mut().push((self.id, Duration::ZERO)));
         let clock = ThreadTime::now();
         let mut core = lock(&self.core);
+        core.outputs.received = received.cloned();
         let result = {
             let Core {
                 transformation,
@@ -536,6 +562,7 @@ impl Shared {
                 callback(transformation.as_mut(), &mut handle)
             }))
         };
+        core.outputs.received = None;
         drop(core);
         let total = clock.elapsed();
         let nested = ACTIVE.with(|a| {
@@ -596,7 +623,9 @@ fn transformation_sample(
 
 impl Fire for Shared {
     fn fire(&self, timer: usize) -> bool {
-        self.guarded(|transformation, handle| transformation.on_timer(&mut handle.node, timer));
+        self.guarded(None, |transformation, handle| {
+            transformation.on_timer(&mut handle.node, timer)
+        });
         lock(&self.life).state == CuState::Running
     }
 }

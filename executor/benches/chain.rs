@@ -4,7 +4,8 @@
 //! the `zenoh` crate (in one process, and one process per hop). Then the steady idle CPU of
 //! one executor running 1,000 CUs.
 //!
-//! `cargo bench -p dyknow-executor --bench chain -- [--messages N] [--rate HZ] [--hops 1,10,25,50]`
+//! `cargo bench -p dyknow-executor --bench chain -- [--messages N] [--rate HZ] [--hops 1,10,25,50]
+//! [--idle-cus N] [--in-process-only]`
 //! (`--rate 0`, the default, sends back to back: the next sample when the last arrived).
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
@@ -27,6 +28,7 @@ struct Args {
     rate: f64,
     hops: Vec<usize>,
     idle_cus: usize,
+    in_process_only: bool,
 }
 
 fn args() -> Args {
@@ -35,6 +37,7 @@ fn args() -> Args {
         rate: 0.0,
         hops: vec![1, 10, 25, 50],
         idle_cus: 1000,
+        in_process_only: false,
     };
     let argv: Vec<String> = std::env::args().skip(1).collect();
     let mut i = 0;
@@ -50,6 +53,11 @@ fn args() -> Args {
                     .collect()
             }
             "--idle-cus" => a.idle_cus = value.parse().expect("--idle-cus N"),
+            "--in-process-only" => {
+                a.in_process_only = true;
+                i += 1;
+                continue;
+            }
             _ => {
                 i += 1;
                 continue;
@@ -83,70 +91,106 @@ fn router(endpoint: &str) -> zenoh::Session {
     zenoh::open(config).wait().unwrap()
 }
 
-/// Sends samples into `first` and times their arrival on `last`.
-fn measure(
-    session: &zenoh::Session,
-    first: &str,
-    last: &str,
-    messages: usize,
-    rate: f64,
-) -> Vec<Duration> {
-    let (tx, rx) = mpsc::channel::<(u64, Instant)>();
-    let _sink = session
-        .declare_subscriber(last.to_owned())
-        .callback(move |s| {
-            let at = Instant::now();
-            if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes())
-                && let Some(seq) = sample.value.as_u64()
-            {
-                let _ = tx.send((seq, at));
-            }
-        })
-        .wait()
-        .unwrap();
-    let source = session
-        .declare_publisher(first.to_owned())
-        .express(true)
-        .wait()
-        .unwrap();
-    // Until the chain carries samples (routes are declared asynchronously).
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        source.put(Sample::now(u64::MAX).to_bytes()).wait().unwrap();
-        if rx.recv_timeout(Duration::from_millis(50)).is_ok() {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the chain {first} → {last} carries nothing"
-        );
-    }
-    while rx.try_recv().is_ok() {}
-    let period = (rate > 0.0).then(|| Duration::from_secs_f64(1.0 / rate));
-    let warmup = 50;
-    let mut times = Vec::with_capacity(messages);
-    for seq in 0..(warmup + messages) as u64 {
-        let started = Instant::now();
-        source.put(Sample::now(seq).to_bytes()).wait().unwrap();
+/// A source and a sink on the ends of one chain.
+struct Probe {
+    name: &'static str,
+    source: zenoh::pubsub::Publisher<'static>,
+    arrivals: mpsc::Receiver<(u64, Instant)>,
+    _sink: zenoh::pubsub::Subscriber<()>,
+    times: Vec<Duration>,
+}
+
+impl Probe {
+    /// Waits until the chain `first` → `last` carries samples (routes are declared
+    /// asynchronously).
+    fn new(session: &zenoh::Session, name: &'static str, first: &str, last: &str) -> Self {
+        let (tx, arrivals) = mpsc::channel::<(u64, Instant)>();
+        let sink = session
+            .declare_subscriber(last.to_owned())
+            .callback(move |s| {
+                let at = Instant::now();
+                if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes())
+                    && let Some(seq) = sample.value.as_u64()
+                {
+                    let _ = tx.send((seq, at));
+                }
+            })
+            .wait()
+            .unwrap();
+        let source = session
+            .declare_publisher(first.to_owned())
+            .express(true)
+            .wait()
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(30);
         loop {
-            let (got, at) = rx
+            source.put(Sample::now(u64::MAX).to_bytes()).wait().unwrap();
+            if arrivals.recv_timeout(Duration::from_millis(50)).is_ok() {
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the chain {first} → {last} carries nothing"
+            );
+        }
+        while arrivals.try_recv().is_ok() {}
+        Self {
+            name,
+            source,
+            arrivals,
+            _sink: sink,
+            times: Vec::new(),
+        }
+    }
+
+    /// Sends sample `seq` and waits for it at the sink; records the time unless warming up.
+    fn once(&mut self, seq: u64, record: bool) {
+        let started = Instant::now();
+        self.source.put(Sample::now(seq).to_bytes()).wait().unwrap();
+        loop {
+            let (got, at) = self
+                .arrivals
                 .recv_timeout(Duration::from_secs(10))
                 .expect("a sample through the chain");
             if got == seq {
-                if seq >= warmup as u64 {
-                    times.push(at - started);
+                if record {
+                    self.times.push(at - started);
                 }
-                break;
-            }
-        }
-        if let Some(p) = period.filter(|_| seq >= warmup as u64) {
-            let next = started + p;
-            while Instant::now() < next {
-                std::thread::sleep(next - Instant::now());
+                return;
             }
         }
     }
-    times
+}
+
+const WARMUP: u64 = 50;
+
+/// Back to back: each chain in turn gets its samples, the next one sent when the last arrived.
+fn back_to_back(probes: &mut [Probe], messages: usize) {
+    for probe in probes {
+        for seq in 0..WARMUP + messages as u64 {
+            probe.once(seq, seq >= WARMUP);
+        }
+    }
+}
+
+/// At `rate` Hz per chain, the chains interleaved: in every period each chain gets one
+/// sample, spread evenly over the period, so all variants see the same machine at the same
+/// time and none warms the caches for the next.
+fn at_rate(probes: &mut [Probe], messages: usize, rate: f64) {
+    let slot = Duration::from_secs_f64(1.0 / rate / probes.len() as f64);
+    let mut next = Instant::now();
+    for seq in 0..WARMUP + messages as u64 {
+        for probe in probes.iter_mut() {
+            probe.once(seq, seq >= WARMUP);
+            next += slot;
+            let now = Instant::now();
+            if next > now {
+                std::thread::sleep(next - now);
+            } else {
+                next = now;
+            }
+        }
+    }
 }
 
 struct Stats {
@@ -236,12 +280,15 @@ fn main() {
     )
     .unwrap();
     println!(
-        "chain of n relays: {} messages {}, after 50 to warm up; latency source → sink in µs",
+        "chain of n relays: {} messages {}, after {WARMUP} to warm up; latency source → sink in µs",
         args.messages,
         if args.rate > 0.0 {
-            format!("at {} Hz", args.rate)
+            format!(
+                "at {} Hz per chain, the four chains of each n interleaved",
+                args.rate
+            )
         } else {
-            "back to back".into()
+            "back to back, one chain after another".into()
         }
     );
     println!(
@@ -267,26 +314,11 @@ fn main() {
                     .unwrap(),
             );
         }
-        let plain = stats(measure(
-            &session,
-            "bench/plain/0",
-            &format!("bench/plain/{n}"),
-            args.messages,
-            args.rate,
-        ));
-        drop(forwarders);
         // DyKnow builtin relays in the executor.
-        let names = dyknow_chain(&executor, "b", n, &relay("builtin", "dyknow/relay"));
-        let builtin = stats(measure(
-            &session,
-            &ns.channel("b0").unwrap(),
-            &ns.channel(&format!("b{n}")).unwrap(),
-            args.messages,
-            args.rate,
-        ));
-        destroy(&executor, names);
+        let builtins = dyknow_chain(&executor, "b", n, &relay("builtin", "dyknow/relay"));
         // Plain Zenoh forwarders, one process per hop.
-        let mut children: Vec<Child> = (0..n)
+        let per_process = if args.in_process_only { 0 } else { n };
+        let mut children: Vec<Child> = (0..per_process)
             .map(|i| {
                 Command::new(FORWARD_BIN)
                     .args([
@@ -307,35 +339,66 @@ fn main() {
                 .unwrap();
             assert_eq!(line.trim(), "ready");
         }
-        let plain_proc = stats(measure(
-            &session,
-            "bench/pp/0",
-            &format!("bench/pp/{n}"),
-            args.messages,
-            args.rate,
-        ));
+        // DyKnow process CUs.
+        let processes = dyknow_chain(
+            &executor,
+            "p",
+            per_process,
+            &relay("process", &format!("{CU_BIN} dyknow/relay")),
+        );
+        let channel = |c: String| ns.channel(&c).unwrap();
+        let mut probes = vec![
+            Probe::new(
+                &session,
+                "plain zenoh, in-process",
+                "bench/plain/0",
+                &format!("bench/plain/{n}"),
+            ),
+            Probe::new(
+                &session,
+                "dyknow builtin CUs",
+                &channel("b0".into()),
+                &channel(format!("b{n}")),
+            ),
+        ];
+        if !args.in_process_only {
+            probes.extend([
+                Probe::new(
+                    &session,
+                    "plain zenoh, process/hop",
+                    "bench/pp/0",
+                    &format!("bench/pp/{n}"),
+                ),
+                Probe::new(
+                    &session,
+                    "dyknow process CUs",
+                    &channel("p0".into()),
+                    &channel(format!("p{n}")),
+                ),
+            ]);
+        }
+        if args.rate > 0.0 {
+            at_rate(&mut probes, args.messages, args.rate);
+        } else {
+            back_to_back(&mut probes, args.messages);
+        }
+        drop(forwarders);
+        destroy(&executor, builtins);
         for mut child in children {
             let _ = child.stdin.take().map(|mut s| s.write_all(b"\n"));
             let _ = child.wait();
         }
-        // DyKnow process CUs.
-        let names = dyknow_chain(
-            &executor,
-            "p",
-            n,
-            &relay("process", &format!("{CU_BIN} dyknow/relay")),
-        );
-        let process = stats(measure(
-            &session,
-            &ns.channel("p0").unwrap(),
-            &ns.channel(&format!("p{n}")).unwrap(),
-            args.messages,
-            args.rate,
-        ));
-        destroy(&executor, names);
+        destroy(&executor, processes);
         let hop = |s: &Stats| s.p50 / n as f64;
-        let row = |name: &str, s: &Stats, base: Option<&Stats>| {
-            let vs = base.map_or("".to_owned(), |b| format!("{:+.2} µs", hop(s) - hop(b)));
+        let mut baseline: Option<Stats> = None;
+        for (k, probe) in probes.into_iter().enumerate() {
+            let name = probe.name;
+            let s = stats(probe.times);
+            // Even rows are the plain baselines of the DyKnow rows after them.
+            let vs = match (&baseline, k % 2) {
+                (Some(b), 1) => format!("{:+.2} µs", hop(&s) - hop(b)),
+                _ => String::new(),
+            };
             println!(
                 "{:<28} {:>4} {:>10.1} {:>10.1} {:>10.1} {:>12.2} {:>14}",
                 name,
@@ -343,14 +406,17 @@ fn main() {
                 s.mean,
                 s.p50,
                 s.p99,
-                hop(s),
+                hop(&s),
                 vs
             );
-        };
-        row("plain zenoh, in-process", &plain, None);
-        row("dyknow builtin CUs", &builtin, Some(&plain));
-        row("plain zenoh, process/hop", &plain_proc, None);
-        row("dyknow process CUs", &process, Some(&plain_proc));
+            if k % 2 == 0 {
+                baseline = Some(s);
+            }
+        }
+    }
+    if args.idle_cus == 0 {
+        executor.shutdown();
+        return;
     }
     // 1,000 CUs idle in one executor.
     let idle: Vec<String> = {

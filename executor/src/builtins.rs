@@ -147,7 +147,7 @@ impl Transformation for Relay {
         _: &str,
         sample: Sample,
     ) -> Result<(), CuError> {
-        cu.publish_all(&sample)
+        cu.forward_all(&sample)
     }
 }
 
@@ -179,7 +179,7 @@ impl Transformation for Throttle {
             return Ok(());
         }
         self.last = Some(now);
-        cu.publish_all(&sample)
+        cu.forward_all(&sample)
     }
 }
 
@@ -346,7 +346,7 @@ impl Transformation for Burn {
     ) -> Result<(), CuError> {
         #[allow(clippy::cast_sign_loss)]
         work(self.0, sample.t as u64);
-        cu.publish_all(&sample)
+        cu.forward_all(&sample)
     }
 }
 
@@ -442,7 +442,7 @@ impl Transformation for Fault {
         if self.after.is_some_and(|n| self.seen >= n) {
             self.strike(self.mode)?;
         }
-        cu.publish_all(&sample)
+        cu.forward_all(&sample)
     }
 }
 
