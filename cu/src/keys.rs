@@ -1,7 +1,7 @@
 //! Where things live on Zenoh (`executors.md`, *Channels on Zenoh*): a channel `/ball/position`
 //! is the key expression `<namespace>/channel/ball/position`; control keys live under the
 //! hermetic prefix `<namespace>/@dyknow/...`, which no wildcard subscription on the namespace
-//! matches (`docs/executor-protocol.md`).
+//! matches (`docs/executors.md`).
 
 use crate::error::KeyError;
 

@@ -18,7 +18,8 @@
 //! impl Transformation for Echo {
 //!     fn on_sample(&mut self, cu: &mut NodeHandle<'_>, _port: &str, sample: Sample)
 //!         -> Result<(), CuError> {
-//!         cu.publish_all(&sample)
+//!         // The sample as it came: the payload goes out without being written again.
+//!         cu.forward_all(&sample)
 //!     }
 //! }
 //!

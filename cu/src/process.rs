@@ -1,5 +1,5 @@
 //! A CU in its own process (`dkros:hasType "process"`): what the executor hands the process
-//! and how it drives it (`docs/executor-protocol.md`). [`run_process`] is the whole `main` of
+//! and how it drives it (`docs/executors.md`). [`run_process`] is the whole `main` of
 //! a process CU written with this SDK.
 //!
 //! The executor starts the program with these environment variables:

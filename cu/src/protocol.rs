@@ -1,5 +1,5 @@
 //! The messages between the manager and its executors, and between an executor and its
-//! process CUs (`docs/executor-protocol.md`). All are JSON.
+//! process CUs (`docs/executors.md`). All are JSON.
 
 use std::collections::BTreeMap;
 
@@ -338,7 +338,7 @@ pub enum Event {
     },
 }
 
-/// A request to a process CU's control service (`docs/executor-protocol.md`).
+/// A request to a process CU's control service (`docs/executors.md`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "op", rename_all = "kebab-case")]
 pub enum ControlRequest {

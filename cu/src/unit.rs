@@ -184,6 +184,7 @@ impl Unit {
         on_crash: CrashHook,
     ) -> Result<Started, CuError> {
         crate::keys::check_name("CU name", &spec.name)?;
+        quiet_callback_panics();
         let clock = ThreadTime::now();
         let outputs = OutPorts {
             cu: spec.name.clone(),
@@ -628,6 +629,38 @@ impl Fire for Shared {
         });
         lock(&self.life).state == CuState::Running
     }
+}
+
+/// A panic in a CU's callback is a crash the executor handles and reports (with its message);
+/// the process-wide panic hook would print it again and, with `RUST_BACKTRACE` set, resolve and
+/// print a backtrace, which takes hundreds of milliseconds the first time (loading the debug
+/// information) and delays the crash report by as much. So, once per process, the hook is
+/// wrapped: inside a CU callback it logs one line, unless `DYKNOW_CU_BACKTRACE` is set; every
+/// other panic goes to the previous hook unchanged.
+fn quiet_callback_panics() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if std::env::var_os("DYKNOW_CU_BACKTRACE").is_some() {
+            return;
+        }
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let in_callback = ACTIVE
+                .try_with(|a| a.try_borrow().is_ok_and(|a| !a.is_empty()))
+                .unwrap_or(false);
+            if in_callback {
+                let location = info
+                    .location()
+                    .map_or_else(String::new, |l| format!(" at {l}"));
+                tracing::debug!(
+                    "a CU callback panicked{location}: {}",
+                    panic_message(info.payload())
+                );
+            } else {
+                previous(info);
+            }
+        }));
+    });
 }
 
 /// The text of a panic's payload.

@@ -2,7 +2,7 @@
 //! session and process CUs as children, applies the actions of change sets to them in order
 //! and acknowledges them, reports crashes and measured costs as [`Event`]s, and holds a
 //! liveliness token while it runs. Its services answer on Zenoh queryables
-//! (`docs/executor-protocol.md`); requests are carried out one at a time on a worker thread,
+//! (`docs/executors.md`); requests are carried out one at a time on a worker thread,
 //! never on a Zenoh callback thread.
 
 use std::collections::BTreeMap;

@@ -1,5 +1,5 @@
 //! Process CUs: one child process per CU, speaking the CU protocol over Zenoh
-//! (`dyknow_cu::run_process`, `docs/executor-protocol.md`). Its exit or `kill -9` is seen at
+//! (`dyknow_cu::run_process`, `docs/executors.md`). Its exit or `kill -9` is seen at
 //! once twice over: the waiter thread returns and its liveliness token vanishes.
 
 use std::collections::BTreeMap;

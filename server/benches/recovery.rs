@@ -160,11 +160,15 @@ fn run(
         &channel,
     );
     post(s, "/transformations", &turtle);
-    let (tx, rx) = mpsc::channel::<Instant>();
+    // Each sample's arrival, and when the source published it (its `t`).
+    let (tx, rx) = mpsc::channel::<(Instant, i64)>();
     let _sub = session
         .declare_subscriber(Namespace::default().channel(&channel).unwrap())
-        .callback(move |_| {
-            let _ = tx.send(Instant::now());
+        .callback(move |s| {
+            let at = Instant::now();
+            if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes()) {
+                let _ = tx.send((at, sample.t));
+            }
         })
         .wait()
         .unwrap();
@@ -194,24 +198,49 @@ fn run(
         while rx.try_recv().is_ok() {}
         rx.recv_timeout(Duration::from_secs(30))
             .expect("flowing before the crash");
-        let crashed_at = Instant::now();
+        let known = get(s, "/changesets").as_array().map_or(0, Vec::len);
+        // The crash: a fault command on its way, or `kill -9` delivered (`kill` has returned).
         crash(&before);
-        // Samples the old guard forwarded just before it crashed may still be on the wire
-        // (the source publishes every 2 ms): those within 1 ms of the crash do not count.
+        let crashed_at = Instant::now();
+        let crashed_ms = dyknow_cu::now_ms();
+        // Samples the old guard forwarded before it crashed may still be on the wire: only a
+        // sample the source published after the crash (its `t`, in ms, is later) can have come
+        // through the replacement.
         let flowing = loop {
-            let at = rx
+            let (at, t) = rx
                 .recv_timeout(Duration::from_secs(30))
                 .expect("flowing again");
-            if at > crashed_at + Duration::from_millis(1) {
+            if t > crashed_ms {
                 break at;
             }
         };
-        outages.push(flowing - crashed_at);
+        let outage = flowing - crashed_at;
+        outages.push(outage);
         // The replacement is in the model before the next round.
         let deadline = Instant::now() + Duration::from_secs(30);
         while guard(s, tag).is_none_or(|g| g["name"] == before["name"]) {
             assert!(Instant::now() < deadline, "no replacement");
             std::thread::sleep(Duration::from_millis(5));
+        }
+        // An outlier says what the service did meanwhile.
+        if outage > Duration::from_millis(50) {
+            let sets = get(s, "/changesets");
+            let after: Vec<String> = sets
+                .as_array()
+                .unwrap()
+                .iter()
+                .skip(known)
+                .map(|c| {
+                    format!(
+                        "  {} {} {} {} {}",
+                        c["id"], c["cause"], c["status"], c["actions"], c["failures"]
+                    )
+                })
+                .collect();
+            eprintln!(
+                "{tag}: outage {outage:?}; the change sets since the crash:\n{}",
+                after.join("\n")
+            );
         }
     }
     outages

@@ -35,7 +35,7 @@ pub enum Command {
     Executor(ExecutorArgs),
     /// Runs one of the executors' builtins as a process CU (`dkros:hasType "process"`,
     /// `dkros:hasSource "dyknow cu dyknow/relay"`); started by an executor, which sets its
-    /// environment (docs/executor-protocol.md).
+    /// environment (docs/executors.md).
     Cu {
         /// The builtin (`dyknow/relay`, `dyknow/map`, ...).
         builtin: String,

@@ -516,7 +516,15 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
         Killed(child)
     };
     let mut first = start("ext1");
-    out.next();
+    // The echo relays what the counter counts: consecutive values.
+    let (_, a) = out.next();
+    let (_, b) = out.next();
+    assert_eq!(
+        b.value.as_u64(),
+        a.value.as_u64().map(|a| a + 1),
+        "{a:?} then {b:?}"
+    );
+    assert!(b.t >= a.t);
     let executors = service.get("/executors");
     assert_eq!(executors[0]["name"], "ext1");
     assert_eq!(executors[0]["cus"].as_array().unwrap().len(), 2);
