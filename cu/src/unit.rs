@@ -69,45 +69,50 @@ struct OutPorts {
     received: Option<ZBytes>,
 }
 
-impl Outputs for OutPorts {
-    fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
-        let Some(out) = self.ports.get_mut(port) else {
-            return Err(CuError::UnknownPort {
+impl OutBinding {
+    /// Puts `payload` (a sample holding at `t`) on its channel, counted in its statistics.
+    fn send(&mut self, payload: ZBytes, t: i64) -> Result<(), CuError> {
+        let Some(publisher) = &self.publisher else {
+            return Ok(());
+        };
+        self.stats.messages += 1;
+        self.stats.bytes += payload.len() as u64;
+        self.stats.last_t = Some(t);
+        publisher.put(payload).wait()?;
+        Ok(())
+    }
+}
+
+impl OutPorts {
+    /// Out port `port` while it is bound; `None` while it is not.
+    fn bound(&mut self, port: &str) -> Result<Option<&mut OutBinding>, CuError> {
+        match self.ports.get_mut(port) {
+            Some(out) => Ok(out.publisher.is_some().then_some(out)),
+            None => Err(CuError::UnknownPort {
                 cu: self.cu.clone(),
                 direction: "out",
                 port: port.to_owned(),
-            });
-        };
-        let Some(publisher) = &out.publisher else {
-            return Ok(());
-        };
-        let payload = sample.to_bytes();
-        out.stats.messages += 1;
-        out.stats.bytes += payload.len() as u64;
-        out.stats.last_t = Some(sample.t);
-        publisher.put(payload).wait()?;
-        Ok(())
+            }),
+        }
+    }
+}
+
+impl Outputs for OutPorts {
+    fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
+        match self.bound(port)? {
+            Some(out) => out.send(sample.to_bytes().into(), sample.t),
+            None => Ok(()),
+        }
     }
 
     fn forward(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
         let Some(payload) = self.received.clone() else {
             return self.publish(port, sample);
         };
-        let Some(out) = self.ports.get_mut(port) else {
-            return Err(CuError::UnknownPort {
-                cu: self.cu.clone(),
-                direction: "out",
-                port: port.to_owned(),
-            });
-        };
-        let Some(publisher) = &out.publisher else {
-            return Ok(());
-        };
-        out.stats.messages += 1;
-        out.stats.bytes += payload.len() as u64;
-        out.stats.last_t = Some(sample.t);
-        publisher.put(payload).wait()?;
-        Ok(())
+        match self.bound(port)? {
+            Some(out) => out.send(payload, sample.t),
+            None => Ok(()),
+        }
     }
 
     fn is_bound(&self, port: &str) -> bool {
