@@ -22,10 +22,13 @@ use serde_json::Value;
 use tower::{Service, ServiceExt};
 
 /// The example specs of `specs/turtle/` and the endpoint each is posted to.
-pub const EXAMPLE_SPECS: [(&str, &str); 11] = [
+/// `example-12-builtin.ttl` comes before `example-12.ttl`, which replaces its five
+/// transformations (same labels), so the examples load into the model-level Example 12.
+pub const EXAMPLE_SPECS: [(&str, &str); 12] = [
     ("listing-5.3-undistort.ttl", "/transformations"),
     ("listing-5.4-target.ttl", "/targets"),
     ("example-12-similarity.ttl", "/ontology"),
+    ("example-12-builtin.ttl", "/transformations"),
     ("example-12.ttl", "/transformations"),
     ("example-12-targets.ttl", "/targets"),
     ("ch6-target.ttl", "/targets"),
