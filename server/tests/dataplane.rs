@@ -336,14 +336,7 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     let service = Service::start(&[]);
     let process_map = format!("{BIN} cu dyknow/map");
     for spec in [
-        tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", "20")],
-            &[],
-            &[("out", "Count")],
-        ),
+        counter(&[("period_ms", "20")]),
         tf(
             "guard",
             "nodelet",
@@ -466,17 +459,23 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     assert!(!alive(new_pid), "process CU {new_pid} survived the service");
 }
 
+/// `counter`: a `dyknow/signal` counting 0, 1, 2, … on out port `out` (tag `Count`), with
+/// `params` (`period_ms`).
+fn counter<'a>(params: &'a [(&'a str, &'a str)]) -> Tf<'a> {
+    tf(
+        "counter",
+        "builtin",
+        "dyknow/signal",
+        params,
+        &[],
+        &[("out", "Count")],
+    )
+}
+
 /// A counter (`dyknow/signal` every `period_ms`) and an echo (`dyknow/relay`) of its counts.
 fn post_counter_echo(service: &Service, period_ms: &str) {
     for spec in [
-        tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", period_ms)],
-            &[],
-            &[("out", "Count")],
-        ),
+        counter(&[("period_ms", period_ms)]),
         tf(
             "echo",
             "builtin",
@@ -796,18 +795,7 @@ fn measured_costs_make_the_next_review_choose_the_cheaper_transformation() {
         &[("out", "Echoed")],
     );
     light.upkeep = Some(0.2);
-    for spec in [
-        tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", "10")],
-            &[],
-            &[("out", "Count")],
-        ),
-        heavy,
-        light,
-    ] {
+    for spec in [counter(&[("period_ms", "10")]), heavy, light] {
         service.post("/transformations", &spec.turtle());
     }
     service.post("/targets", &target("echoed", "/echoed", "Echoed"));
@@ -1009,14 +997,7 @@ fn a_stand_alone_executor_stops_its_process_cus_on_sigterm() {
     let service = Service::start(&["--no-executor"]);
     let process_relay = format!("{BIN} cu dyknow/relay");
     for spec in [
-        tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", "20")],
-            &[],
-            &[("out", "Count")],
-        ),
+        counter(&[("period_ms", "20")]),
         tf(
             "pecho",
             "process",
