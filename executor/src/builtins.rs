@@ -46,14 +46,47 @@ pub const BUILTINS: [(&str, Factory); 9] = [
     ("dyknow/fault", fault),
 ];
 
-/// The factory of a builtin.
-pub fn builtin(name: &str) -> Option<Factory> {
-    BUILTINS.iter().find(|(n, _)| *n == name).map(|(_, f)| *f)
+/// A builtin: one of [`BUILTINS`], or a stage of the simulated humanoid lab
+/// ([`dyknow_lab::BUILTINS`]: `lab/…` and `nao/…`).
+#[derive(Debug, Clone, Copy)]
+pub enum Builtin {
+    /// One of [`BUILTINS`].
+    Core(Factory),
+    /// A stage of the simulated lab.
+    Lab(dyknow_lab::Factory),
+}
+
+impl Builtin {
+    /// Builds the transformation of a CU.
+    pub fn build(self, spec: &UnitSpec, host: Host) -> Result<Box<dyn Transformation>, CuError> {
+        match self {
+            Self::Core(f) => f(spec, host),
+            Self::Lab(f) => f(spec),
+        }
+    }
+}
+
+/// The builtin called `name`.
+pub fn builtin(name: &str) -> Option<Builtin> {
+    BUILTINS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, f)| Builtin::Core(*f))
+        .or_else(|| {
+            dyknow_lab::BUILTINS
+                .iter()
+                .find(|(n, _)| *n == name)
+                .map(|(_, f)| Builtin::Lab(*f))
+        })
 }
 
 /// The names of the builtins.
 pub fn names() -> Vec<String> {
-    BUILTINS.iter().map(|(n, _)| (*n).to_owned()).collect()
+    BUILTINS
+        .iter()
+        .map(|(n, _)| (*n).to_owned())
+        .chain(dyknow_lab::BUILTINS.iter().map(|(n, _)| (*n).to_owned()))
+        .collect()
 }
 
 fn handle_params<'a>(spec: &'a UnitSpec) -> impl Fn(&str) -> Option<&'a Value> {
@@ -478,7 +511,9 @@ mod tests {
     /// Feeds `inputs` to a builtin and returns what it published.
     fn run(name: &str, params: Value, inputs: &[Value]) -> Result<Vec<(String, Sample)>, CuError> {
         let spec = spec(params);
-        let mut t = builtin(name).expect("a builtin")(&spec, Host::Thread)?;
+        let mut t = builtin(name)
+            .expect("a builtin")
+            .build(&spec, Host::Thread)?;
         let mut out = Collect::default();
         let mut timers = Vec::new();
         for (i, value) in inputs.iter().enumerate() {
@@ -585,7 +620,10 @@ mod tests {
         let file = dir.join("r.jsonl");
         std::fs::write(&file, "{\"t\": 5, \"value\": 1}\n\n2\n").expect("write");
         let spec = spec(json!({"file": file.to_str(), "retime": false}));
-        let mut t = builtin("dyknow/replay").expect("replay")(&spec, Host::Thread).expect("starts");
+        let mut t = builtin("dyknow/replay")
+            .expect("replay")
+            .build(&spec, Host::Thread)
+            .expect("starts");
         let mut out = Collect::default();
         let mut timers = Vec::new();
         for _ in 0..3 {
@@ -611,7 +649,12 @@ mod tests {
             "no loop: two"
         );
         std::fs::write(&file, "not json\n").expect("write");
-        assert!(builtin("dyknow/replay").expect("replay")(&spec, Host::Thread).is_err());
+        assert!(
+            builtin("dyknow/replay")
+                .expect("replay")
+                .build(&spec, Host::Thread)
+                .is_err()
+        );
         let _ = std::fs::remove_dir_all(dir);
     }
 
@@ -619,9 +662,16 @@ mod tests {
     fn builtins_refuse_missing_ports_and_bad_parameters() {
         let mut s = spec(json!({}));
         s.inputs.clear();
-        assert!(builtin("dyknow/relay").expect("relay")(&s, Host::Thread).is_err());
         assert!(
-            builtin("dyknow/signal").expect("signal")(&spec(json!({"period_ms": 0})), Host::Thread)
+            builtin("dyknow/relay")
+                .expect("relay")
+                .build(&s, Host::Thread)
+                .is_err()
+        );
+        assert!(
+            builtin("dyknow/signal")
+                .expect("signal")
+                .build(&spec(json!({"period_ms": 0})), Host::Thread)
                 .is_err()
         );
         assert!(builtin("dyknow/nope").is_none());

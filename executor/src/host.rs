@@ -462,7 +462,7 @@ impl Inner {
                     )));
                 };
                 let clock = cpu_time::ThreadTime::now();
-                let made = factory(&spec, Host::Thread)?;
+                let made = factory.build(&spec, Host::Thread)?;
                 let made_cpu = clock.elapsed();
                 let on_crash = self.on_crash();
                 let name = cu.to_owned();

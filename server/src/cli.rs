@@ -901,7 +901,7 @@ fn cu(builtin: &str) -> ExitCode {
         );
         return ExitCode::from(64);
     };
-    dyknow_cu::run_process(|spec| factory(spec, dyknow_executor::builtins::Host::Process))
+    dyknow_cu::run_process(|spec| factory.build(spec, dyknow_executor::builtins::Host::Process))
 }
 
 /// `dyknow publish`.

@@ -22,5 +22,5 @@ fn main() -> ExitCode {
         );
         return ExitCode::from(64);
     };
-    dyknow_cu::run_process(|spec| factory(spec, Host::Process))
+    dyknow_cu::run_process(|spec| factory.build(spec, Host::Process))
 }

@@ -1,0 +1,342 @@
+//! What the data-plane tests share: a real `dyknow serve` on ports of its own, stand-alone
+//! executors, listeners on channels, polling, and specs written on the fly.
+#![allow(dead_code, reason = "each test binary uses a part")]
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_cu::{Namespace, Sample};
+use serde_json::Value;
+
+pub const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .unwrap()
+}
+
+/// Reads a child's stderr until a line contains `marker` (returned), then drains it.
+pub fn wait_for_line(child: &mut Child, marker: &str) -> String {
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    let marker = marker.to_owned();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if !sent && line.contains(&marker) {
+                let _ = tx.send(line);
+                sent = true;
+            }
+        }
+    });
+    rx.recv_timeout(Duration::from_secs(60))
+        .expect("the process did not start")
+}
+
+/// A running `dyknow serve` with its data plane on a port of its own.
+pub struct Service {
+    pub child: Child,
+    pub url: String,
+    pub zenoh: String,
+}
+
+impl Service {
+    pub fn start(args: &[&str]) -> Self {
+        let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+        let mut child = Command::new(BIN)
+            .args([
+                "serve",
+                "--in-memory",
+                "--bind",
+                "127.0.0.1:0",
+                "--zenoh-listen",
+                &zenoh,
+            ])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let line = wait_for_line(&mut child, "listening on ");
+        let url = line
+            .split("listening on ")
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .unwrap()
+            .to_owned();
+        Self { child, url, zenoh }
+    }
+
+    pub fn get(&self, path: &str) -> Value {
+        let mut r = agent().get(&format!("{}{path}", self.url)).call().unwrap();
+        assert_eq!(r.status().as_u16(), 200, "GET {path}");
+        serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap()
+    }
+
+    pub fn status(&self, path: &str) -> u16 {
+        agent()
+            .get(&format!("{}{path}", self.url))
+            .call()
+            .unwrap()
+            .status()
+            .as_u16()
+    }
+
+    pub fn post(&self, path: &str, turtle: &str) {
+        let mut r = agent()
+            .post(&format!("{}{path}", self.url))
+            .header("Content-Type", "text/turtle")
+            .send(turtle.as_bytes())
+            .unwrap();
+        let body = r.body_mut().read_to_string().unwrap();
+        assert_eq!(r.status().as_u16(), 201, "POST {path}: {body}");
+    }
+
+    /// A Zenoh client of the service's data plane.
+    pub fn session(&self) -> zenoh::Session {
+        zenoh::open(dyknow_cu::client_config(std::slice::from_ref(&self.zenoh)).unwrap())
+            .wait()
+            .unwrap()
+    }
+
+    pub fn change_sets(&self) -> Vec<Value> {
+        self.get("/changesets").as_array().unwrap().clone()
+    }
+
+    pub fn cu_of(&self, transformation: &str) -> Option<Value> {
+        self.get("/cus")
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["transformation"] == transformation)
+            .cloned()
+    }
+
+    pub fn sigterm(mut self) -> std::process::ExitStatus {
+        sigterm(&self.child);
+        let status = wait_exit(&mut self.child);
+        std::mem::forget(self);
+        status
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        sigterm(&self.child);
+        let _ = wait_exit(&mut self.child);
+    }
+}
+
+/// A child process killed when dropped: a failed assertion leaves nothing running.
+pub struct Killed(pub Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+pub fn sigterm(child: &Child) {
+    Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+}
+
+pub fn wait_exit(child: &mut Child) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            return child.wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+pub fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(60)))
+        .build()
+        .into()
+}
+
+/// Polls `f` until it gives something, for at most `timeout`.
+pub fn eventually<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A transformation spec. `kind`/`source` name its implementation; `params` are
+/// (name, Turtle literal) pairs; ports are (name, tag).
+pub struct Tf<'a> {
+    pub label: &'a str,
+    pub kind: &'a str,
+    pub source: &'a str,
+    pub params: &'a [(&'a str, &'a str)],
+    pub ins: &'a [(&'a str, &'a str)],
+    pub outs: &'a [(&'a str, &'a str)],
+    pub upkeep: Option<f64>,
+    pub executor: Option<&'a str>,
+}
+
+impl Tf<'_> {
+    pub fn turtle(&self) -> String {
+        let mut t = format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+             @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .\n\
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n\
+             [] a dkros:ROSTransformation ; rdfs:label \"{}\" ;\n   dkros:hasType \"{}\" ; dkros:hasSource \"{}\" ",
+            self.label, self.kind, self.source
+        );
+        for (name, value) in self.params {
+            t.push_str(&format!(
+                ";\n   dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName \"{name}\" ; dyknow:hasValue {value} ] "
+            ));
+        }
+        for (name, tag) in self.ins {
+            t.push_str(&format!(
+                ";\n   dyknow:hasInPort [ dyknow:hasName \"{name}\" ; dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] ] "
+            ));
+        }
+        for (name, tag) in self.outs {
+            t.push_str(&format!(
+                ";\n   dyknow:hasOutPort [ dyknow:hasName \"{name}\" ; dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] ] "
+            ));
+        }
+        if let Some(u) = self.upkeep {
+            t.push_str(&format!(
+                ";\n   dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue {u:?} ] "
+            ));
+        }
+        if let Some(e) = self.executor {
+            t.push_str(&format!(";\n   dkros:hasExecutor \"{e}\" "));
+        }
+        t.push_str(".\n");
+        t
+    }
+}
+
+pub fn tf<'a>(
+    label: &'a str,
+    kind: &'a str,
+    source: &'a str,
+    params: &'a [(&'a str, &'a str)],
+    ins: &'a [(&'a str, &'a str)],
+    outs: &'a [(&'a str, &'a str)],
+) -> Tf<'a> {
+    Tf {
+        label,
+        kind,
+        source,
+        params,
+        ins,
+        outs,
+        upkeep: None,
+        executor: None,
+    }
+}
+
+pub fn target(label: &str, channel: &str, tag: &str) -> String {
+    format!(
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n\
+         [] a dyknow:Target ; rdfs:label \"{label}\" ;\n\
+            dyknow:hasChannel [ dyknow:hasChannelName \"{channel}\" ] ;\n\
+            dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] .\n"
+    )
+}
+
+/// Samples arriving on a channel, with their arrival times.
+pub struct Listener {
+    rx: mpsc::Receiver<(Instant, Sample)>,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+}
+
+impl Listener {
+    pub fn new(session: &zenoh::Session, channel: &str) -> Self {
+        let (tx, rx) = mpsc::channel();
+        let subscriber = session
+            .declare_subscriber(Namespace::default().channel(channel).unwrap())
+            .callback(move |s| {
+                if let Ok(sample) = Sample::from_slice(&s.payload().to_bytes()) {
+                    let _ = tx.send((Instant::now(), sample));
+                }
+            })
+            .wait()
+            .unwrap();
+        Self {
+            rx,
+            _subscriber: subscriber,
+        }
+    }
+
+    pub fn next(&self) -> (Instant, Sample) {
+        self.rx
+            .recv_timeout(Duration::from_secs(30))
+            .expect("a sample on the channel")
+    }
+
+    /// The first sample that arrives after `t`.
+    pub fn first_after(&self, t: Instant) -> Instant {
+        loop {
+            let (at, _) = self.next();
+            if at > t {
+                return at;
+            }
+        }
+    }
+}
+
+pub fn alive(pid: u64) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .is_ok_and(|s| !s.contains(") Z ") && !s.contains(") X "))
+}
+
+pub fn crash_change_set(service: &Service, cu: &str) -> Value {
+    eventually(
+        "a change set repairing the crash",
+        Duration::from_secs(30),
+        || {
+            service
+                .change_sets()
+                .into_iter()
+                .find(|c| c["cause"]["kind"] == "cu-crashed" && c["cause"]["cu"] == cu)
+        },
+    )
+}
+
+/// The direct children of a process.
+pub fn children(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+    {
+        let Ok(task) = task else { continue };
+        if let Ok(list) = std::fs::read_to_string(task.path().join("children")) {
+            out.extend(
+                list.split_whitespace()
+                    .filter_map(|p| p.parse::<u32>().ok()),
+            );
+        }
+    }
+    out
+}
