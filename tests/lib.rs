@@ -24,7 +24,7 @@ use tower::{Service, ServiceExt};
 /// The example specs of `specs/turtle/` and the endpoint each is posted to.
 /// `example-12-builtin.ttl` comes before `example-12.ttl`, which replaces its five
 /// transformations (same labels), so the examples load into the model-level Example 12.
-pub const EXAMPLE_SPECS: [(&str, &str); 12] = [
+pub const EXAMPLE_SPECS: [(&str, &str); 15] = [
     ("listing-5.3-undistort.ttl", "/transformations"),
     ("listing-5.4-target.ttl", "/targets"),
     ("example-12-similarity.ttl", "/ontology"),
@@ -32,6 +32,10 @@ pub const EXAMPLE_SPECS: [(&str, &str); 12] = [
     ("example-12.ttl", "/transformations"),
     ("example-12-targets.ttl", "/targets"),
     ("ch6-target.ttl", "/targets"),
+    // The live variants first: the model-level specs (same labels) replace them.
+    ("ch6-live-piff.ttl", "/transformations"),
+    ("ch6-live-puff.ttl", "/transformations"),
+    ("ch6-live-ceiling.ttl", "/transformations"),
     ("ch6-piff.ttl", "/transformations"),
     ("ch6-puff.ttl", "/transformations"),
     ("ch6-ceiling.ttl", "/transformations"),
