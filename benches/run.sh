@@ -6,6 +6,7 @@
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
 #   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
+#   benches/run.sh groups      a formula group of 1,000 formulas over 100 live channels at 100 Hz (issue 15)
 #   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
@@ -46,6 +47,9 @@ fi
 if [ "$which" = all ] || [ "$which" = engine ]; then
   cargo bench --locked --workspace --bench explore
   cargo bench --locked --workspace --bench reconfig_http
+fi
+if [ "$which" = all ] || [ "$which" = groups ]; then
+  cargo bench --locked --workspace --bench groups -- --seconds 180
 fi
 if [ "$which" = all ] || [ "$which" = dataplane ]; then
   cargo bench --locked --workspace --bench chain -- --messages 1000

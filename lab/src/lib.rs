@@ -23,6 +23,7 @@
 //! | `lab/undistort` | camera stream → undistorted | `width`, `height` |
 //! | `lab/stitch` | four undistorted streams → the top-down image of the carpet | – |
 //! | `lab/ball_detector` | top-down image → the ball's position | – |
+//! | `sim/uav_altitude`, `sim/battery`, `sim/regions` | – → an altitude, a battery level or charging flag, RCC-8 constraints (formula groups' examples, `sim.rs`) | see `sim.rs` |
 //!
 //! The world's parameters (`scenario`: `circle`, `walk` or `leave`; `seed`; `leave_at_ms`)
 //! must be the same for every camera of a lab. Positions are metres from a field corner.
@@ -30,6 +31,7 @@
 pub mod ceiling;
 pub mod image;
 pub mod nao;
+pub mod sim;
 pub mod stages;
 pub mod world;
 
@@ -50,7 +52,7 @@ fn boxed<T: Transformation>(t: T) -> Result<Box<dyn Transformation>, CuError> {
 }
 
 /// The lab's builtins, by name.
-pub const BUILTINS: [(&str, Factory); 12] = [
+pub const BUILTINS: [(&str, Factory); 15] = [
     ("lab/world", stages::world),
     ("nao/pose", stages::pose),
     ("nao/bottom_cam", stages::bottom_cam),
@@ -65,4 +67,7 @@ pub const BUILTINS: [(&str, Factory); 12] = [
     ("lab/undistort", |s| boxed(stages::Undistort::new(s)?)),
     ("lab/stitch", |_| boxed(stages::Stitch::new())),
     ("lab/ball_detector", |_| boxed(stages::FieldBallDetector)),
+    ("sim/uav_altitude", sim::uav_altitude),
+    ("sim/battery", sim::battery),
+    ("sim/regions", sim::regions),
 ];

@@ -35,13 +35,13 @@ fn param_u64(spec: &UnitSpec, name: &str, default: u64, range: (u64, u64)) -> Re
 
 /// A clock ticking at multiples of a period: every camera of the lab that runs at the same
 /// rate stamps its frames with the same times.
-struct Ticks {
+pub(crate) struct Ticks {
     period_ms: i64,
     last: i64,
 }
 
 impl Ticks {
-    fn from_spec(spec: &UnitSpec, default_fps: u64) -> Result<Self, CuError> {
+    pub(crate) fn from_spec(spec: &UnitSpec, default_fps: u64) -> Result<Self, CuError> {
         let fps = param_u64(spec, "fps", default_fps, (1, 100))?;
         Ok(Self {
             period_ms: (1000 / fps) as i64,
@@ -90,7 +90,7 @@ impl<F: FnMut(i64) -> Value + Send + 'static> Transformation for Source<F> {
     }
 }
 
-fn source(
+pub(crate) fn source(
     ticks: Ticks,
     make: impl FnMut(i64) -> Value + Send + 'static,
 ) -> Result<Box<dyn Transformation>, CuError> {

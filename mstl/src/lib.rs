@@ -12,6 +12,7 @@
 //!
 //! Layout: `syntax`, `parser`, `printer` (the language); `dag` (hash-consed formula nodes
 //! with simplification and reclamation); `compile` (syntax to nodes, the `next` rewritings);
+//! `ground` (the ground symbols a group's streams must carry, [`ground_symbols`]);
 //! `atom` (atoms against a state's [`Valuation`]); `progress` (Algorithm 3); `monitor` (a
 //! group of formulas over one stream, verdicts); `stream` (a state stream's spatial state,
 //! one [`State`] at a time: each state's algebraic closure, the static/dynamic split of
@@ -21,6 +22,7 @@
 mod atom;
 mod compile;
 mod dag;
+mod ground;
 mod monitor;
 mod parser;
 mod printer;
@@ -31,6 +33,7 @@ pub mod trace;
 
 pub use atom::{Valuation, Value};
 pub use compile::{CompileError, Domains};
+pub use ground::{Symbol, ground_symbols};
 pub use monitor::{Monitor, StepError, Verdict};
 pub use parser::{MAX_DEPTH, MAX_LEN, MAX_TREE_DEPTH, ParseError, is_keyword, parse};
 pub use stream::{SpatialConstraints, State, StateStream, StateValue, StreamError};

@@ -13,6 +13,7 @@ use dyknow_lifecycle::{Executor, Fleet, LifecycleError, Manager, ModelOnly, Sett
 use dyknow_store::KnowledgeBase;
 
 use crate::error::ApiError;
+use crate::groups::{GroupError, GroupStore, Groups, Plane};
 use crate::metrics::Metrics;
 use crate::routes;
 
@@ -54,6 +55,8 @@ pub struct AppState {
     pub lifecycle: Arc<Manager>,
     /// The executors on Zenoh, unless the service runs in model-only mode.
     pub fleet: Option<Arc<Fleet>>,
+    /// The formula groups.
+    pub groups: Arc<Groups>,
 }
 
 impl AppState {
@@ -72,7 +75,9 @@ impl AppState {
     ) -> Result<Self, LifecycleError> {
         let kb = Arc::new(kb);
         let lifecycle = Arc::new(Manager::new(kb.clone(), executor, config.lifecycle)?);
+        let groups = Groups::empty(kb.clone(), lifecycle.clone());
         Ok(Self {
+            groups,
             kb,
             config: Arc::new(config),
             metrics: Arc::new(Metrics::default()),
@@ -90,6 +95,17 @@ impl AppState {
         let mut state = Self::with_executor(kb, config, fleet.clone())?;
         state.fleet = Some(fleet);
         Ok(state)
+    }
+
+    /// Replaces the groups with those of `store` (loaded, replayed, running ones resumed),
+    /// reading from and publishing to `plane`.
+    pub fn with_groups(
+        mut self,
+        plane: Option<Plane>,
+        store: Option<GroupStore>,
+    ) -> Result<Self, GroupError> {
+        self.groups = Groups::new(self.kb.clone(), self.lifecycle.clone(), plane, store)?;
+        Ok(self)
     }
 
     /// Spawns the life-cycle loop on the current Tokio runtime.
@@ -118,6 +134,7 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::ops::router())
         .merge(routes::reconfig::router())
         .merge(routes::executors::router())
+        .merge(routes::groups::router())
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))

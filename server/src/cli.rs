@@ -65,6 +65,16 @@ pub enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
+    /// Formula groups over the HTTP API of a running service (docs/groups.md):
+    /// create, list, show, start, stop, destroy, add, remove, watch, trace.
+    Group {
+        /// Where the service is.
+        #[command(flatten)]
+        http: crate::group_cli::HttpArgs,
+        /// What to do.
+        #[command(subcommand)]
+        command: crate::group_cli::GroupCommand,
+    },
     /// Loads Turtle specs and ontology extensions into a store offline.
     Load {
         /// The store directory.
@@ -292,6 +302,8 @@ pub fn main() -> ExitCode {
         Command::Serve(args) => serve(args),
         Command::Executor(args) => executor(&args),
         Command::Cu { builtin } => return cu(&builtin),
+        Command::Group { http, command } => crate::group_cli::run(&http, command)
+            .map_err(|crate::group_cli::Failure(code, msg)| Failure(code, msg)),
         Command::Listen {
             channel,
             client,
@@ -771,9 +783,14 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     let namespace = dyknow_cu::Namespace::new(args.namespace.clone())
         .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
     let mut plane = None;
+    let group_store =
+        (!args.in_memory).then(|| crate::groups::GroupStore::new(args.data.join("groups")));
     let state = if args.model_only {
         tracing::info!("model-only mode: no executor, change sets change the model only");
-        AppState::new(kb, config).map_err(|e| Failure(2, format!("engine: {e}")))?
+        AppState::new(kb, config)
+            .map_err(|e| Failure(2, format!("engine: {e}")))?
+            .with_groups(None, group_store)
+            .map_err(|e| Failure(2, format!("groups: {e}")))?
     } else {
         let listen = vec![args.zenoh_listen.clone()];
         let session =
@@ -806,11 +823,20 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             }
         );
         let state = AppState::with_fleet(kb, config, fleet)
-            .map_err(|e| Failure(2, format!("engine: {e}")))?;
+            .map_err(|e| Failure(2, format!("engine: {e}")))?
+            .with_groups(
+                Some(crate::groups::Plane {
+                    session: session.clone(),
+                    namespace: namespace.clone(),
+                }),
+                group_store,
+            )
+            .map_err(|e| Failure(2, format!("groups: {e}")))?;
         plane = Some((session, local, events));
         state
     };
     let kb = state.kb.clone();
+    let groups = state.groups.clone();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -844,6 +870,8 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             .await?;
         Ok::<(), Failure>(())
     })?;
+    // Running groups stay running on disk and resume at the next start.
+    groups.shutdown();
     if let Some(local) = local {
         // Every CU and child process stops with the service.
         local.shutdown();

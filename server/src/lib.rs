@@ -4,6 +4,8 @@ mod app;
 pub mod cli;
 pub mod dataplane;
 mod error;
+pub mod group_cli;
+pub mod groups;
 mod metrics;
 mod negotiate;
 mod openapi;

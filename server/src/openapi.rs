@@ -3,7 +3,7 @@
 use utoipa::OpenApi;
 
 use crate::error::ErrorBody;
-use crate::routes::{executors, model, ontology, ops, reconfig, sparql, specs};
+use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, specs};
 
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
@@ -41,6 +41,16 @@ use crate::routes::{executors, model, ontology, ops, reconfig, sparql, specs};
         reconfig::get_statistics,
         reconfig::post_review,
         reconfig::get_environment,
+        groups::create_group,
+        groups::list_groups,
+        groups::get_group,
+        groups::start_group,
+        groups::stop_group,
+        groups::destroy_group,
+        groups::add_formula,
+        groups::remove_formula,
+        groups::verdicts,
+        groups::trace,
         ops::health,
         ops::metrics,
         ops::openapi,
@@ -63,6 +73,7 @@ use crate::routes::{executors, model, ontology, ops, reconfig, sparql, specs};
         reconfig::StatisticsJson,
         reconfig::EnvironmentJson,
         reconfig::EnvironmentCostJson,
+        groups::FormulaJson,
     ))
 )]
 pub struct ApiDoc;

@@ -193,17 +193,7 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     service.post("/targets", &target("echoed", "/echoed", "Echoed"));
     let session = service.session();
     let out = Listener::new(&session, "/echoed");
-    let start = |name: &str| {
-        let mut child = Command::new(BIN)
-            .args(["executor", "--name", name, "--connect", &service.zenoh])
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        wait_for_line(&mut child, "connected to");
-        Killed(child)
-    };
+    let start = |name: &str| executor(&service, name);
     let mut first = start("ext1");
     // The echo relays what the counter counts: consecutive values.
     let (_, a) = out.next();

@@ -12,7 +12,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use dyknow_cu::Sample;
@@ -29,26 +29,6 @@ fn spec(name: &str) -> String {
         .join("../specs/turtle")
         .join(name);
     std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-/// A stand-alone executor whose PATH finds `dyknow` (the segmenters' command).
-fn executor(service: &Service, name: &str) -> Killed {
-    let dir = Path::new(BIN).parent().unwrap();
-    let path = format!(
-        "{}:{}",
-        dir.display(),
-        std::env::var("PATH").unwrap_or_default()
-    );
-    let mut child = Command::new(BIN)
-        .args(["executor", "--name", name, "--connect", &service.zenoh])
-        .env("PATH", path)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_line(&mut child, "connected to");
-    Killed(child)
 }
 
 /// The running CUs: name → CU.

@@ -4,7 +4,7 @@
 
 use std::cell::RefCell;
 use std::collections::VecDeque;
-use std::rc::Rc;
+use std::sync::Arc;
 
 use dyknow_rcc8::{Extended, Network, Relation};
 use rustc_hash::FxHashMap;
@@ -18,7 +18,7 @@ use crate::syntax::Region;
 #[derive(Debug)]
 struct Kept {
     t: u64,
-    closure: Option<Rc<Closure>>,
+    closure: Option<Arc<Closure>>,
 }
 
 /// The extended spatial relation matrix of two states, over the regions either mentions and
@@ -43,7 +43,7 @@ pub(super) struct Timeline {
     /// Sorted by name.
     landmarks: Vec<String>,
     /// Extended matrices between two states (by number), built on demand.
-    linked: RefCell<FxHashMap<(u64, u64), Rc<Linked>>>,
+    linked: RefCell<FxHashMap<(u64, u64), Arc<Linked>>>,
     /// A landmark conflict found while deciding an atom, reported after the step.
     conflict: RefCell<Option<StreamError>>,
 }
@@ -91,12 +91,12 @@ impl Timeline {
     pub(super) fn push(&mut self, t: u64, closure: Option<Closure>) -> Result<(), StreamError> {
         let mut late = Kept {
             t,
-            closure: closure.map(Rc::new),
+            closure: closure.map(Arc::new),
         };
         let linked = match self.states.back() {
             Some(early) if !self.landmarks.is_empty() => {
                 let (p, q) = (self.count - 1, self.count);
-                Some(Rc::new(self.extend(early, &late, p, q)?))
+                Some(Arc::new(self.extend(early, &late, p, q)?))
             }
             _ => None,
         };
@@ -118,7 +118,7 @@ impl Timeline {
                     }
                 }
             }
-            late.closure = Some(Rc::new(Closure { index, network }));
+            late.closure = Some(Arc::new(Closure { index, network }));
         }
         self.states.push_back(late);
         self.count += 1;
@@ -206,14 +206,14 @@ impl Timeline {
 
     /// The extended matrix of states `p < q` with the landmarks rigid between them (built
     /// once), `Ok(None)` when a state is no longer kept.
-    fn link(&self, p: u64, q: u64) -> Result<Option<Rc<Linked>>, StreamError> {
+    fn link(&self, p: u64, q: u64) -> Result<Option<Arc<Linked>>, StreamError> {
         if let Some(done) = self.linked.borrow().get(&(p, q)) {
             return Ok(Some(done.clone()));
         }
         let (Some(early), Some(late)) = (self.at(p), self.at(q)) else {
             return Ok(None);
         };
-        let linked = Rc::new(self.extend(early, late, p, q)?);
+        let linked = Arc::new(self.extend(early, late, p, q)?);
         self.linked.borrow_mut().insert((p, q), linked.clone());
         Ok(Some(linked))
     }
@@ -232,7 +232,7 @@ impl Timeline {
                 .chain(&self.landmarks)
                 .map(String::as_str),
         );
-        let block = |closure: &Option<Rc<Closure>>| {
+        let block = |closure: &Option<Arc<Closure>>| {
             let mut net = Network::new(index.len());
             if let Some(c) = closure {
                 for (a, &i) in &c.index {

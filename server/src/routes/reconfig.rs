@@ -247,7 +247,9 @@ pub async fn change_set_stream(
 }
 
 /// A stream fed by a task through a channel.
-fn async_stream_lite<F, Fut>(f: F) -> impl futures_core::Stream<Item = Result<Event, Infallible>>
+pub(crate) fn async_stream_lite<F, Fut>(
+    f: F,
+) -> impl futures_core::Stream<Item = Result<Event, Infallible>>
 where
     F: FnOnce(tokio::sync::mpsc::Sender<Result<Event, Infallible>>) -> Fut,
     Fut: std::future::Future<Output = ()> + Send + 'static,

@@ -109,6 +109,10 @@ pub struct TargetJson {
     pub producer: Option<String>,
     /// The IRI of the target in the model.
     pub iri: String,
+    /// The formula groups whose symbols this target grounds (targets groups create,
+    /// `groups.md`); absent for targets posted by clients.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub groups: Vec<String>,
 }
 
 /// The answer to a spec POST.
@@ -179,10 +183,24 @@ pub(crate) fn spec_json(
                 satisfied: producer.is_some(),
                 producer,
                 iri: t.iri,
+                groups: Vec::new(),
             })
         }
     };
     value.map_err(ApiError::internal)
+}
+
+/// A target's JSON with the groups that use it.
+fn with_groups(
+    mut v: serde_json::Value,
+    users: &std::collections::BTreeMap<String, Vec<String>>,
+) -> serde_json::Value {
+    if let Some(groups) = v["label"].as_str().and_then(|l| users.get(l))
+        && v.get("channel").is_some()
+    {
+        v["groups"] = serde_json::json!(groups);
+    }
+    v
 }
 
 /// The format of a request body from its `Content-Type`, or a 415.
@@ -244,10 +262,12 @@ async fn list_specs(
         .await?;
         return Ok(typed(StatusCode::OK, "text/turtle", body));
     }
+    let groups = state.groups.clone();
     let list = blocking(move || {
+        let users = groups.target_users();
         kb.specs(kind)?
             .into_iter()
-            .map(|s| spec_json(&kb, &|t| lifecycle.runnable(t), s))
+            .map(|s| spec_json(&kb, &|t| lifecycle.runnable(t), s).map(|v| with_groups(v, &users)))
             .collect::<Result<Vec<_>, _>>()
     })
     .await?;
@@ -274,8 +294,10 @@ async fn get_spec(
         return Ok(typed(StatusCode::OK, "text/turtle", body));
     }
     let label2 = label.clone();
+    let groups = state.groups.clone();
     let value = blocking(move || match kb.spec(kind, &label2)? {
-        Some(spec) => spec_json(&kb, &|t| lifecycle.runnable(t), spec).map(Some),
+        Some(spec) => spec_json(&kb, &|t| lifecycle.runnable(t), spec)
+            .map(|v| Some(with_groups(v, &groups.target_users()))),
         None => Ok(None),
     })
     .await?

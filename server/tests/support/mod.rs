@@ -46,17 +46,23 @@ pub struct Service {
 }
 
 impl Service {
+    /// `dyknow serve --in-memory` with `args`.
     pub fn start(args: &[&str]) -> Self {
-        let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+        Self::start_with(
+            &["--in-memory"],
+            &format!("tcp/127.0.0.1:{}", free_port()),
+            args,
+        )
+    }
+
+    /// `dyknow serve` with `store` (`--in-memory` or `--data DIR`), its Zenoh router on
+    /// `zenoh`, and `args`.
+    pub fn start_with(store: &[&str], zenoh: &str, args: &[&str]) -> Self {
+        let zenoh = zenoh.to_owned();
         let mut child = Command::new(BIN)
-            .args([
-                "serve",
-                "--in-memory",
-                "--bind",
-                "127.0.0.1:0",
-                "--zenoh-listen",
-                &zenoh,
-            ])
+            .arg("serve")
+            .args(store)
+            .args(["--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh])
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
@@ -135,6 +141,27 @@ impl Drop for Service {
 
 /// A child process killed when dropped: a failed assertion leaves nothing running.
 pub struct Killed(pub Child);
+
+/// A stand-alone `dyknow executor` named `name` connected to the service; its PATH finds
+/// `dyknow` (the command of process CUs such as the lab's segmenters).
+pub fn executor(service: &Service, name: &str) -> Killed {
+    let dir = std::path::Path::new(BIN).parent().unwrap();
+    let path = format!(
+        "{}:{}",
+        dir.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let mut child = Command::new(BIN)
+        .args(["executor", "--name", name, "--connect", &service.zenoh])
+        .env("PATH", path)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_line(&mut child, "connected to");
+    Killed(child)
+}
 
 impl Drop for Killed {
     fn drop(&mut self) {
@@ -286,6 +313,11 @@ impl Listener {
             rx,
             _subscriber: subscriber,
         }
+    }
+
+    /// The samples that arrived and were not taken yet, without waiting.
+    pub fn drain(&self) -> Vec<(Instant, Sample)> {
+        self.rx.try_iter().collect()
     }
 
     pub fn next(&self) -> (Instant, Sample) {

@@ -1,0 +1,301 @@
+//! A group's definition as clients post it (contract `groups.md`, `POST /groups`), its
+//! validation, and the grounding of its symbols in targets.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use dyknow_mstl::{CompileError, Domains, Formula, Symbol, ground_symbols, parse};
+use serde::{Deserialize, Serialize};
+
+use crate::sync::Policy;
+
+/// `POST /groups`'s body.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupSpec {
+    /// The label (`g-N` when absent).
+    #[serde(default)]
+    pub label: Option<String>,
+    /// Where verdicts are published (`/dyknow/verdicts/<label>` when absent).
+    #[serde(default)]
+    pub result_channel: Option<String>,
+    /// The formulas (MSTL, `mstl.md`).
+    #[serde(default)]
+    pub formulas: Vec<String>,
+    /// Named domains for quantifiers.
+    #[serde(default)]
+    pub domains: Domains,
+    /// Landmark regions.
+    #[serde(default)]
+    pub landmarks: Vec<String>,
+    /// Static regions.
+    #[serde(default, rename = "static")]
+    pub static_regions: Vec<String>,
+    /// Symbol → the tag its target asks for.
+    #[serde(default)]
+    pub grounding: BTreeMap<String, Grounding>,
+    /// The synchronisation policy.
+    #[serde(default)]
+    pub sync: Policy,
+    /// Start at once.
+    #[serde(default)]
+    pub start: bool,
+}
+
+/// The tag a symbol's target asks for, instead of the symbol itself.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(untagged, deny_unknown_fields)]
+pub enum Grounding {
+    /// A tag value (`dyknow:hasValue`).
+    Tag {
+        /// The value.
+        tag: String,
+    },
+    /// A tag description concept (`dyknow:hasTagDescription`).
+    Description {
+        /// The concept's IRI.
+        description: String,
+    },
+}
+
+/// Why a group or formula is refused (nothing is created).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SpecError {
+    /// A formula does not parse (400).
+    #[error("formula {index}: column {column}: {message}")]
+    Syntax {
+        /// The formula's position.
+        index: usize,
+        /// 1-based column.
+        column: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// A formula cannot be grounded: an unknown domain, a bad constant (422).
+    #[error("formula {index}: column {column}: {message}")]
+    Grounding {
+        /// The formula's position.
+        index: usize,
+        /// 1-based column.
+        column: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// Anything else about the group: a bad label, channel, grounding or policy (422).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// A formula parsed and grounded.
+#[derive(Debug, Clone)]
+pub struct Grounded {
+    /// The formula.
+    pub formula: Formula,
+    /// Its ground symbols.
+    pub symbols: BTreeSet<Symbol>,
+}
+
+/// Parses and grounds formula `index` over `domains`.
+pub fn ground(index: usize, text: &str, domains: &Domains) -> Result<Grounded, SpecError> {
+    let formula = parse(text).map_err(|e| SpecError::Syntax {
+        index,
+        column: e.column,
+        message: e.message.clone(),
+    })?;
+    let symbols = ground_symbols(&formula, domains).map_err(|e| {
+        let column = match &e {
+            CompileError::UnknownDomain(d) => domain_column(text, d),
+            _ => 1,
+        };
+        SpecError::Grounding {
+            index,
+            column,
+            message: e
+                .to_string()
+                .replace("(give it in the trace header or with --domain {0}=a,b)", ""),
+        }
+    })?;
+    Ok(Grounded { formula, symbols })
+}
+
+/// The 1-based column (in characters) of domain `d` after `in` in `text`.
+fn domain_column(text: &str, d: &str) -> usize {
+    let chars: Vec<char> = text.chars().collect();
+    let name: Vec<char> = d.chars().collect();
+    let word = |c: char| c.is_alphanumeric() || c == '_';
+    for i in 0..chars.len() {
+        if chars[i..].starts_with(&name)
+            && (i == 0 || !word(chars[i - 1]))
+            && chars.get(i + name.len()).is_none_or(|c| !word(*c))
+        {
+            let before: String = chars[..i].iter().collect();
+            if before.trim_end().ends_with("in") {
+                return i + 1;
+            }
+        }
+    }
+    1
+}
+
+/// Checks a label, channel or region name: 1 to 200 characters, none of them a control
+/// character.
+pub fn check_name(what: &str, name: &str) -> Result<(), SpecError> {
+    if name.is_empty() || name.chars().count() > 200 || name.chars().any(char::is_control) {
+        return Err(SpecError::Invalid(format!(
+            "{what} must be 1 to 200 characters without control characters: {name:?}"
+        )));
+    }
+    Ok(())
+}
+
+/// Checks a group label: also no '/' (it is a path segment).
+pub fn check_label(label: &str) -> Result<(), SpecError> {
+    check_name("label", label)?;
+    if label.contains('/') {
+        return Err(SpecError::Invalid(format!(
+            "a group label cannot hold '/': {label:?}"
+        )));
+    }
+    Ok(())
+}
+
+/// Checks what a spec declares besides its formulas.
+pub fn validate(spec: &GroupSpec) -> Result<(), SpecError> {
+    if let Some(l) = &spec.label {
+        check_label(l)?;
+    }
+    if let Some(c) = &spec.result_channel {
+        check_name("result_channel", c)?;
+    }
+    spec.sync.validate().map_err(SpecError::Invalid)?;
+    for (name, constants) in &spec.domains {
+        check_name("a domain name", name)?;
+        for c in constants {
+            check_name(&format!("a constant of domain {name}"), c)?;
+        }
+    }
+    for r in spec.landmarks.iter().chain(&spec.static_regions) {
+        check_name("a region", r)?;
+    }
+    for (symbol, g) in &spec.grounding {
+        match g {
+            Grounding::Tag { tag } => check_name(&format!("the grounding tag of {symbol}"), tag)?,
+            Grounding::Description { description } => {
+                if !is_iri(description) {
+                    return Err(SpecError::Invalid(format!(
+                        "the grounding of {symbol}: {description:?} is not an absolute IRI"
+                    )));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn is_iri(s: &str) -> bool {
+    let Some((scheme, rest)) = s.split_once(':') else {
+        return false;
+    };
+    !rest.is_empty()
+        && scheme
+            .chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic())
+        && scheme
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+        && !s
+            .chars()
+            .any(|c| c.is_whitespace() || "<>\"{}|\\^`".contains(c))
+}
+
+/// The tag a symbol's target asks for.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub enum TargetTag {
+    /// A tag value.
+    Value(String),
+    /// A tag description IRI.
+    Description(String),
+}
+
+impl TargetTag {
+    /// The target's label: `symbol:<tag value>` or `symbol:<IRI>`.
+    pub fn label(&self) -> String {
+        match self {
+            Self::Value(v) | Self::Description(v) => format!("symbol:{v}"),
+        }
+    }
+
+    /// The target's channel, chosen by the service: `/dyknow/symbols/<tag>` with characters
+    /// other than letters, digits and `_-.,()` replaced by `_` and, when any was replaced (or
+    /// for a description), a hash of the tag appended so distinct tags never share a channel.
+    pub fn channel(&self) -> String {
+        let (text, force) = match self {
+            Self::Value(v) => (v.as_str(), false),
+            Self::Description(iri) => (iri.rsplit(['#', '/']).next().unwrap_or("d"), true),
+        };
+        let clean: String = text
+            .chars()
+            .take(80)
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "_-.,()".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let clean = if clean.is_empty() {
+            "_".to_owned()
+        } else {
+            clean
+        };
+        let whole = match self {
+            Self::Value(v) | Self::Description(v) => v,
+        };
+        if force || clean != *whole {
+            format!("/dyknow/symbols/{clean}-{:08x}", fnv(whole) as u32)
+        } else {
+            format!("/dyknow/symbols/{clean}")
+        }
+    }
+}
+
+fn fnv(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// The tag of `symbol`'s target: the group's grounding if it names the symbol; for a spatial
+/// symbol without one, the relation itself if some transformation offers it
+/// (`has_out_tag(key)`), else `RCC8` if some transformation offers that (the seed's
+/// producer of all relations); otherwise the symbol written without spaces.
+pub fn target_tag(
+    symbol: &Symbol,
+    grounding: &BTreeMap<String, Grounding>,
+    has_out_tag: &dyn Fn(&str) -> bool,
+) -> TargetTag {
+    let key = symbol.key();
+    if let Some(g) = grounding.get(&key) {
+        return match g {
+            Grounding::Tag { tag } => TargetTag::Value(tag.clone()),
+            Grounding::Description { description } => TargetTag::Description(description.clone()),
+        };
+    }
+    if symbol.is_spatial() && !has_out_tag(&key) && has_out_tag("RCC8") {
+        return TargetTag::Value("RCC8".to_owned());
+    }
+    TargetTag::Value(key)
+}
+
+/// Groundings that name no symbol of the formulas (an invalid grounding, 422).
+pub fn unused_groundings<'a>(
+    grounding: &'a BTreeMap<String, Grounding>,
+    symbols: &BTreeSet<String>,
+) -> Vec<&'a str> {
+    grounding
+        .keys()
+        .filter(|k| !symbols.contains(*k))
+        .map(String::as_str)
+        .collect()
+}

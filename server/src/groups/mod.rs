@@ -1,0 +1,1077 @@
+//! Formula groups in the service (contract `groups.md`; seed Ch. 5.4): the registry, the
+//! targets the groups' symbols become, the subscriptions to their channels, one progression
+//! thread per running group, the result channel, and persistence.
+//!
+//! **Persistence.** With an on-disk store, each group lives in `<data>/groups/<label>/`:
+//! `group.json` (the definition: formulas with the state at which each was added and
+//! removed, domains, landmarks, static regions, grounding, policy, life-cycle state, restarts)
+//! written atomically on every change, and `trace.jsonl`, the synchronised state stream as a
+//! `dyknow check` trace, appended and flushed after every batch of states (synced to disk at
+//! most a second later and when the group stops). Verdicts are not stored: they are what the
+//! formulas give on the recorded trace, so on start-up the service replays each trace through
+//! a fresh monitor and gets every verdict back exactly (a torn last line from a crash is cut
+//! off). A group that was running resumes from the next state and records the restart.
+//!
+//! **Targets.** Each ground symbol becomes the target `symbol:<tag>` on the channel
+//! `/dyknow/symbols/<tag>` ([`dyknow_group::TargetTag`]); groups share them, and a target is
+//! released when no created or running group needs it. Stopped groups need no streams.
+
+mod store;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_group::progression::read_state_line;
+use dyknow_group::spec::{self, Grounded, target_tag, unused_groundings};
+use dyknow_group::{
+    Grounding, GroupSpec, Policy, Progression, SpecError, StreamKind, Synchroniser, TargetTag,
+    TraceHeader, VerdictLine,
+};
+use dyknow_lifecycle::{Manager, Perturbation};
+use dyknow_mstl::Symbol;
+use dyknow_store::KnowledgeBase;
+use dyknow_store::spec::{Spec, SpecKind};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value as Json, json};
+use tokio::sync::broadcast;
+
+pub use store::{GroupStore, TraceWriter};
+
+/// The prefix of the labels of targets groups create.
+pub const TARGET_PREFIX: &str = "symbol:";
+
+/// A group's life-cycle state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    /// Defined, not progressing; its targets are planned already.
+    Created,
+    /// Progressing.
+    Running,
+    /// Ended for good.
+    Stopped,
+}
+
+/// A formula of a group as persisted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FormulaDef {
+    /// The formula's index (never reused).
+    pub index: usize,
+    /// Its text as posted.
+    pub formula: String,
+    /// The number of states taken before it was added.
+    pub added_at: u64,
+    /// The number of states taken before it was removed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub removed_at: Option<u64>,
+}
+
+/// A restart of the service while the group ran.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Resumed {
+    /// States taken before the restart.
+    pub after_state: u64,
+    /// The last state's time before it (ms).
+    pub last_t: Option<u64>,
+    /// When progression resumed (wall clock, ms since the epoch).
+    pub at: u64,
+}
+
+/// A group's definition and life-cycle state, as persisted in `group.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct GroupDef {
+    /// The label.
+    pub label: String,
+    /// Where verdicts are published.
+    pub result_channel: String,
+    /// Domains, landmarks, static regions: the trace's header.
+    pub header: TraceHeader,
+    /// Symbol → tag.
+    #[serde(default)]
+    pub grounding: BTreeMap<String, Grounding>,
+    /// The synchronisation policy.
+    pub sync: Policy,
+    /// The formulas, by index.
+    pub formulas: Vec<FormulaDef>,
+    /// The life-cycle state.
+    pub phase: Phase,
+    /// Restarts survived while running.
+    #[serde(default)]
+    pub resumed: Vec<Resumed>,
+}
+
+/// A group-level failure, mapped to HTTP statuses by the routes.
+#[derive(Debug, thiserror::Error)]
+pub enum GroupError {
+    /// A bad definition or formula (400 for syntax, 422 otherwise).
+    #[error(transparent)]
+    Spec(#[from] SpecError),
+    /// No such group (404).
+    #[error("no group labelled {0:?}")]
+    NotFound(String),
+    /// No such formula (404).
+    #[error("group {group:?} has no formula {index}")]
+    NoFormula {
+        /// The group.
+        group: String,
+        /// The index.
+        index: usize,
+    },
+    /// The label is taken (409).
+    #[error("a group labelled {0:?} exists")]
+    Exists(String),
+    /// The operation does not fit the group's state (409).
+    #[error("{0}")]
+    Conflict(String),
+    /// The store or the data plane failed (500).
+    #[error("{0}")]
+    Internal(String),
+}
+
+/// One stream a group reads: a target's channel, and what it carries.
+#[derive(Debug, Clone)]
+struct StreamInfo {
+    tag: TargetTag,
+    kind: StreamKind,
+    active: bool,
+}
+
+/// What arrives at a group's thread.
+enum Input {
+    Sample { stream: usize, t: u64, value: Json },
+    Stop,
+}
+
+/// A running group's thread and subscriptions.
+struct Runner {
+    tx: mpsc::Sender<Input>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// By stream index; `None` for inactive streams (or without a data plane).
+    subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
+}
+
+/// A group's live state.
+struct Core {
+    def: GroupDef,
+    prog: Progression,
+    sync: Synchroniser<Json>,
+    streams: Vec<StreamInfo>,
+    /// Symbols of the formulas not removed, and the stream each is read from.
+    symbols: BTreeMap<Symbol, usize>,
+    /// Each formula's symbols (None once removed).
+    grounded: Vec<Option<BTreeSet<Symbol>>>,
+    verdicts: Vec<VerdictLine>,
+    dropped_spatial: u64,
+    last_dropped: Option<String>,
+    writer: TraceWriter,
+}
+
+/// A formula group.
+pub struct Group {
+    label: String,
+    core: Mutex<Core>,
+    runner: Mutex<Option<Runner>>,
+    events: broadcast::Sender<VerdictLine>,
+}
+
+impl Group {
+    fn core(&self) -> MutexGuard<'_, Core> {
+        self.core
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+/// The data plane a group reads from and publishes to.
+#[derive(Clone)]
+pub struct Plane {
+    /// The service's Zenoh session.
+    pub session: zenoh::Session,
+    /// The key namespace.
+    pub namespace: dyknow_cu::Namespace,
+}
+
+/// Every group of the service.
+pub struct Groups {
+    kb: Arc<KnowledgeBase>,
+    lifecycle: Arc<Manager>,
+    plane: Option<Plane>,
+    store: Option<GroupStore>,
+    groups: Mutex<BTreeMap<String, Arc<Group>>>,
+    /// Serialises target changes.
+    targets: Mutex<()>,
+}
+
+fn now_ms() -> u64 {
+    u64::try_from(dyknow_cu::now_ms()).unwrap_or(0)
+}
+
+impl Groups {
+    /// The registry: with `store`, the groups persisted there are loaded, their traces
+    /// replayed, running ones resumed, and the targets made to match.
+    pub fn new(
+        kb: Arc<KnowledgeBase>,
+        lifecycle: Arc<Manager>,
+        plane: Option<Plane>,
+        store: Option<GroupStore>,
+    ) -> Result<Arc<Self>, GroupError> {
+        let groups = Arc::new(Self {
+            kb,
+            lifecycle,
+            plane,
+            store,
+            groups: Mutex::new(BTreeMap::new()),
+            targets: Mutex::new(()),
+        });
+        groups.load()?;
+        Ok(groups)
+    }
+
+    /// A registry without groups, store or data plane (in-memory services, tests).
+    pub fn empty(kb: Arc<KnowledgeBase>, lifecycle: Arc<Manager>) -> Arc<Self> {
+        Arc::new(Self {
+            kb,
+            lifecycle,
+            plane: None,
+            store: None,
+            groups: Mutex::new(BTreeMap::new()),
+            targets: Mutex::new(()),
+        })
+    }
+
+    fn map(&self) -> MutexGuard<'_, BTreeMap<String, Arc<Group>>> {
+        self.groups
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn load(self: &Arc<Self>) -> Result<(), GroupError> {
+        let Some(store) = &self.store else {
+            return Ok(());
+        };
+        for (def, lines) in store.load_all().map_err(GroupError::Internal)? {
+            let label = def.label.clone();
+            match self.restore(def, &lines) {
+                Ok(group) => {
+                    self.map().insert(label, group);
+                }
+                Err(e) => tracing::error!("group {label}: cannot restore it: {e}"),
+            }
+        }
+        self.sync_targets()?;
+        let running: Vec<Arc<Group>> = self
+            .map()
+            .values()
+            .filter(|g| g.core().def.phase == Phase::Running)
+            .cloned()
+            .collect();
+        for g in running {
+            let mut core = g.core();
+            let resumed = Resumed {
+                after_state: core.prog.states(),
+                last_t: core.prog.last_t(),
+                at: now_ms(),
+            };
+            tracing::info!(
+                "group {}: resumed after a restart, from the next state (after {} states, last t {:?})",
+                g.label,
+                resumed.after_state,
+                resumed.last_t
+            );
+            core.def.resumed.push(resumed);
+            self.persist(&core)?;
+            drop(core);
+            self.run(&g)?;
+        }
+        Ok(())
+    }
+
+    /// Rebuilds a group from its definition and recorded trace.
+    fn restore(&self, def: GroupDef, lines: &[String]) -> Result<Arc<Group>, GroupError> {
+        let mut prog = Progression::new(def.header.clone());
+        let mut grounded = Vec::new();
+        let parsed: Vec<Grounded> = def
+            .formulas
+            .iter()
+            .map(|f| spec::ground(f.index, &f.formula, &def.header.domains))
+            .collect::<Result<_, _>>()?;
+        let mut verdicts = Vec::new();
+        let mut next = 0;
+        let apply = |prog: &mut Progression, next: &mut usize| {
+            let states = prog.states();
+            while *next < parsed.len() && def.formulas[*next].added_at <= states {
+                // Indices follow the order of adding.
+                let _ = prog.add(&parsed[*next].formula);
+                *next += 1;
+            }
+            for f in &def.formulas {
+                if f.removed_at == Some(states) && f.index < *next {
+                    prog.remove(f.index);
+                }
+            }
+        };
+        for line in lines {
+            apply(&mut prog, &mut next);
+            let state = read_state_line(line).map_err(GroupError::Internal)?;
+            verdicts.extend(prog.take_recorded(state).verdicts);
+        }
+        apply(&mut prog, &mut next);
+        for f in &def.formulas {
+            if f.removed_at.is_some_and(|r| r > prog.states()) {
+                prog.remove(f.index);
+            }
+        }
+        if def.phase == Phase::Stopped {
+            verdicts.extend(prog.finish());
+        }
+        for (f, g) in def.formulas.iter().zip(parsed) {
+            grounded.push(f.removed_at.is_none().then_some(g.symbols));
+        }
+        let writer = match &self.store {
+            Some(s) => s.writer(&def.label).map_err(GroupError::Internal)?,
+            None => TraceWriter::memory(&def.header.line()),
+        };
+        let mut sync = Synchroniser::new(def.sync, 0);
+        sync.resume_after(prog.last_t());
+        let mut core = Core {
+            def,
+            prog,
+            sync,
+            streams: Vec::new(),
+            symbols: BTreeMap::new(),
+            grounded,
+            verdicts,
+            dropped_spatial: 0,
+            last_dropped: None,
+            writer,
+        };
+        self.restream(&mut core);
+        Ok(Arc::new(Group {
+            label: core.def.label.clone(),
+            core: Mutex::new(core),
+            runner: Mutex::new(None),
+            events: broadcast::channel(4096).0,
+        }))
+    }
+
+    /// CreateGroup. Nothing is created if a formula, domain, grounding or name is refused.
+    pub fn create(self: &Arc<Self>, spec: GroupSpec) -> Result<Arc<Group>, GroupError> {
+        spec::validate(&spec)?;
+        let mut grounded = Vec::new();
+        for (i, f) in spec.formulas.iter().enumerate() {
+            grounded.push(spec::ground(i, f, &spec.domains)?);
+        }
+        let all: BTreeSet<String> = grounded
+            .iter()
+            .flat_map(|g| g.symbols.iter().map(Symbol::key))
+            .collect();
+        let unused = unused_groundings(&spec.grounding, &all);
+        if !unused.is_empty() {
+            return Err(SpecError::Invalid(format!(
+                "the grounding names symbols no formula has: {} (the symbols are: {})",
+                unused.join(", "),
+                all.iter().cloned().collect::<Vec<_>>().join(", ")
+            ))
+            .into());
+        }
+        let mut map = self.map();
+        let label = match spec.label.clone() {
+            Some(l) => {
+                if map.contains_key(&l) {
+                    return Err(GroupError::Exists(l));
+                }
+                l
+            }
+            None => (1..)
+                .map(|n| format!("g-{n}"))
+                .find(|l| !map.contains_key(l))
+                .unwrap_or_default(),
+        };
+        let result_channel = spec
+            .result_channel
+            .clone()
+            .unwrap_or_else(|| format!("/dyknow/verdicts/{label}"));
+        if let Some(plane) = &self.plane {
+            plane.namespace.channel(&result_channel).map_err(|e| {
+                SpecError::Invalid(format!("result_channel {result_channel:?}: {e}"))
+            })?;
+        }
+        let header = TraceHeader {
+            domains: spec.domains.clone(),
+            landmarks: spec.landmarks.clone(),
+            static_regions: spec.static_regions.clone(),
+        };
+        let def = GroupDef {
+            label: label.clone(),
+            result_channel,
+            header: header.clone(),
+            grounding: spec.grounding.clone(),
+            sync: spec.sync,
+            formulas: spec
+                .formulas
+                .iter()
+                .enumerate()
+                .map(|(index, f)| FormulaDef {
+                    index,
+                    formula: f.clone(),
+                    added_at: 0,
+                    removed_at: None,
+                })
+                .collect(),
+            phase: Phase::Created,
+            resumed: Vec::new(),
+        };
+        let mut prog = Progression::new(header);
+        for g in &grounded {
+            prog.add(&g.formula)
+                .map_err(|e| GroupError::Internal(e.to_string()))?;
+        }
+        let writer = match &self.store {
+            Some(s) => s.create(&def).map_err(GroupError::Internal)?,
+            None => TraceWriter::memory(&def.header.line()),
+        };
+        let mut core = Core {
+            sync: Synchroniser::new(def.sync, 0),
+            def,
+            prog,
+            streams: Vec::new(),
+            symbols: BTreeMap::new(),
+            grounded: grounded.into_iter().map(|g| Some(g.symbols)).collect(),
+            verdicts: Vec::new(),
+            dropped_spatial: 0,
+            last_dropped: None,
+            writer,
+        };
+        self.restream(&mut core);
+        let group = Arc::new(Group {
+            label: label.clone(),
+            core: Mutex::new(core),
+            runner: Mutex::new(None),
+            events: broadcast::channel(4096).0,
+        });
+        map.insert(label, group.clone());
+        drop(map);
+        self.sync_targets()?;
+        if spec.start {
+            self.start(&group.label)?;
+        }
+        Ok(group)
+    }
+
+    /// The group labelled `label`.
+    pub fn get(&self, label: &str) -> Result<Arc<Group>, GroupError> {
+        self.map()
+            .get(label)
+            .cloned()
+            .ok_or_else(|| GroupError::NotFound(label.to_owned()))
+    }
+
+    /// Every group, by label.
+    pub fn list(&self) -> Vec<Arc<Group>> {
+        self.map().values().cloned().collect()
+    }
+
+    /// StartGroup: progression begins with the next state. Idempotent while running; 409 once
+    /// stopped.
+    pub fn start(self: &Arc<Self>, label: &str) -> Result<(), GroupError> {
+        let g = self.get(label)?;
+        {
+            let mut core = g.core();
+            match core.def.phase {
+                Phase::Running => return Ok(()),
+                Phase::Stopped => {
+                    return Err(GroupError::Conflict(format!(
+                        "group {label:?} was stopped; a stopped group cannot be started again (create a new one)"
+                    )));
+                }
+                Phase::Created => {}
+            }
+            core.def.phase = Phase::Running;
+            self.persist(&core)?;
+        }
+        self.run(&g)
+    }
+
+    /// Subscribes a running group to its streams and starts its thread.
+    fn run(self: &Arc<Self>, g: &Arc<Group>) -> Result<(), GroupError> {
+        let (tx, rx) = mpsc::channel();
+        let mut runner = g
+            .runner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if runner.is_some() {
+            return Ok(());
+        }
+        let mut subscribers = Vec::new();
+        {
+            let mut core = g.core();
+            core.sync.start(now_ms());
+            for (i, s) in core.streams.iter().enumerate() {
+                subscribers.push(if s.active {
+                    self.subscribe(i, &s.tag, &tx)?
+                } else {
+                    None
+                });
+            }
+        }
+        let this = Arc::downgrade(self);
+        let group = g.clone();
+        let thread = std::thread::Builder::new()
+            .name(format!("group {}", g.label))
+            .spawn(move || progress(&this, &group, &rx))
+            .map_err(|e| GroupError::Internal(e.to_string()))?;
+        *runner = Some(Runner {
+            tx,
+            thread: Some(thread),
+            subscribers,
+        });
+        Ok(())
+    }
+
+    fn subscribe(
+        &self,
+        stream: usize,
+        tag: &TargetTag,
+        tx: &mpsc::Sender<Input>,
+    ) -> Result<Option<zenoh::pubsub::Subscriber<()>>, GroupError> {
+        // Without a data plane (model-only mode) nothing arrives: every symbol is unknown.
+        let Some(plane) = &self.plane else {
+            return Ok(None);
+        };
+        let key = plane
+            .namespace
+            .channel(&tag.channel())
+            .map_err(|e| GroupError::Internal(e.to_string()))?;
+        let tx = tx.clone();
+        plane
+            .session
+            .declare_subscriber(key)
+            .callback(move |sample| {
+                let payload = sample.payload().to_bytes();
+                match dyknow_cu::Sample::from_slice(&payload) {
+                    Ok(s) => {
+                        if let Ok(t) = u64::try_from(s.t) {
+                            let _ = tx.send(Input::Sample {
+                                stream,
+                                t,
+                                value: s.value,
+                            });
+                        }
+                    }
+                    Err(e) => tracing::debug!("group stream {stream}: not a sample: {e}"),
+                }
+            })
+            .wait()
+            .map(Some)
+            .map_err(|e| GroupError::Internal(format!("cannot subscribe: {e}")))
+    }
+
+    fn stop_runner(g: &Group) {
+        let runner = g
+            .runner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        if let Some(mut r) = runner {
+            drop(std::mem::take(&mut r.subscribers));
+            let _ = r.tx.send(Input::Stop);
+            if let Some(t) = r.thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
+
+    /// StopGroup: progression ends for good; undecided formulas get `unknown`.
+    pub fn stop(self: &Arc<Self>, label: &str) -> Result<(), GroupError> {
+        let g = self.get(label)?;
+        Self::stop_runner(&g);
+        {
+            let mut core = g.core();
+            if core.def.phase == Phase::Stopped {
+                return Ok(());
+            }
+            core.def.phase = Phase::Stopped;
+            let finals = core.prog.finish();
+            self.publish(&g, &mut core, finals);
+            core.writer.sync();
+            self.persist(&core)?;
+        }
+        self.sync_targets()
+    }
+
+    /// DestroyGroup: stops it, forgets it, releases targets no other group needs.
+    pub fn destroy(self: &Arc<Self>, label: &str) -> Result<(), GroupError> {
+        let g = self.get(label)?;
+        Self::stop_runner(&g);
+        self.map().remove(label);
+        if let Some(s) = &self.store {
+            s.remove(label).map_err(GroupError::Internal)?;
+        }
+        self.sync_targets()
+    }
+
+    /// AddFormula: evaluated from the next state on; new symbols get targets.
+    pub fn add_formula(self: &Arc<Self>, label: &str, text: &str) -> Result<usize, GroupError> {
+        let g = self.get(label)?;
+        let index;
+        {
+            let mut core = g.core();
+            if core.def.phase == Phase::Stopped {
+                return Err(GroupError::Conflict(format!(
+                    "group {label:?} was stopped; formulas can no longer be added"
+                )));
+            }
+            index = core.def.formulas.len();
+            let grounded = spec::ground(index, text, &core.def.header.domains)?;
+            core.prog
+                .add(&grounded.formula)
+                .map_err(|e| GroupError::Internal(e.to_string()))?;
+            let added_at = core.prog.states();
+            core.def.formulas.push(FormulaDef {
+                index,
+                formula: text.to_owned(),
+                added_at,
+                removed_at: None,
+            });
+            core.grounded.push(Some(grounded.symbols));
+            self.restream(&mut core);
+            self.persist(&core)?;
+        }
+        self.resubscribe(&g)?;
+        self.sync_targets()?;
+        Ok(index)
+    }
+
+    /// RemoveFormula: also while running; targets no other formula needs are released.
+    pub fn remove_formula(self: &Arc<Self>, label: &str, index: usize) -> Result<(), GroupError> {
+        let g = self.get(label)?;
+        {
+            let mut core = g.core();
+            let states = core.prog.states();
+            let Some(f) = core
+                .def
+                .formulas
+                .get_mut(index)
+                .filter(|f| f.removed_at.is_none())
+            else {
+                return Err(GroupError::NoFormula {
+                    group: label.to_owned(),
+                    index,
+                });
+            };
+            f.removed_at = Some(states);
+            core.prog.remove(index);
+            core.grounded[index] = None;
+            self.restream(&mut core);
+            self.persist(&core)?;
+        }
+        self.resubscribe(&g)?;
+        self.sync_targets()
+    }
+
+    /// Subscribes a running group to streams added since it started (and drops removed ones).
+    fn resubscribe(&self, g: &Arc<Group>) -> Result<(), GroupError> {
+        let mut runner = g
+            .runner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let Some(r) = runner.as_mut() else {
+            return Ok(());
+        };
+        let core = g.core();
+        for (i, s) in core.streams.iter().enumerate() {
+            if r.subscribers.len() <= i {
+                r.subscribers.push(None);
+            }
+            match (s.active, r.subscribers[i].is_some()) {
+                (true, false) => r.subscribers[i] = self.subscribe(i, &s.tag, &r.tx)?,
+                (false, true) => r.subscribers[i] = None,
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Recomputes a group's symbols and streams from its formulas: one stream per value
+    /// symbol, one per spatial target. Streams are only ever appended (their indices are the
+    /// synchroniser's); one no formula needs becomes inactive.
+    fn restream(&self, core: &mut Core) {
+        let symbols: BTreeSet<Symbol> = core.grounded.iter().flatten().flatten().cloned().collect();
+        let offered = self.out_tags();
+        let has = |t: &str| offered.contains(t);
+        let mut map = BTreeMap::new();
+        let mut used = BTreeSet::new();
+        for s in symbols {
+            let tag = target_tag(&s, &core.def.grounding, &has);
+            let kind = if s.is_spatial() {
+                StreamKind::Spatial
+            } else {
+                StreamKind::Value(s.key())
+            };
+            let found = core
+                .streams
+                .iter()
+                .position(|x| x.tag == tag && x.kind == kind);
+            let i = match found {
+                Some(i) => {
+                    if !core.streams[i].active {
+                        core.streams[i].active = true;
+                        core.sync.reactivate_stream(i);
+                    }
+                    i
+                }
+                None => {
+                    let i = core.sync.add_stream();
+                    core.streams.push(StreamInfo {
+                        tag,
+                        kind,
+                        active: true,
+                    });
+                    i
+                }
+            };
+            used.insert(i);
+            map.insert(s, i);
+        }
+        for (i, s) in core.streams.iter_mut().enumerate() {
+            if !used.contains(&i) && s.active {
+                s.active = false;
+                core.sync.remove_stream(i);
+            }
+        }
+        core.symbols = map;
+    }
+
+    /// The out-port tag values of the library's transformations.
+    fn out_tags(&self) -> BTreeSet<String> {
+        let mut out = BTreeSet::new();
+        if let Ok(specs) = self.kb.specs(SpecKind::Transformation) {
+            for s in specs {
+                if let Spec::Transformation(t) = s {
+                    for p in &t.outputs {
+                        out.extend(p.tags.iter().filter_map(|t| t.value.clone()));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    fn persist(&self, core: &Core) -> Result<(), GroupError> {
+        match &self.store {
+            Some(s) => s.save(&core.def).map_err(GroupError::Internal),
+            None => Ok(()),
+        }
+    }
+
+    /// The groups that need each group target: label → group labels.
+    pub fn target_users(&self) -> BTreeMap<String, Vec<String>> {
+        let mut out: BTreeMap<String, Vec<String>> = BTreeMap::new();
+        for g in self.list() {
+            let core = g.core();
+            if core.def.phase == Phase::Stopped {
+                continue;
+            }
+            let labels: BTreeSet<String> = core
+                .streams
+                .iter()
+                .filter(|s| s.active)
+                .map(|s| s.tag.label())
+                .collect();
+            for l in labels {
+                out.entry(l).or_default().push(g.label.clone());
+            }
+        }
+        out
+    }
+
+    /// Makes the group targets in the knowledge base match what the groups need: posts the
+    /// missing ones, releases the others.
+    pub fn sync_targets(&self) -> Result<(), GroupError> {
+        let _guard = self
+            .targets
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut needed: BTreeMap<String, TargetTag> = BTreeMap::new();
+        for g in self.list() {
+            let core = g.core();
+            if core.def.phase == Phase::Stopped {
+                continue;
+            }
+            for s in core.streams.iter().filter(|s| s.active) {
+                needed.insert(s.tag.label(), s.tag.clone());
+            }
+        }
+        let internal = |e: &dyn std::fmt::Display| GroupError::Internal(e.to_string());
+        let existing: BTreeSet<String> = self
+            .kb
+            .specs(SpecKind::Target)
+            .map_err(|e| internal(&e))?
+            .into_iter()
+            .filter_map(|s| match s {
+                Spec::Target(t) if t.label.starts_with(TARGET_PREFIX) => Some(t.label),
+                _ => None,
+            })
+            .collect();
+        let missing: Vec<&TargetTag> = needed
+            .iter()
+            .filter(|(l, _)| !existing.contains(*l))
+            .map(|(_, t)| t)
+            .collect();
+        if !missing.is_empty() {
+            let doc = target_turtle(&missing);
+            let report = self
+                .kb
+                .post_specs(
+                    doc.as_bytes(),
+                    dyknow_store::InputFormat::Turtle,
+                    SpecKind::Target,
+                )
+                .map_err(|e| internal(&e))?;
+            for label in report.labels {
+                self.lifecycle
+                    .report(Perturbation::TargetAdded {
+                        target: label.into(),
+                    })
+                    .map_err(|e| internal(&e))?;
+            }
+        }
+        for label in existing.iter().filter(|l| !needed.contains_key(*l)) {
+            self.kb
+                .remove_spec(SpecKind::Target, label)
+                .map_err(|e| internal(&e))?;
+            self.lifecycle
+                .report(Perturbation::TargetReleased {
+                    target: label.clone().into(),
+                })
+                .map_err(|e| internal(&e))?;
+        }
+        Ok(())
+    }
+
+    /// Publishes verdicts: recorded, sent to SSE watchers and to the result channel.
+    fn publish(&self, g: &Group, core: &mut Core, verdicts: Vec<VerdictLine>) {
+        for v in verdicts {
+            core.verdicts.push(v);
+            let _ = g.events.send(v);
+            if let Some(plane) = &self.plane
+                && let Ok(key) = plane.namespace.channel(&core.def.result_channel)
+            {
+                let sample = dyknow_cu::Sample::new(
+                    i64::try_from(v.t).unwrap_or(i64::MAX),
+                    json!({"group": g.label, "formula": v.formula, "verdict": v.verdict.as_str()}),
+                );
+                let _ = plane
+                    .session
+                    .put(key, sample.to_bytes())
+                    .encoding(zenoh::bytes::Encoding::APPLICATION_JSON)
+                    .wait();
+            }
+        }
+    }
+
+    /// Stops every running group's thread (the service is stopping); they stay `running` on
+    /// disk and resume at the next start.
+    pub fn shutdown(&self) {
+        for g in self.list() {
+            Self::stop_runner(&g);
+            g.core().writer.sync();
+        }
+    }
+}
+
+/// The Turtle of group targets.
+fn target_turtle(tags: &[&TargetTag]) -> String {
+    let lit = |s: &str| serde_json::to_string(s).unwrap_or_default();
+    let mut doc = String::from(
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n",
+    );
+    for t in tags {
+        let tag = match t {
+            TargetTag::Value(v) => format!("dyknow:hasValue {}", lit(v)),
+            TargetTag::Description(iri) => format!("dyknow:hasTagDescription <{iri}>"),
+        };
+        doc.push_str(&format!(
+            "[] a dyknow:Target ; rdfs:label {} ;\n   dyknow:hasChannel [ a dyknow:Channel ; dyknow:hasChannelName {} ] ;\n   dyknow:hasTag [ a dyknow:Tag ; {tag} ] .\n",
+            lit(&t.label()),
+            lit(&t.channel())
+        ));
+    }
+    doc
+}
+
+/// A running group's thread: samples and deadlines in, states and verdicts out.
+fn progress(groups: &std::sync::Weak<Groups>, g: &Arc<Group>, rx: &mpsc::Receiver<Input>) {
+    let mut last_sync = Instant::now();
+    loop {
+        let deadline = g.core().sync.next_deadline();
+        let first = match deadline {
+            Some(d) => {
+                let wait = d.saturating_sub(now_ms());
+                match rx.recv_timeout(Duration::from_millis(wait.clamp(1, 1000))) {
+                    Ok(i) => Some(i),
+                    Err(mpsc::RecvTimeoutError::Timeout) => None,
+                    Err(mpsc::RecvTimeoutError::Disconnected) => return,
+                }
+            }
+            None => match rx.recv_timeout(Duration::from_secs(1)) {
+                Ok(i) => Some(i),
+                Err(mpsc::RecvTimeoutError::Timeout) => None,
+                Err(mpsc::RecvTimeoutError::Disconnected) => return,
+            },
+        };
+        let Some(groups) = groups.upgrade() else {
+            return;
+        };
+        let mut core = g.core();
+        let mut states = Vec::new();
+        let mut input = first;
+        let mut taken = 0;
+        loop {
+            match input {
+                Some(Input::Stop) => {
+                    core.writer.flush();
+                    return;
+                }
+                Some(Input::Sample { stream, t, value }) => {
+                    states.extend(core.sync.offer(stream, t, value, now_ms()));
+                }
+                None => {}
+            }
+            taken += 1;
+            if taken >= 512 {
+                break;
+            }
+            input = match rx.try_recv() {
+                Ok(i) => Some(i),
+                Err(_) => break,
+            };
+        }
+        states.extend(core.sync.poll(now_ms()));
+        let kinds: Vec<StreamKind> = core.streams.iter().map(|s| s.kind.clone()).collect();
+        for s in states {
+            let t = core.prog.take(&kinds, &s);
+            if let Some(why) = t.dropped_spatial {
+                core.dropped_spatial += 1;
+                core.last_dropped = Some(format!("t={}: {why}", s.t));
+            }
+            if let Some(line) = &t.line {
+                core.writer.append(line);
+            }
+            groups.publish(g, &mut core, t.verdicts);
+        }
+        core.writer.flush();
+        if last_sync.elapsed() >= Duration::from_secs(1) {
+            core.writer.sync();
+            last_sync = Instant::now();
+        }
+    }
+}
+
+/// A group as `GET /groups/{label}` shows it. The targets' producers are looked up after the
+/// group's lock is released, so a status read never stalls progression.
+pub fn status(groups: &Groups, g: &Group) -> Json {
+    let (mut value, channels) = {
+        let core = g.core();
+        let decided: BTreeMap<usize, VerdictLine> =
+            core.verdicts.iter().map(|v| (v.formula, *v)).collect();
+        let formulas: Vec<Json> = core
+            .def
+            .formulas
+            .iter()
+            .filter(|f| f.removed_at.is_none())
+            .map(|f| {
+                let v = decided.get(&f.index);
+                json!({
+                    "index": f.index,
+                    "formula": f.formula,
+                    "verdict": v.map(|v| v.verdict.as_str()),
+                    "t": v.map(|v| v.t),
+                })
+            })
+            .collect();
+        let mut channels = Vec::new();
+        let symbols: Vec<Json> = core
+            .symbols
+            .iter()
+            .map(|(symbol, &i)| {
+                let s = &core.streams[i];
+                let stats = core.sync.stats(i);
+                let channel = s.tag.channel();
+                channels.push(channel.clone());
+                json!({
+                    "symbol": symbol.key(),
+                    "target": s.tag.label(),
+                    "channel": channel,
+                    "satisfied": false,
+                    "producer": null,
+                    "samples": stats.samples,
+                    "late": stats.late,
+                    "missing_states": stats.missing_states,
+                })
+            })
+            .collect();
+        let value = json!({
+            "label": g.label,
+            "state": core.def.phase,
+            "result_channel": core.def.result_channel,
+            "formulas": formulas,
+            "symbols": symbols,
+            "states": core.prog.states(),
+            "last_t": core.prog.last_t(),
+            "sync": core.def.sync,
+            "domains": core.def.header.domains,
+            "landmarks": core.def.header.landmarks,
+            "static": core.def.header.static_regions,
+            "grounding": core.def.grounding,
+            "resumed": core.def.resumed,
+            "dropped_spatial_states": core.dropped_spatial,
+            "last_dropped_spatial": core.last_dropped,
+        });
+        (value, channels)
+    };
+    let mut producers: BTreeMap<String, Option<String>> = BTreeMap::new();
+    for (i, channel) in channels.iter().enumerate() {
+        let producer = producers
+            .entry(channel.clone())
+            .or_insert_with(|| groups.kb.channel_producer(channel).ok().flatten())
+            .clone();
+        value["symbols"][i]["satisfied"] = json!(producer.is_some());
+        value["symbols"][i]["producer"] = json!(producer);
+    }
+    value
+}
+
+impl Group {
+    /// The label.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The verdicts recorded so far, and a receiver of the ones to come (subscribed before
+    /// the snapshot, so none is missed; a formula's verdict may then come twice, and
+    /// watchers skip formulas they have seen).
+    pub fn watch(&self) -> (Vec<VerdictLine>, broadcast::Receiver<VerdictLine>) {
+        let rx = self.events.subscribe();
+        let recorded = self.core().verdicts.clone();
+        (recorded, rx)
+    }
+
+    /// The recorded trace: the header line and one line per state.
+    pub fn trace(&self, groups: &Groups) -> Result<String, GroupError> {
+        let mut core = self.core();
+        if let Some(text) = core.writer.text() {
+            return Ok(text.to_owned());
+        }
+        core.writer.flush();
+        // Read under the lock: the thread appends only whole batches of lines under it.
+        match &groups.store {
+            Some(s) => s.trace(&self.label).map_err(GroupError::Internal),
+            None => Ok(String::new()),
+        }
+    }
+}

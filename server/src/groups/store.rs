@@ -1,0 +1,230 @@
+//! Groups on disk: `<data>/groups/<label, percent-encoded>/group.json` (written atomically)
+//! and `trace.jsonl` (the header, then one line per state, appended).
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{BufRead, BufReader, BufWriter, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use super::GroupDef;
+
+/// Where groups are kept.
+#[derive(Debug, Clone)]
+pub struct GroupStore {
+    dir: PathBuf,
+}
+
+/// Where a group's states are recorded: a file, or memory when the service keeps no store.
+#[derive(Debug)]
+pub enum TraceWriter {
+    /// `trace.jsonl`.
+    File(BufWriter<File>),
+    /// The trace in memory (an in-memory service).
+    Memory(String),
+}
+
+impl TraceWriter {
+    /// A trace in memory starting with `header`.
+    pub fn memory(header: &str) -> Self {
+        Self::Memory(format!("{header}\n"))
+    }
+
+    /// Appends a state line.
+    pub fn append(&mut self, line: &str) {
+        match self {
+            Self::File(w) => {
+                if let Err(e) = writeln!(w, "{line}") {
+                    tracing::error!("cannot record a group state: {e}");
+                }
+            }
+            Self::Memory(s) => {
+                s.push_str(line);
+                s.push('\n');
+            }
+        }
+    }
+
+    /// Hands what was appended to the operating system (it survives a crash of the service).
+    pub fn flush(&mut self) {
+        if let Self::File(w) = self
+            && let Err(e) = w.flush()
+        {
+            tracing::error!("cannot record group states: {e}");
+        }
+    }
+
+    /// Flushes and syncs to disk (it survives a crash of the machine).
+    pub fn sync(&mut self) {
+        self.flush();
+        if let Self::File(w) = self {
+            let _ = w.get_ref().sync_data();
+        }
+    }
+
+    /// The in-memory trace.
+    pub fn text(&self) -> Option<&str> {
+        match self {
+            Self::Memory(s) => Some(s),
+            Self::File(_) => None,
+        }
+    }
+}
+
+fn encode(label: &str) -> String {
+    let mut out = String::new();
+    for b in label.bytes() {
+        if b.is_ascii_alphanumeric() || b == b'_' || b == b'-' {
+            out.push(char::from(b));
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
+}
+
+impl GroupStore {
+    /// Groups under `dir` (created when needed).
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        Self { dir: dir.into() }
+    }
+
+    fn group_dir(&self, label: &str) -> PathBuf {
+        self.dir.join(encode(label))
+    }
+
+    /// Writes `def` atomically.
+    pub fn save(&self, def: &GroupDef) -> Result<(), String> {
+        let dir = self.group_dir(&def.label);
+        let json = serde_json::to_vec_pretty(def).map_err(|e| e.to_string())?;
+        let tmp = dir.join("group.json.tmp");
+        let write = || -> std::io::Result<()> {
+            fs::create_dir_all(&dir)?;
+            let mut f = File::create(&tmp)?;
+            f.write_all(&json)?;
+            f.sync_all()?;
+            fs::rename(&tmp, dir.join("group.json"))?;
+            File::open(&dir)?.sync_all()
+        };
+        write().map_err(|e| format!("{}: {e}", dir.display()))
+    }
+
+    /// A new group: its definition and a trace holding only the header.
+    pub fn create(&self, def: &GroupDef) -> Result<TraceWriter, String> {
+        let dir = self.group_dir(&def.label);
+        fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let path = dir.join("trace.jsonl");
+        let mut f = File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        writeln!(f, "{}", def.header.line()).map_err(|e| e.to_string())?;
+        f.sync_all().map_err(|e| e.to_string())?;
+        self.save(def)?;
+        self.writer(&def.label)
+    }
+
+    /// Appends to a group's trace.
+    pub fn writer(&self, label: &str) -> Result<TraceWriter, String> {
+        let path = self.group_dir(label).join("trace.jsonl");
+        let f = OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(TraceWriter::File(BufWriter::with_capacity(1 << 16, f)))
+    }
+
+    /// Forgets a group.
+    pub fn remove(&self, label: &str) -> Result<(), String> {
+        let dir = self.group_dir(label);
+        match fs::remove_dir_all(&dir) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+            Err(e) => Err(format!("{}: {e}", dir.display())),
+        }
+    }
+
+    /// A group's recorded trace.
+    pub fn trace(&self, label: &str) -> Result<String, String> {
+        let path = self.group_dir(label).join("trace.jsonl");
+        fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// Every group: its definition and its state lines (the header left out). A torn last
+    /// line (a crash while appending) is cut off the file.
+    pub fn load_all(&self) -> Result<Vec<(GroupDef, Vec<String>)>, String> {
+        let mut out = Vec::new();
+        let entries = match fs::read_dir(&self.dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(out),
+            Err(e) => return Err(format!("{}: {e}", self.dir.display())),
+        };
+        for entry in entries {
+            let dir = entry.map_err(|e| e.to_string())?.path();
+            let def_path = dir.join("group.json");
+            if !def_path.is_file() {
+                continue;
+            }
+            let def: GroupDef = match fs::read(&def_path)
+                .map_err(|e| e.to_string())
+                .and_then(|b| serde_json::from_slice(&b).map_err(|e| e.to_string()))
+            {
+                Ok(d) => d,
+                Err(e) => {
+                    tracing::error!("{}: {e}; the group is not loaded", def_path.display());
+                    continue;
+                }
+            };
+            let lines = read_lines(&dir.join("trace.jsonl"), &def)?;
+            out.push((def, lines));
+        }
+        out.sort_by(|a, b| a.0.label.cmp(&b.0.label));
+        Ok(out)
+    }
+}
+
+/// The state lines of a trace; a last line without its newline or that does not parse is cut.
+fn read_lines(path: &Path, def: &GroupDef) -> Result<Vec<String>, String> {
+    let err = |e: std::io::Error| format!("{}: {e}", path.display());
+    let mut file = match OpenOptions::new().read(true).write(true).open(path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let mut f = File::create(path).map_err(err)?;
+            writeln!(f, "{}", def.header.line()).map_err(err)?;
+            return Ok(Vec::new());
+        }
+        Err(e) => return Err(err(e)),
+    };
+    let mut reader = BufReader::new(&mut file);
+    let mut lines = Vec::new();
+    let mut good_len = 0u64;
+    let mut buf = String::new();
+    let mut first = true;
+    loop {
+        buf.clear();
+        let n = reader.read_line(&mut buf).map_err(err)?;
+        if n == 0 {
+            break;
+        }
+        let complete = buf.ends_with('\n')
+            && serde_json::from_str::<serde_json::Value>(buf.trim_end()).is_ok();
+        if !complete {
+            tracing::warn!(
+                "{}: cutting a torn last line (a crash while recording)",
+                path.display()
+            );
+            break;
+        }
+        good_len += n as u64;
+        if first {
+            first = false;
+            continue;
+        }
+        lines.push(buf.trim_end().to_owned());
+    }
+    drop(reader);
+    let len = file.seek(SeekFrom::End(0)).map_err(err)?;
+    if len != good_len {
+        file.set_len(good_len).map_err(err)?;
+        file.seek(SeekFrom::Start(good_len)).map_err(err)?;
+        if good_len == 0 {
+            writeln!(file, "{}", def.header.line()).map_err(err)?;
+        }
+    }
+    Ok(lines)
+}

@@ -1,0 +1,304 @@
+//! Formula groups (contract `groups.md`): CreateGroup, DestroyGroup, StartGroup, StopGroup,
+//! AddFormula, RemoveFormula, their status, verdicts as Server-Sent Events, and the recorded
+//! trace.
+
+use std::collections::BTreeSet;
+use std::convert::Infallible;
+
+use axum::body::Bytes;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{delete, get, post};
+use axum::{Json, Router};
+use dyknow_group::{GroupSpec, SpecError};
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+use utoipa::ToSchema;
+
+use crate::app::{AppState, blocking, typed};
+use crate::error::ApiError;
+use crate::groups::{GroupError, status};
+use crate::negotiate::content_type;
+use crate::routes::reconfig::async_stream_lite;
+
+pub(crate) fn router() -> Router<AppState> {
+    Router::new()
+        .route("/groups", get(list_groups).post(create_group))
+        .route("/groups/{label}", get(get_group).delete(destroy_group))
+        .route("/groups/{label}/start", post(start_group))
+        .route("/groups/{label}/stop", post(stop_group))
+        .route("/groups/{label}/formulas", post(add_formula))
+        .route("/groups/{label}/formulas/{index}", delete(remove_formula))
+        .route("/groups/{label}/verdicts", get(verdicts))
+        .route("/groups/{label}/trace", get(trace))
+}
+
+impl From<GroupError> for ApiError {
+    fn from(e: GroupError) -> Self {
+        let message = e.to_string();
+        match e {
+            GroupError::Spec(SpecError::Syntax {
+                index,
+                column,
+                message: m,
+            }) => ApiError::bad_request(message).with_details(vec![
+                json!({"formula": index, "column": column, "message": m}),
+            ]),
+            GroupError::Spec(SpecError::Grounding {
+                index,
+                column,
+                message: m,
+            }) => ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, message).with_details(vec![
+                json!({"formula": index, "column": column, "message": m}),
+            ]),
+            GroupError::Spec(SpecError::Invalid(_)) => {
+                ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, message)
+            }
+            GroupError::NotFound(_) | GroupError::NoFormula { .. } => ApiError::not_found(message),
+            GroupError::Exists(_) | GroupError::Conflict(_) => {
+                ApiError::new(StatusCode::CONFLICT, message)
+            }
+            GroupError::Internal(cause) => ApiError::internal(cause),
+        }
+    }
+}
+
+/// A JSON body: 415 unless the content type is JSON (or absent), 400 if it is not JSON, 422 if
+/// it does not fit.
+fn json_body<T: serde::de::DeserializeOwned>(
+    headers: &HeaderMap,
+    body: &[u8],
+) -> Result<T, ApiError> {
+    if let Some(media) = content_type(headers)
+        && media != "application/json"
+    {
+        return Err(ApiError::unsupported_media_type(
+            Some(&media),
+            &["application/json"],
+        ));
+    }
+    let value: Value = serde_json::from_slice(body).map_err(|e| {
+        ApiError::bad_request(format!("the body is not JSON: {e}")).with_details(vec![
+            json!({"line": e.line(), "column": e.column(), "message": e.to_string()}),
+        ])
+    })?;
+    serde_json::from_value(value).map_err(|e| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("the body does not fit: {e}"),
+        )
+    })
+}
+
+/// CreateGroup: `{"label"?, "result_channel"?, "formulas"?, "domains"?, "landmarks"?,
+/// "static"?, "grounding"?, "sync"?, "start"?}`. Every symbol becomes a target at once.
+#[utoipa::path(post, path = "/groups", tag = "groups",
+    request_body(content = Object, content_type = "application/json", description = "the group (groups.md)"),
+    responses((status = 201, body = Object), (status = 400, body = crate::error::ErrorBody),
+              (status = 409, body = crate::error::ErrorBody), (status = 415, body = crate::error::ErrorBody),
+              (status = 422, body = crate::error::ErrorBody)))]
+pub async fn create_group(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let spec: GroupSpec = json_body(&headers, &body)?;
+    let groups = state.groups.clone();
+    let value = blocking(move || {
+        let g = groups.create(spec)?;
+        Ok(status(&groups, &g))
+    })
+    .await?;
+    Ok((StatusCode::CREATED, Json(value)).into_response())
+}
+
+/// Every group's status.
+#[utoipa::path(get, path = "/groups", tag = "groups", responses((status = 200, body = [Object])))]
+pub async fn list_groups(State(state): State<AppState>) -> Result<Json<Vec<Value>>, ApiError> {
+    let groups = state.groups.clone();
+    let list =
+        blocking(move || Ok(groups.list().iter().map(|g| status(&groups, g)).collect())).await?;
+    Ok(Json(list))
+}
+
+/// A group's status: state, formulas with verdicts, symbols with their targets and counts.
+#[utoipa::path(get, path = "/groups/{label}", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    responses((status = 200, body = Object), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn get_group(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<Json<Value>, ApiError> {
+    let groups = state.groups.clone();
+    let v = blocking(move || {
+        let g = groups.get(&label)?;
+        Ok(status(&groups, &g))
+    })
+    .await?;
+    Ok(Json(v))
+}
+
+/// StartGroup: progression begins with the next state (409 once stopped).
+#[utoipa::path(post, path = "/groups/{label}/start", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    responses((status = 200, body = Object), (status = 404, body = crate::error::ErrorBody), (status = 409, body = crate::error::ErrorBody)))]
+pub async fn start_group(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<Json<Value>, ApiError> {
+    let groups = state.groups.clone();
+    let v = blocking(move || {
+        groups.start(&label)?;
+        let g = groups.get(&label)?;
+        Ok(status(&groups, &g))
+    })
+    .await?;
+    Ok(Json(v))
+}
+
+/// StopGroup: progression ends for good; undecided formulas get `unknown`.
+#[utoipa::path(post, path = "/groups/{label}/stop", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    responses((status = 200, body = Object), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn stop_group(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<Json<Value>, ApiError> {
+    let groups = state.groups.clone();
+    let v = blocking(move || {
+        groups.stop(&label)?;
+        let g = groups.get(&label)?;
+        Ok(status(&groups, &g))
+    })
+    .await?;
+    Ok(Json(v))
+}
+
+/// DestroyGroup: stops it; targets no other group uses are released.
+#[utoipa::path(delete, path = "/groups/{label}", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    responses((status = 204), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn destroy_group(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    let groups = state.groups.clone();
+    blocking(move || Ok(groups.destroy(&label)?)).await?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// AddFormula's body.
+#[derive(Debug, Deserialize, Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FormulaJson {
+    /// The formula (MSTL).
+    pub formula: String,
+}
+
+/// AddFormula: also while running (evaluated from the next state on).
+#[utoipa::path(post, path = "/groups/{label}/formulas", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    request_body = FormulaJson,
+    responses((status = 201, body = Object), (status = 400, body = crate::error::ErrorBody),
+              (status = 404, body = crate::error::ErrorBody), (status = 409, body = crate::error::ErrorBody),
+              (status = 415, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
+pub async fn add_formula(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Response, ApiError> {
+    let f: FormulaJson = json_body(&headers, &body)?;
+    let groups = state.groups.clone();
+    let index = blocking(move || Ok(groups.add_formula(&label, &f.formula)?)).await?;
+    Ok((StatusCode::CREATED, Json(json!({"index": index}))).into_response())
+}
+
+/// RemoveFormula: also while running; indices are never reused.
+#[utoipa::path(delete, path = "/groups/{label}/formulas/{index}", tag = "groups",
+    params(("label" = String, Path, description = "the group's label"), ("index" = usize, Path, description = "the formula's index")),
+    responses((status = 204), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn remove_formula(
+    State(state): State<AppState>,
+    Path((label, index)): Path<(String, String)>,
+) -> Result<StatusCode, ApiError> {
+    let index: usize = index
+        .parse()
+        .map_err(|_| ApiError::not_found(format!("no formula {index:?} (indices are integers)")))?;
+    let groups = state.groups.clone();
+    blocking(move || Ok(groups.remove_formula(&label, index)?)).await?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// `?since=<t>`.
+#[derive(Debug, Deserialize)]
+pub struct Since {
+    /// Replay recorded verdicts with `t` at or after this first.
+    pub since: Option<u64>,
+}
+
+/// Verdicts as Server-Sent Events (`event: verdict`, data `{"formula", "verdict", "t"}`);
+/// `?since=<t>` replays the recorded ones from `t` on first.
+#[utoipa::path(get, path = "/groups/{label}/verdicts", tag = "groups",
+    params(("label" = String, Path, description = "the group's label"), ("since" = Option<u64>, Query, description = "replay recorded verdicts from this t on")),
+    responses((status = 200, content_type = "text/event-stream", body = String), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn verdicts(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+    query: Result<Query<Since>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(since) = query.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    let group = state.groups.get(&label)?;
+    let (recorded, mut rx) = group.watch();
+    let stream = async_stream_lite(move |tx| async move {
+        let mut seen = BTreeSet::new();
+        let event = |v: &dyknow_group::VerdictLine| {
+            Event::default()
+                .event("verdict")
+                .data(serde_json::to_string(v).unwrap_or_default())
+        };
+        for v in &recorded {
+            seen.insert(v.formula);
+            if since.since.is_some_and(|s| v.t >= s)
+                && tx.send(Ok::<_, Infallible>(event(v))).await.is_err()
+            {
+                return;
+            }
+        }
+        loop {
+            match rx.recv().await {
+                Ok(v) => {
+                    if !seen.insert(v.formula) {
+                        continue;
+                    }
+                    if tx.send(Ok(event(&v))).await.is_err() {
+                        return;
+                    }
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!("a verdict watcher of group {label} lagged by {n}");
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+            }
+        }
+    });
+    Ok(Sse::new(stream)
+        .keep_alive(KeepAlive::default())
+        .into_response())
+}
+
+/// The synchronised state stream so far as a `dyknow check` trace (JSON lines: the header
+/// with domains, landmarks and static regions, then one state per line).
+#[utoipa::path(get, path = "/groups/{label}/trace", tag = "groups",
+    params(("label" = String, Path, description = "the group's label")),
+    responses((status = 200, content_type = "application/x-ndjson", body = String), (status = 404, body = crate::error::ErrorBody)))]
+pub async fn trace(
+    State(state): State<AppState>,
+    Path(label): Path<String>,
+) -> Result<Response, ApiError> {
+    let groups = state.groups.clone();
+    let text = blocking(move || Ok(groups.get(&label)?.trace(&groups)?)).await?;
+    Ok(typed(StatusCode::OK, "application/x-ndjson", text))
+}
