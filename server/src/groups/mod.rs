@@ -300,17 +300,21 @@ impl Groups {
             .collect::<Result<_, _>>()?;
         let mut verdicts = Vec::new();
         let mut next = 0;
+        // Formulas are added in index order; removals by the number of states before them.
+        let mut removals: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
+        for f in &def.formulas {
+            if let Some(r) = f.removed_at {
+                removals.entry(r).or_default().push(f.index);
+            }
+        }
         let apply = |prog: &mut Progression, next: &mut usize| {
             let states = prog.states();
             while *next < parsed.len() && def.formulas[*next].added_at <= states {
-                // Indices follow the order of adding.
                 let _ = prog.add(&parsed[*next].formula);
                 *next += 1;
             }
-            for f in &def.formulas {
-                if f.removed_at == Some(states) && f.index < *next {
-                    prog.remove(f.index);
-                }
+            for &i in removals.get(&states).into_iter().flatten() {
+                prog.remove(i);
             }
         };
         for line in lines {
@@ -319,10 +323,9 @@ impl Groups {
             verdicts.extend(prog.take_recorded(state).verdicts);
         }
         apply(&mut prog, &mut next);
-        for f in &def.formulas {
-            if f.removed_at.is_some_and(|r| r > prog.states()) {
-                prog.remove(f.index);
-            }
+        // Removals recorded after states a torn trace lost.
+        for &i in removals.range(prog.states() + 1..).flat_map(|(_, v)| v) {
+            prog.remove(i);
         }
         if def.phase == Phase::Stopped {
             verdicts.extend(prog.finish());
@@ -700,8 +703,9 @@ impl Groups {
     /// synchroniser's); one no formula needs becomes inactive.
     fn restream(&self, core: &mut Core) {
         let symbols: BTreeSet<Symbol> = core.grounded.iter().flatten().flatten().cloned().collect();
-        let offered = self.out_tags();
-        let has = |t: &str| offered.contains(t);
+        // The library's out tags are read only when a spatial symbol needs them.
+        let offered = std::cell::OnceCell::new();
+        let has = |t: &str| offered.get_or_init(|| self.out_tags()).contains(t);
         let mut map = BTreeMap::new();
         let mut used = BTreeSet::new();
         for s in symbols {
