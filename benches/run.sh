@@ -7,6 +7,7 @@
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
 #   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
 #   benches/run.sh groups      a formula group of 1,000 formulas over 100 live channels at 100 Hz (issue 15)
+#   benches/run.sh ui          the web view with 500 running CUs in headless chromium (issue 16)
 #   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
@@ -50,6 +51,9 @@ if [ "$which" = all ] || [ "$which" = engine ]; then
 fi
 if [ "$which" = all ] || [ "$which" = groups ]; then
   cargo bench --locked --workspace --bench groups -- --seconds 180
+fi
+if [ "$which" = all ] || [ "$which" = ui ]; then
+  cargo bench --locked --workspace --bench ui -- --chains 50 --seconds 30
 fi
 if [ "$which" = all ] || [ "$which" = dataplane ]; then
   cargo bench --locked --workspace --bench chain -- --messages 1000

@@ -135,6 +135,7 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::reconfig::router())
         .merge(routes::executors::router())
         .merge(routes::groups::router())
+        .merge(routes::ui::router())
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))

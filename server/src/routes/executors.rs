@@ -142,20 +142,29 @@ pub async fn get_cu(
             )));
         };
         let view = s.lifecycle.describe(&cu.cid);
-        let (statistics, pid) = match &view {
-            Some(view) => (view.statistics.clone(), view.pid),
-            None => (
-                serde_json::json!({
-                    "uptime_ms": 0, "reconfigurations": 0, "cpu_ms": 0.0, "ports": {}
-                }),
-                None,
-            ),
-        };
-        Ok(Json(CuDetailJson {
-            cu: cu_json(cu, &loaded.env, view.as_ref()),
-            statistics,
-            pid,
-        }))
+        Ok(Json(cu_detail(cu, &loaded.env, view.as_ref())))
     })
     .await
+}
+
+/// A CU of `env` with what its executor said of it (`view`; zero statistics when none did).
+pub(crate) fn cu_detail(
+    cu: &dyknow_engine::ComputationUnit,
+    env: &dyknow_engine::Environment,
+    view: Option<&dyknow_lifecycle::CuView>,
+) -> CuDetailJson {
+    let (statistics, pid) = match view {
+        Some(view) => (view.statistics.clone(), view.pid),
+        None => (
+            serde_json::json!({
+                "uptime_ms": 0, "reconfigurations": 0, "cpu_ms": 0.0, "ports": {}
+            }),
+            None,
+        ),
+    };
+    CuDetailJson {
+        cu: cu_json(cu, env, view),
+        statistics,
+        pid,
+    }
 }

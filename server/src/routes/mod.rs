@@ -8,3 +8,4 @@ pub mod ops;
 pub mod reconfig;
 pub mod sparql;
 pub mod specs;
+pub mod ui;

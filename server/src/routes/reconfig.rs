@@ -107,11 +107,42 @@ pub(crate) fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
     Ok(cus_json(state, &loaded.env))
 }
 
-/// The computation units, sorted by name.
-#[utoipa::path(get, path = "/cus", tag = "reconfiguration", responses((status = 200, body = [CuJson])))]
-pub async fn list_cus(State(state): State<AppState>) -> Result<Json<Vec<CuJson>>, ApiError> {
+/// `GET /cus`'s query.
+#[derive(Debug, Default, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub struct CusQuery {
+    /// With `true`, every CU carries its `statistics` and `pid` as `GET /cus/{name}` gives
+    /// them (one question per executor, as without it): the web view's one poll.
+    #[serde(default)]
+    pub statistics: bool,
+}
+
+/// The computation units, sorted by name; `?statistics=true` adds each one's statistics.
+#[utoipa::path(get, path = "/cus", tag = "reconfiguration", params(CusQuery),
+    responses((status = 200, body = [CuJson]), (status = 400, body = crate::error::ErrorBody)))]
+pub async fn list_cus(
+    State(state): State<AppState>,
+    query: Result<Query<CusQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) = query.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let s = state.clone();
-    Ok(Json(blocking(move || cus(&s)).await?))
+    if !query.statistics {
+        return Ok(Json(blocking(move || cus(&s)).await?).into_response());
+    }
+    let detailed = blocking(move || {
+        let loaded = s.lifecycle.load()?;
+        let names: Vec<Cid> = loaded.env.cus.keys().cloned().collect();
+        let views = s.lifecycle.describe_all(&names);
+        Ok(loaded
+            .env
+            .cus
+            .values()
+            .map(|cu| crate::routes::executors::cu_detail(cu, &loaded.env, views.get(&cu.cid)))
+            .collect::<Vec<_>>())
+    })
+    .await?;
+    Ok(Json(detailed).into_response())
 }
 
 /// The Spawn call's body.

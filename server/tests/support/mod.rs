@@ -2,6 +2,8 @@
 //! executors, listeners on channels, polling, and specs written on the fly.
 #![allow(dead_code, reason = "each test binary uses a part")]
 
+pub mod browser;
+
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;

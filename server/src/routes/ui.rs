@@ -1,0 +1,146 @@
+//! The web view (`http-api.md`: "served at `/ui`"): the live computation graph and its control
+//! panel, static files embedded in the binary (`server/ui/`). The page uses only the public HTTP
+//! API and its Server-Sent Events; nothing here knows the model.
+
+use axum::Router;
+use axum::extract::Path;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Redirect, Response};
+use axum::routing::get;
+
+use crate::app::AppState;
+use crate::error::ApiError;
+
+/// One embedded file: its path under `/ui/`, media type and bytes.
+struct Asset {
+    path: &'static str,
+    media_type: &'static str,
+    bytes: &'static [u8],
+}
+
+macro_rules! asset {
+    ($path:literal, $media_type:literal) => {
+        Asset {
+            path: $path,
+            media_type: $media_type,
+            bytes: include_bytes!(concat!("../../ui/", $path)),
+        }
+    };
+}
+
+/// The page, its script and style, and the vendored libraries with their licences.
+const ASSETS: &[Asset] = &[
+    asset!("index.html", "text/html; charset=utf-8"),
+    asset!("app.js", "text/javascript; charset=utf-8"),
+    asset!("graph.js", "text/javascript; charset=utf-8"),
+    asset!("style.css", "text/css; charset=utf-8"),
+    asset!("vendor/cytoscape.min.js", "text/javascript; charset=utf-8"),
+    asset!(
+        "vendor/cytoscape-dagre.min.js",
+        "text/javascript; charset=utf-8"
+    ),
+    asset!("vendor/LICENSE.cytoscape", "text/plain; charset=utf-8"),
+    asset!(
+        "vendor/LICENSE.cytoscape-dagre",
+        "text/plain; charset=utf-8"
+    ),
+    asset!("vendor/LICENSE.dagre", "text/plain; charset=utf-8"),
+    asset!("vendor/README.md", "text/markdown; charset=utf-8"),
+];
+
+/// The routes: `/` and `/ui` lead to `/ui/`, the page; `/ui/{file}` the embedded files.
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/", get(|| async { Redirect::to("/ui/") }))
+        .route("/ui", get(|| async { Redirect::to("/ui/") }))
+        .route("/ui/", get(|headers: HeaderMap| async move { serve("index.html", &headers) }))
+        .route(
+            "/ui/{*file}",
+            get(|Path(file): Path<String>, headers: HeaderMap| async move {
+                serve(&file, &headers)
+            }),
+        )
+}
+
+/// An embedded file, with an entity tag of its content (the binary's files change only with the
+/// binary, so a browser revalidates and gets 304 until the service is upgraded).
+fn serve(path: &str, headers: &HeaderMap) -> Response {
+    let Some(asset) = ASSETS.iter().find(|a| a.path == path) else {
+        return ApiError::not_found(format!("no file /ui/{path} in the web view")).into_response();
+    };
+    let etag = format!("\"{:016x}\"", fnv1a(asset.bytes));
+    let fresh = headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.split(',').any(|t| t.trim() == etag));
+    let mut response = if fresh {
+        StatusCode::NOT_MODIFIED.into_response()
+    } else {
+        (
+            [(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static(asset.media_type),
+            )],
+            asset.bytes,
+        )
+            .into_response()
+    };
+    let h = response.headers_mut();
+    if let Ok(v) = HeaderValue::from_str(&etag) {
+        h.insert(header::ETAG, v);
+    }
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    h.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    // Scripts and styles only from the service itself: no inline script, no other origin.
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static(
+            "default-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; \
+             object-src 'none'; base-uri 'none'; frame-ancestors 'none'",
+        ),
+    );
+    response
+}
+
+/// FNV-1a, 64 bits: a stable content hash for entity tags.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_asset_is_embedded_and_the_page_names_only_embedded_files() {
+        let page = std::str::from_utf8(ASSETS[0].bytes).expect("utf-8");
+        for a in ASSETS {
+            assert!(!a.bytes.is_empty(), "{}", a.path);
+        }
+        // Every script and style the page loads is one of ours (no CDN).
+        for attr in ["src=\"", "href=\""] {
+            for part in page.split(attr).skip(1) {
+                let target = part.split('"').next().unwrap_or_default();
+                if target.starts_with('#') {
+                    continue;
+                }
+                let file = target.strip_prefix("/ui/").unwrap_or(target);
+                assert!(
+                    ASSETS.iter().any(|a| a.path == file),
+                    "index.html loads {target}, which is not embedded"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn entity_tags_follow_the_content() {
+        assert_eq!(fnv1a(b""), 0xcbf2_9ce4_8422_2325);
+        assert_ne!(fnv1a(b"a"), fnv1a(b"b"));
+    }
+}
