@@ -10,7 +10,12 @@
 //! - `hold`: a state every `P` ms; each stream keeps its last value while it is younger than
 //!   `A` (`t - t_sample < A`), then is unknown. The state for `t` is emitted once every stream
 //!   has a sample at or after `t` (nothing older can come from an in-order stream) or `D` ms of
-//!   wall time after `t` (`max_delay_ms`, default `P`: this project's addition).
+//!   wall time after `t` (`max_delay_ms`, default `P`: this project's addition). A fresh
+//!   start waits for the streams: the first state is at the first multiple of `P` at or after
+//!   the first sample that arrives (one that came before the start is not seen), so a group
+//!   started over a flowing stream begins with its value rather than with a state that no
+//!   sample could reach yet; if none arrives within `max(A, D)` ms, states begin at the next
+//!   multiple of `P`, unknown.
 //! - `event`: a state at every sample's `t` holding the latest value of every stream
 //!   (sample and hold without ageing). Samples of several streams with the same `t` make one
 //!   state: the state for `t` is emitted once every stream has a sample at or after `t`, or
@@ -173,6 +178,9 @@ pub struct Synchroniser<V> {
     next_t: Option<u64>,
     /// The last emitted state's time.
     last_t: Option<u64>,
+    /// `hold` after a fresh start: when it was started, until the first sample fixes the first
+    /// state's time (or `max(A, D)` passes).
+    armed_at: Option<u64>,
 }
 
 impl<V: Clone> Synchroniser<V> {
@@ -183,6 +191,7 @@ impl<V: Clone> Synchroniser<V> {
             streams: Vec::new(),
             next_t: None,
             last_t: None,
+            armed_at: None,
         };
         for _ in 0..streams {
             s.add_stream();
@@ -198,6 +207,11 @@ impl<V: Clone> Synchroniser<V> {
     /// Starts emitting states: the first is the first multiple of the period after both `now`
     /// and the last state emitted (a resumed group goes on after its trace).
     pub fn start(&mut self, now: u64) {
+        if matches!(self.policy, Policy::Hold { .. }) && self.last_t.is_none() {
+            // A fresh `hold` start waits for the first sample (module documentation).
+            self.armed_at = Some(now);
+            return;
+        }
         if let Some(p) = self.policy.period() {
             let from = self.last_t.map_or(now, |l| l.max(now));
             self.next_t = Some((from / p + 1) * p);
@@ -214,7 +228,24 @@ impl<V: Clone> Synchroniser<V> {
 
     /// Whether [`Synchroniser::start`] was called.
     pub fn started(&self) -> bool {
-        self.next_t.is_some()
+        self.next_t.is_some() || self.armed_at.is_some()
+    }
+
+    /// How long a fresh `hold` start waits for a first sample: `max(A, D)`.
+    fn arming_wait(&self) -> u64 {
+        match self.policy {
+            Policy::Hold { max_age_ms, .. } => max_age_ms.max(self.policy.max_delay()),
+            _ => 0,
+        }
+    }
+
+    /// The first state's time after a fresh `hold` start: the first multiple of `P` at or
+    /// after the first sample `t`, but not before the last multiple of `P` at or before the
+    /// start.
+    fn fix_first_state(&mut self, t: u64) {
+        if let (Some(armed), Some(p)) = (self.armed_at.take(), self.policy.period()) {
+            self.next_t = Some(t.div_ceil(p).max(armed / p) * p);
+        }
     }
 
     /// Adds a stream (a symbol added while running); returns its index.
@@ -261,6 +292,9 @@ impl<V: Clone> Synchroniser<V> {
     /// are missing; `None` when no state is due (before the start; `event` with nothing
     /// pending).
     pub fn next_deadline(&self) -> Option<u64> {
+        if let Some(armed) = self.armed_at {
+            return Some(armed.saturating_add(self.arming_wait()));
+        }
         let d = self.policy.max_delay();
         match (self.policy.period(), self.next_t) {
             (Some(_), Some(t)) => Some(t.saturating_add(d)),
@@ -297,6 +331,9 @@ impl<V: Clone> Synchroniser<V> {
             s.pending.pop_first();
             s.stats.late += 1;
         }
+        if self.armed_at.is_some() {
+            self.fix_first_state(t);
+        }
         self.poll(now)
     }
 
@@ -319,6 +356,13 @@ impl<V: Clone> Synchroniser<V> {
                 out.push(self.emit_event(t));
             }
             return out;
+        }
+        if let (Some(armed), Some(p)) = (self.armed_at, self.policy.period())
+            && now >= armed.saturating_add(self.arming_wait())
+        {
+            // No sample came: states begin at the next multiple of P, unknown.
+            self.armed_at = None;
+            self.next_t = Some((armed / p + 1) * p);
         }
         let (Some(p), Some(mut t)) = (self.policy.period(), self.next_t) else {
             return out;

@@ -156,6 +156,59 @@ fn hold_emits_early_once_every_stream_has_passed_the_state() {
 }
 
 #[test]
+fn a_fresh_hold_start_begins_with_the_first_sample_not_an_unknown_state() {
+    let mut s = Synchroniser::new(
+        Policy::Hold {
+            period_ms: 100,
+            max_age_ms: 1_000,
+            max_delay_ms: None,
+        },
+        1,
+    );
+    // Started at 1000; the first sample comes at 1130 (a new subscription, a slow stream):
+    // the first state is 1200, holding it, not an unknown state at 1100.
+    s.start(1_000);
+    assert_eq!(
+        s.next_deadline(),
+        Some(2_000),
+        "waits max(A, D) for a sample"
+    );
+    assert!(s.offer(0, 1_130, 1, 1_140).is_empty());
+    assert_eq!(s.next_deadline(), Some(1_300));
+    assert_eq!(s.poll(1_300), vec![st(1_200, &[Some(1)])]);
+    assert_eq!(s.stats(0).missing_states, 0);
+    // A resumed group goes on after its trace, without waiting.
+    let mut r = Synchroniser::<i32>::new(
+        Policy::Hold {
+            period_ms: 100,
+            max_age_ms: 1_000,
+            max_delay_ms: None,
+        },
+        1,
+    );
+    r.resume_after(Some(5_000));
+    r.start(5_050);
+    assert_eq!(r.next_deadline(), Some(5_200));
+}
+
+#[test]
+fn a_fresh_hold_start_without_samples_begins_unknown_after_the_maximum_age() {
+    let mut s = Synchroniser::<i32>::new(
+        Policy::Hold {
+            period_ms: 100,
+            max_age_ms: 250,
+            max_delay_ms: None,
+        },
+        1,
+    );
+    s.start(1_000);
+    assert!(s.poll(1_249).is_empty());
+    assert_eq!(s.poll(1_250), vec![st(1_100, &[None])]);
+    assert_eq!(s.poll(1_300), vec![st(1_200, &[None])]);
+    assert_eq!(s.stats(0).missing_states, 2);
+}
+
+#[test]
 fn event_makes_a_state_at_every_sample_time_with_the_latest_of_every_stream() {
     let mut s = Synchroniser::new(
         Policy::Event {

@@ -110,11 +110,19 @@ fn group(service: &Service, label: &str) -> Value {
 }
 
 fn verdict_of(service: &Service, label: &str, index: usize, timeout: Duration) -> (String, u64) {
+    let deadline = std::time::Instant::now() + timeout;
+    let mut last = Value::Null;
     eventually(
         &format!("a verdict of formula {index} of {label}"),
-        timeout,
+        timeout + Duration::from_secs(1),
         || {
             let g = group(service, label);
+            // On a timeout, say where the group was (states, last_t, the symbol's counts).
+            assert!(
+                std::time::Instant::now() < deadline,
+                "no verdict of formula {index} of {label} in {timeout:?}; the group: {last}"
+            );
+            last = g.clone();
             let f = g["formulas"]
                 .as_array()
                 .unwrap()

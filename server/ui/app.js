@@ -339,17 +339,18 @@
     if ($("create-name").value.trim()) body.name = $("create-name").value.trim();
     const r = await api("POST", "/cus", JSON.stringify(body), "application/json");
     if (r.ok) { say(`spawned ${r.json.name}`, "ok"); $("create-name").value = ""; }
-    else $("message").replaceWith(errorAsMessage(r));
+    else errorAsMessage(r);
     refreshSoon();
   }
 
+  // Shows an error answer in the message line above the panels (it stays until the next one).
   function errorAsMessage(r) {
     const m = $("message");
     const box = errorBox(r);
+    clearTimeout(say.timer);
     m.hidden = false;
     m.className = "error";
     m.replaceChildren(...box.childNodes);
-    return m;
   }
 
   function channelNames() {
