@@ -244,6 +244,7 @@
     const list = ui.cus.map((c) => ({ ...c })).concat([...ui.crashed].map(([name, g]) => ({
       name, transformation: g.transformation, state: "crashed", executor: g.executor, inputs: {}, outputs: {},
       cpu: null, messages: null })));
+    list.sort((a, b) => a.name.localeCompare(b.name, undefined, { numeric: true }));
     for (const cu of list) {
       const text = `${cu.name} ${cu.transformation} ${cu.executor || ""} ${cu.state}`.toLowerCase();
       if (filter && !text.includes(filter)) continue;
