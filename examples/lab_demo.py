@@ -167,7 +167,7 @@ def run(d):
     d.call("POST", "/review")
     d.pause(2)
     d.show_change_sets()
-    print(f"  Piff's pipeline, measured: {d.upkeep(PIFF):.1f} CPU ms/s; Puff's budget: 410.8")
+    print(f"  Piff's pipeline, measured: {d.upkeep(PIFF):.1f} CPU ms/s; Puff's budget: 411.6")
     d.pause(5)
 
     d.step("6.7-6.10  Piff leaves (its executor is killed): Puff's pipeline takes over")

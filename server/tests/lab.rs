@@ -283,13 +283,13 @@ fn chapter_6_runs_live_on_three_executors() {
         .expect("a change set spawning Piff's pipeline");
     assert_eq!(started["cause"]["kind"], "review", "{started}");
     // Its cost is the specs' estimates (nothing measured yet): 6 × 0.1 + 16 labour, the
-    // budgets' 410.8 upkeep per second.
+    // budgets' 411.6 upkeep per second.
     assert!(
         (started["cost"]["labour"].as_f64().unwrap() - 16.6).abs() < 1e-9,
         "{started}"
     );
     assert!(
-        (started["cost"]["upkeep_per_time_unit"].as_f64().unwrap() - 410.8).abs() < 1e-9,
+        (started["cost"]["upkeep_per_time_unit"].as_f64().unwrap() - 411.6).abs() < 1e-9,
         "{started}"
     );
     eprintln!("Piff's pipeline: {}", started["cost"]);
