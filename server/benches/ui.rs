@@ -192,8 +192,7 @@ fn main() {
                const defs = [...DyGraph.elements({cus: ui.cus, targets: ui.targets, crashed: ui.crashed}).values()]; \
                cy.batch(() => { cy.elements().remove(); cy.add(defs); }); \
                cy.layout({name: 'dagre', rankDir: 'LR', nodeSep: 18, rankSep: 45, animate: false, fit: false}).run(); \
-               out.push(performance.now() - t0); } return out")
-        ;
+               out.push(performance.now() - t0); } return out");
     let rebuild = floats(&rebuild);
 
     let (u50, u95, umax, un) = stats(&updates);

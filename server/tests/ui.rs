@@ -67,13 +67,20 @@ fn cu_nodes(browser: &Browser) -> BTreeMap<String, Value> {
     let v = browser
         .js("return dyknowUi.graph.cy.nodes('.cu').map(n => ({name: n.data('name'), state: n.data('state'), \
              transformation: n.data('transformation'), executor: n.data('executor'), x: n.position('x'), y: n.position('y'), \
-             fill: n.style('background-color'), visible: n.visible()}))")
-        ;
+             fill: n.style('background-color'), visible: n.visible()}))");
     v.as_array()
         .unwrap()
         .iter()
         .map(|n| (n["name"].as_str().unwrap().to_owned(), n.clone()))
         .collect()
+}
+
+/// The name of the (one) CU of `transformation`.
+fn name_of(service: &Service, transformation: &str) -> String {
+    service.cu_of(transformation).unwrap()["name"]
+        .as_str()
+        .unwrap()
+        .to_owned()
 }
 
 /// Every node's position: id → (x, y).
@@ -95,8 +102,7 @@ fn positions(browser: &Browser) -> BTreeMap<String, (f64, f64)> {
 fn graph_matches(browser: &Browser, service: &Service) -> bool {
     let cus = service.get("/cus");
     let drawn = browser
-        .js("const cy = dyknowUi.graph.cy; return {nodes: cy.nodes().map(n => n.id()), edges: cy.edges().map(e => [e.source().id(), e.target().id(), e.data('port')])}")
-        ;
+        .js("const cy = dyknowUi.graph.cy; return {nodes: cy.nodes().map(n => n.id()), edges: cy.edges().map(e => [e.source().id(), e.target().id(), e.data('port')])}");
     let nodes: Vec<&str> = drawn["nodes"]
         .as_array()
         .unwrap()
@@ -139,14 +145,9 @@ fn graph_matches(browser: &Browser, service: &Service) -> bool {
 }
 
 fn until_graph_matches(browser: &Browser, service: &Service, what: &str) {
-    let deadline = std::time::Instant::now() + MINUTE;
-    while !graph_matches(browser, service) {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "graph never matched: {what}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    eventually(&format!("the graph to match: {what}"), MINUTE, || {
+        graph_matches(browser, service).then_some(())
+    });
 }
 
 const PIFF: [&str; 7] = [
@@ -174,8 +175,7 @@ fn the_web_view_follows_the_live_lab() {
             "the unsatisfied target on the graph",
             MINUTE,
             "const n = dyknowUi.graph.cy.getElementById('ch:/target_1'); return n.nonempty() && n.hasClass('unsatisfied')",
-        )
-        ;
+        );
     let answer = import(&browser, &spec_path("ch6-live-piff.ttl"));
     assert!(answer.contains("segmenter(piff)"), "{answer}");
 
@@ -185,8 +185,7 @@ fn the_web_view_follows_the_live_lab() {
             "seven running CUs",
             MINUTE,
             "const n = dyknowUi.graph.cy.nodes('.cu'); return n.length === 7 && n.every(x => x.data('state') === 'running') && n.length",
-        )
-        ;
+        );
     assert_eq!(nodes, 7);
     until_graph_matches(&browser, &service, "Piff's pipeline");
     let cus = cu_nodes(&browser);
@@ -204,8 +203,7 @@ fn the_web_view_follows_the_live_lab() {
             "the target satisfied and a message rate on it",
             MINUTE,
             "const n = dyknowUi.graph.cy.getElementById('ch:/target_1'); return !n.hasClass('unsatisfied') && n.data('rate') > 0",
-        )
-        ;
+        );
     // The panels list them too.
     browser.click("#tabs [data-panel=active]");
     let rows = browser.until(
@@ -221,13 +219,7 @@ fn the_web_view_follows_the_live_lab() {
     // kill -9 of the segmenter: its oval turns red where it was; the replacement appears next
     // to it and nothing else moves.
     let before = positions(&browser);
-    let old = cus
-        .values()
-        .find(|c| c["transformation"] == "segmenter(piff)")
-        .unwrap()["name"]
-        .as_str()
-        .unwrap()
-        .to_owned();
+    let old = name_of(&service, "segmenter(piff)");
     let pid = service.get(&format!("/cus/{old}"))["pid"].as_u64().unwrap();
     Command::new("kill")
         .args(["-9", &pid.to_string()])
@@ -280,20 +272,8 @@ fn the_web_view_follows_the_live_lab() {
 
     // Connect: the ball detector's out port to a channel of our naming, then the localisation's
     // in port to it (two CUs' ports); both change sets appear in the timeline with cause manual.
-    let detector = cus
-        .values()
-        .find(|c| c["transformation"] == "ball_detector(piff)")
-        .unwrap()["name"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    let localization = cus
-        .values()
-        .find(|c| c["transformation"] == "ball_localization(piff)")
-        .unwrap()["name"]
-        .as_str()
-        .unwrap()
-        .to_owned();
+    let detector = name_of(&service, "ball_detector(piff)");
+    let localization = name_of(&service, "ball_localization(piff)");
     browser.click("#tabs [data-panel=connect]");
     browser.choose("#connect-cu", &detector);
     browser.choose("#connect-port", "out\u{0}pixelPos");
@@ -315,8 +295,7 @@ fn the_web_view_follows_the_live_lab() {
             "const t = document.getElementById('timeline').innerText; return t.includes(`connect-in ${'LOC'} .pixelPos → /piff/pixels`) && t"
                 .replace("LOC", &localization)
                 .as_str(),
-        )
-        ;
+        );
     let timeline = timeline.as_str().unwrap();
     assert!(
         timeline.contains(&format!("connect-out {detector} .pixelPos → /piff/pixels")),
@@ -325,8 +304,7 @@ fn the_web_view_follows_the_live_lab() {
     assert!(timeline.contains("manual"), "{timeline}");
     until_graph_matches(&browser, &service, "the rewired pipeline");
     let consumer = browser
-        .js("return dyknowUi.graph.cy.getElementById('ch:/piff/pixels').outgoers('node').map(n => n.data('name'))")
-        ;
+        .js("return dyknowUi.graph.cy.getElementById('ch:/piff/pixels').outgoers('node').map(n => n.data('name'))");
     assert_eq!(consumer, serde_json::json!([localization]));
     browser.shot("ui-connect-timeline");
 
@@ -359,8 +337,7 @@ fn the_web_view_follows_the_live_lab() {
             "the group's verdict",
             MINUTE,
             "const v = document.querySelector('[data-group=watch] [data-verdict]'); return v && v.dataset.verdict !== 'pending' && v.dataset.verdict",
-        )
-        ;
+        );
     assert_eq!(verdict, "true");
     let group = service.get("/groups/watch");
     assert_eq!(group["formulas"][0]["verdict"], "true", "{group}");
@@ -398,8 +375,7 @@ fn changes_ask_for_the_token_and_a_401_is_shown() {
             "the token prompt",
             MINUTE,
             "const d = document.getElementById('token-dialog'); return d.open && document.getElementById('token-reason').textContent",
-        )
-        ;
+        );
     assert!(
         reason.as_str().unwrap().starts_with("401 Unauthorized"),
         "{reason}"

@@ -65,14 +65,14 @@ pub fn router() -> Router<AppState> {
 /// An embedded file, with an entity tag of its content (the binary's files change only with the
 /// binary, so a browser revalidates and gets 304 until the service is upgraded).
 fn serve(path: &str, headers: &HeaderMap) -> Response {
-    let Some(asset) = ASSETS.iter().find(|a| a.path == path) else {
+    let Some((index, asset)) = ASSETS.iter().enumerate().find(|(_, a)| a.path == path) else {
         return ApiError::not_found(format!("no file /ui/{path} in the web view")).into_response();
     };
-    let etag = format!("\"{:016x}\"", fnv1a(asset.bytes));
+    let etag = &ETAGS[index];
     let fresh = headers
         .get(header::IF_NONE_MATCH)
         .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.split(',').any(|t| t.trim() == etag));
+        .is_some_and(|v| v.split(',').any(|t| t.trim() == etag.as_str()));
     let mut response = if fresh {
         StatusCode::NOT_MODIFIED.into_response()
     } else {
@@ -86,7 +86,7 @@ fn serve(path: &str, headers: &HeaderMap) -> Response {
             .into_response()
     };
     let h = response.headers_mut();
-    if let Ok(v) = HeaderValue::from_str(&etag) {
+    if let Ok(v) = HeaderValue::from_str(etag) {
         h.insert(header::ETAG, v);
     }
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
@@ -104,6 +104,14 @@ fn serve(path: &str, headers: &HeaderMap) -> Response {
     );
     response
 }
+
+/// The entity tag of each asset (its content hash), computed once.
+static ETAGS: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(|| {
+    ASSETS
+        .iter()
+        .map(|a| format!("\"{:016x}\"", fnv1a(a.bytes)))
+        .collect()
+});
 
 /// FNV-1a, 64 bits: a stable content hash for entity tags.
 fn fnv1a(bytes: &[u8]) -> u64 {
@@ -142,5 +150,6 @@ mod tests {
     fn entity_tags_follow_the_content() {
         assert_eq!(fnv1a(b""), 0xcbf2_9ce4_8422_2325);
         assert_ne!(fnv1a(b"a"), fnv1a(b"b"));
+        assert_eq!(ETAGS.len(), ASSETS.len());
     }
 }
