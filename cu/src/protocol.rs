@@ -194,6 +194,12 @@ impl CuAction {
 pub struct ApplyRequest {
     /// The change set's id.
     pub change_set: String,
+    /// The change set's generation: its number in the manager's history, which only grows
+    /// (`cs-7` → 7; 0 when unknown). The executor remembers, per CU, the generation of the
+    /// last change set that configured it and refuses an older one's spawn or rebinding (a
+    /// delayed or replayed request); destroying is always allowed.
+    #[serde(default)]
+    pub generation: u64,
     /// The actions.
     pub actions: Vec<CuAction>,
 }
@@ -278,6 +284,10 @@ pub struct CuReport {
     /// The process id of a process CU.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pid: Option<u32>,
+    /// The generation of the last change set that configured it ([`ApplyRequest::generation`];
+    /// 0 when unknown).
+    #[serde(default)]
+    pub generation: u64,
 }
 
 /// An executor's description (its `info` service).

@@ -468,6 +468,7 @@ impl Unit {
             statistics: self.statistics(),
             reason,
             pid: None,
+            generation: 0,
         }
     }
 

@@ -39,6 +39,14 @@ pub enum Cause {
     },
     /// A client asked for it (Spawn, Destroy).
     Manual,
+    /// The manager reconciled its model with what the executors report (at start-up, or when
+    /// an executor reappears): CUs it knows adopted, CUs it does not know stopped, CUs that
+    /// should run and run nowhere respawned.
+    Reconcile {
+        /// The executor that reappeared; absent for the start-up pass over every executor.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        executor: Option<String>,
+    },
 }
 
 impl Cause {
@@ -51,6 +59,7 @@ impl Cause {
             Self::TargetReleased { .. } => "target-released",
             Self::CuCrashed { .. } => "cu-crashed",
             Self::Manual => "manual",
+            Self::Reconcile { .. } => "reconcile",
         }
     }
 }

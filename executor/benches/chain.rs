@@ -252,6 +252,7 @@ fn dyknow_chain(
     }
     let reply = executor.apply(&ApplyRequest {
         change_set: "bench".into(),
+        generation: 0,
         actions,
     });
     assert!(reply.failures.is_empty(), "{:?}", reply.failures);
@@ -265,6 +266,7 @@ fn destroy(executor: &Executor, names: Vec<String>) {
         .collect();
     executor.apply(&ApplyRequest {
         change_set: "bench".into(),
+        generation: 0,
         actions,
     });
 }
@@ -444,6 +446,7 @@ fn main() {
         let started = Instant::now();
         let reply = executor.apply(&ApplyRequest {
             change_set: "idle".into(),
+            generation: 0,
             actions,
         });
         assert!(reply.failures.is_empty());

@@ -106,6 +106,9 @@ struct Inner {
     session: zenoh::Session,
     timers: Timers,
     cus: Mutex<BTreeMap<String, Hosted>>,
+    /// Per CU, the generation of the last change set that configured it
+    /// ([`ApplyRequest::generation`]).
+    generations: Mutex<BTreeMap<String, u64>>,
     /// CPU time at the last upkeep report, per CU.
     reported: Mutex<BTreeMap<String, (Duration, Instant)>>,
     events: Publisher<'static>,
@@ -152,6 +155,7 @@ impl Executor {
             session: session.clone(),
             timers: Timers::start(),
             cus: Mutex::default(),
+            generations: Mutex::default(),
             reported: Mutex::default(),
             events,
             jobs,
@@ -296,7 +300,17 @@ impl Inner {
             name: self.config.name.clone(),
             builtins: builtins::names(),
             processes: true,
-            cus: lock(&self.cus).values().map(Hosted::report).collect(),
+            cus: {
+                let generations = lock(&self.generations).clone();
+                lock(&self.cus)
+                    .values()
+                    .map(|hosted| {
+                        let mut report = hosted.report();
+                        report.generation = generations.get(&report.cu).copied().unwrap_or(0);
+                        report
+                    })
+                    .collect()
+            },
         }
     }
 
@@ -325,6 +339,7 @@ impl Inner {
             return;
         };
         lock(&self.reported).remove(cu);
+        lock(&self.generations).remove(cu);
         let transformation = hosted.transformation();
         match &hosted {
             Hosted::Builtin(unit) => unit.release(),
@@ -362,14 +377,46 @@ impl Inner {
     }
 
     /// Applies the actions in order; after a failure, the later actions of that CU are
-    /// skipped.
+    /// skipped. An action other than destroy on a CU a newer change set configured (a higher
+    /// generation) is refused: the request is stale.
     fn apply(self: &Arc<Self>, request: &ApplyRequest) -> ApplyReply {
         let mut failures: Vec<Failure> = Vec::new();
         for (index, action) in request.actions.iter().enumerate() {
             if failures.iter().any(|f| f.cu == action.cu()) {
                 continue;
             }
-            if let Err(e) = self.act(action) {
+            let newest = lock(&self.generations).get(action.cu()).copied();
+            let result = match newest {
+                Some(newer)
+                    if newer > request.generation
+                        && !matches!(action, CuAction::Destroy { .. }) =>
+                {
+                    Err(CuError::failed(format!(
+                        "stale change set: {} (generation {}) is older than generation {newer}, which last configured {}",
+                        request.change_set,
+                        request.generation,
+                        action.cu()
+                    )))
+                }
+                _ => {
+                    if let CuAction::Spawn { cu, .. } = action {
+                        self.replace_stale(cu, request);
+                    }
+                    self.act(action)
+                }
+            };
+            match &result {
+                Ok(()) if matches!(action, CuAction::Destroy { .. }) => {
+                    lock(&self.generations).remove(action.cu());
+                }
+                Ok(()) => {
+                    let mut generations = lock(&self.generations);
+                    let g = generations.entry(action.cu().to_owned()).or_default();
+                    *g = (*g).max(request.generation);
+                }
+                Err(_) => {}
+            }
+            if let Err(e) = result {
                 tracing::warn!(
                     "executor {}: {} {} of {}: {e}",
                     self.config.name,
@@ -385,6 +432,32 @@ impl Inner {
             }
         }
         ApplyReply { failures }
+    }
+
+    /// A spawn of a CU that already runs here from an older (or the same) generation: a
+    /// restarted manager that never recorded the change set which spawned it gives the name
+    /// again. The newer change set wins: the stale CU stops first.
+    fn replace_stale(&self, cu: &str, request: &ApplyRequest) {
+        if request.generation == 0 {
+            return;
+        }
+        let stale = lock(&self.generations)
+            .get(cu)
+            .is_some_and(|g| *g <= request.generation);
+        if !stale {
+            return;
+        }
+        let hosted = lock(&self.cus).remove(cu);
+        lock(&self.reported).remove(cu);
+        lock(&self.generations).remove(cu);
+        if let Some(hosted) = hosted {
+            tracing::warn!(
+                "executor {}: {cu} runs from an older change set; {} replaces it",
+                self.config.name,
+                request.change_set
+            );
+            hosted.stop();
+        }
     }
 
     fn act(self: &Arc<Self>, action: &CuAction) -> Result<(), CuError> {

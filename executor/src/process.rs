@@ -402,6 +402,7 @@ impl ProcessCu {
             statistics,
             reason,
             pid: Some(self.pid),
+            generation: 0,
         }
     }
 

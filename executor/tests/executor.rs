@@ -111,6 +111,7 @@ fn events(session: &zenoh::Session) -> (mpsc::Receiver<Event>, impl Drop) {
 fn apply(executor: &Executor, actions: Vec<CuAction>) {
     let reply = executor.apply(&ApplyRequest {
         change_set: "cs-t".into(),
+        generation: 0,
         actions,
     });
     assert!(reply.failures.is_empty(), "{:?}", reply.failures);
@@ -361,6 +362,7 @@ fn process_cus_compute_and_their_death_is_seen_at_once() {
     // A program that is not there fails the spawn, with the reason.
     let reply = executor.apply(&ApplyRequest {
         change_set: "cs".into(),
+        generation: 0,
         actions: vec![spawn(
             "gone",
             implementation("process", "/nonexistent/cu", &[], &["o"], json!({})),
@@ -490,5 +492,57 @@ fn relays_forward_the_payload_they_got_and_transformations_write_new_samples() {
     assert!(out.messages >= 1);
     assert_eq!(out.bytes, out.messages * payload.len() as u64);
     assert_eq!(out.last_t, Some(1_700_000_000_000));
+    executor.shutdown();
+}
+
+/// Change sets carry a generation: an older one cannot rewire a CU a newer one configured,
+/// destroying is always allowed, and a spawn from a newer (or the same) generation replaces a
+/// CU of that name left by a change set the manager never recorded.
+#[test]
+fn generations_fence_stale_change_sets() {
+    let (session, endpoint) = session();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("t-gen", Namespace::default(), vec![endpoint]),
+    )
+    .expect("an executor");
+    let request = |generation: u64, actions: Vec<CuAction>| ApplyRequest {
+        change_set: format!("cs-{generation}"),
+        generation,
+        actions,
+    };
+    let relay = || implementation("builtin", "dyknow/relay", &["i"], &["o"], json!({}));
+    let reply = executor.apply(&request(5, vec![spawn("r", relay())]));
+    assert!(reply.failures.is_empty(), "{:?}", reply.failures);
+    let generation_of = |cu: &str| {
+        executor
+            .info()
+            .cus
+            .into_iter()
+            .find(|c| c.cu == cu)
+            .map(|c| c.generation)
+    };
+    assert_eq!(generation_of("r"), Some(5));
+    // A stale request (generation 4) may not rewire it; a newer one (6) may.
+    let stale = executor.apply(&request(4, vec![connect("r", false, "o", "/x")]));
+    assert_eq!(stale.failures.len(), 1, "{stale:?}");
+    assert!(stale.failures[0].reason.contains("stale"), "{stale:?}");
+    let newer = executor.apply(&request(6, vec![connect("r", false, "o", "/y")]));
+    assert!(newer.failures.is_empty(), "{newer:?}");
+    assert_eq!(generation_of("r"), Some(6));
+    let report = executor.info().cus.into_iter().find(|c| c.cu == "r");
+    assert_eq!(report.expect("r runs").outputs["o"].as_deref(), Some("/y"));
+    // A spawn of the same name from an older generation is refused; from a newer one it
+    // replaces the CU (its bindings are gone).
+    let old_spawn = executor.apply(&request(3, vec![spawn("r", relay())]));
+    assert_eq!(old_spawn.failures.len(), 1, "{old_spawn:?}");
+    let new_spawn = executor.apply(&request(7, vec![spawn("r", relay())]));
+    assert!(new_spawn.failures.is_empty(), "{new_spawn:?}");
+    let report = executor.info().cus.into_iter().find(|c| c.cu == "r");
+    assert_eq!(report.expect("r runs").outputs["o"], None);
+    // Destroying is allowed from any generation.
+    let destroy = executor.apply(&request(1, vec![CuAction::Destroy { cu: "r".into() }]));
+    assert!(destroy.failures.is_empty(), "{destroy:?}");
+    assert!(executor.info().cus.is_empty());
     executor.shutdown();
 }

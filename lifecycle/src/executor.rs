@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use dyknow_engine::{ActionFailure, ChangeSet, Cid, CuOutcome, Tid};
+use dyknow_engine::{ActionFailure, ChangeSet, Channel, Cid, CuOutcome, Tid};
 use dyknow_store::spec::TransformationSpec;
 use serde::Serialize;
 
@@ -39,6 +39,21 @@ pub struct CuView {
     pub pid: Option<u32>,
 }
 
+/// A CU an executor says it runs (its `info`), as reconciliation sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReportedCu {
+    /// The CU.
+    pub cu: Cid,
+    /// Its transformation.
+    pub transformation: Tid,
+    /// In port → channel, as bound.
+    pub inputs: BTreeMap<String, Option<Channel>>,
+    /// Out port → channel, as bound.
+    pub outputs: BTreeMap<String, Option<Channel>>,
+    /// The generation of the last change set that configured it (0: unknown).
+    pub generation: u64,
+}
+
 /// Applies change sets to the running system. The life-cycle calls [`Executor::apply`] for
 /// every change set it makes (reviews, Spawn, Destroy, SetConfig), one at a time, holding its
 /// configuration lock, and counts it applied when the call returns (every executor involved
@@ -61,6 +76,27 @@ pub trait Executor: Send + Sync {
     fn describe(&self, cu: &Cid) -> Option<CuView> {
         let _ = cu;
         None
+    }
+
+    /// The executor a CU runs on, if any (`None` in model-only mode).
+    fn placed(&self, cu: &Cid) -> Option<String> {
+        let _ = cu;
+        None
+    }
+
+    /// Reconciliation: `executor` runs these CUs of the model, which are now placed there.
+    fn adopt(&self, executor: &str, cus: &[Cid]) {
+        let _ = (executor, cus);
+    }
+
+    /// Reconciliation: stops CUs `executor` runs that the model does not want there
+    /// (`generation` is the reconciling change set's). Returns those it could not stop, with
+    /// why.
+    fn stop(&self, executor: &str, cus: &[Cid], generation: u64) -> Vec<(Cid, String)> {
+        let _ = (executor, generation);
+        cus.iter()
+            .map(|cu| (cu.clone(), "nothing runs".to_owned()))
+            .collect()
     }
 
     /// What the running system says of several CUs (`GET /cus`); those it says nothing of

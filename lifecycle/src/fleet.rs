@@ -22,7 +22,7 @@ use dyknow_store::spec::TransformationSpec;
 use serde::Serialize;
 use tokio::sync::mpsc;
 
-use crate::executor::{Applied, CuView, Executor};
+use crate::executor::{Applied, CuView, Executor, ReportedCu};
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -33,6 +33,15 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 pub enum FleetEvent {
     /// An executor appeared or vanished: what is runnable may have changed.
     ExecutorsChanged,
+    /// An executor appeared, running these CUs (none for a fresh one; those it kept running
+    /// while the manager was away or cut off from it): the manager reconciles them with its
+    /// model (adopts, stops).
+    Appeared {
+        /// The executor.
+        executor: String,
+        /// The CUs it runs.
+        cus: Vec<ReportedCu>,
+    },
     /// A CU crashed (reported by its executor, or its executor vanished).
     Crashed {
         /// The CU.
@@ -72,6 +81,10 @@ struct Inner {
     namespace: Namespace,
     executors: Mutex<BTreeMap<String, Known>>,
     placement: Mutex<BTreeMap<Cid, String>>,
+    /// The executors whose token is up now (as the liveliness subscriber last said).
+    tokens: Mutex<BTreeSet<String>>,
+    /// The executors being asked for their `info` by a membership thread.
+    probing: Mutex<BTreeSet<String>>,
     events: mpsc::UnboundedSender<FleetEvent>,
 }
 
@@ -130,6 +143,8 @@ impl Fleet {
             namespace: namespace.clone(),
             executors: Mutex::default(),
             placement: Mutex::default(),
+            tokens: Mutex::default(),
+            probing: Mutex::default(),
             events: tx,
         });
         let watcher = inner.clone();
@@ -143,6 +158,11 @@ impl Fleet {
                     return;
                 };
                 let up = sample.kind() == SampleKind::Put;
+                if up {
+                    lock(&watcher.tokens).insert(name.clone());
+                } else {
+                    lock(&watcher.tokens).remove(&name);
+                }
                 let inner = watcher.clone();
                 // Never block a Zenoh callback: the info query runs on its own thread.
                 let _ = std::thread::Builder::new()
@@ -220,9 +240,12 @@ impl Fleet {
 impl Inner {
     fn membership(&self, name: &str, up: bool) {
         if up {
-            let info: Option<ExecutorInfo> = self.query(name, "info", Vec::new());
+            if !lock(&self.probing).insert(name.to_owned()) {
+                return;
+            }
+            let info = self.describe_itself(name);
+            lock(&self.probing).remove(name);
             let Some(info) = info else {
-                tracing::warn!("executor {name} appeared but does not describe itself");
                 return;
             };
             tracing::info!(
@@ -238,6 +261,11 @@ impl Inner {
                     checks: BTreeMap::new(),
                 },
             );
+            let cus = info.cus.into_iter().map(reported).collect();
+            let _ = self.events.send(FleetEvent::Appeared {
+                executor: name.to_owned(),
+                cus,
+            });
         } else {
             tracing::warn!("executor {name} vanished");
             if let Some(known) = lock(&self.executors).get_mut(name) {
@@ -263,6 +291,29 @@ impl Inner {
             }
         }
         let _ = self.events.send(FleetEvent::ExecutorsChanged);
+    }
+
+    /// Asks an executor whose token appeared for its `info`, again every 200 ms while
+    /// it does not answer and its token stays up. (Right after a link is cut, Zenoh may
+    /// announce the token of the executor behind it again although it cannot be reached;
+    /// when the link heals, no new announcement comes, so the answer is what tells.)
+    fn describe_itself(&self, name: &str) -> Option<ExecutorInfo> {
+        let mut warned = false;
+        loop {
+            if let Some(info) = self.query(name, "info", Vec::new()) {
+                return Some(info);
+            }
+            if !lock(&self.tokens).contains(name) {
+                return None;
+            }
+            if !warned {
+                tracing::warn!(
+                    "executor {name} appeared but does not describe itself; asking again until it does or leaves"
+                );
+                warned = true;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
     }
 
     fn event(&self, event: Event) {
@@ -506,6 +557,7 @@ impl Executor for Fleet {
             let indices: Vec<usize> = actions.iter().map(|(i, _)| *i).collect();
             let request = ApplyRequest {
                 change_set: change_set.id.to_string(),
+                generation: change_set.id.number().unwrap_or(0),
                 actions: actions.into_iter().map(|(_, a)| a).collect(),
             };
             let processes = spawned_processes.get(&executor).copied().unwrap_or(0);
@@ -571,6 +623,43 @@ impl Executor for Fleet {
         self.describe_all(std::slice::from_ref(cu)).remove(cu)
     }
 
+    fn placed(&self, cu: &Cid) -> Option<String> {
+        lock(&self.inner.placement).get(cu).cloned()
+    }
+
+    fn adopt(&self, executor: &str, cus: &[Cid]) {
+        let mut placement = lock(&self.inner.placement);
+        for cu in cus {
+            placement.insert(cu.clone(), executor.to_owned());
+        }
+    }
+
+    fn stop(&self, executor: &str, cus: &[Cid], generation: u64) -> Vec<(Cid, String)> {
+        if cus.is_empty() {
+            return Vec::new();
+        }
+        let request = ApplyRequest {
+            change_set: format!("reconcile@{generation}"),
+            generation,
+            actions: cus
+                .iter()
+                .map(|cu| CuAction::Destroy { cu: cu.to_string() })
+                .collect(),
+        };
+        let payload = serde_json::to_vec(&request).unwrap_or_default();
+        match self
+            .inner
+            .query_for::<ApplyReply>(executor, "apply", payload, QUERY_TIMEOUT)
+        {
+            Ok(reply) => reply
+                .failures
+                .into_iter()
+                .map(|f| (f.cu.into(), f.reason))
+                .collect(),
+            Err(why) => cus.iter().map(|cu| (cu.clone(), why.clone())).collect(),
+        }
+    }
+
     /// One `info` query per executor involved, however many CUs it hosts.
     fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
         let placement = lock(&self.inner.placement).clone();
@@ -607,6 +696,23 @@ impl Executor for Fleet {
             }
         }
         views
+    }
+}
+
+/// A CU report as reconciliation reads it.
+fn reported(report: CuReport) -> ReportedCu {
+    let channels = |ports: BTreeMap<String, Option<String>>| {
+        ports
+            .into_iter()
+            .map(|(port, channel)| (port, channel.map(Into::into)))
+            .collect()
+    };
+    ReportedCu {
+        cu: report.cu.into(),
+        transformation: report.transformation.into(),
+        inputs: channels(report.inputs),
+        outputs: channels(report.outputs),
+        generation: report.generation,
     }
 }
 

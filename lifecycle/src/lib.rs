@@ -37,7 +37,7 @@ mod perturbation;
 mod schedule;
 
 pub use error::LifecycleError;
-pub use executor::{Applied, CuView, Executor, ModelOnly};
+pub use executor::{Applied, CuView, Executor, ModelOnly, ReportedCu};
 pub use fleet::{ExecutorSummary, Fleet, FleetEvent};
 pub use manager::{Manager, Observation, Settings, SpawnRequest};
 pub use perturbation::Perturbation;

@@ -10,7 +10,8 @@ use std::time::Duration;
 
 use dyknow_engine::{
     Action, Cause, ChangeSet, ChangeSetStatus, Channel, Cid, Compiled, ComputationUnit, CostKind,
-    CostSummary, Environment, ExploreOptions, Ids, Invalidity, Learned, Tid,
+    CostSummary, CuOutcome, CuOutcomeState, Environment, ExploreOptions, Ids, Invalidity, Learned,
+    Tid,
 };
 use dyknow_store::model::{self, Loaded, SpecCache};
 use dyknow_store::spec::TransformationSpec;
@@ -18,7 +19,7 @@ use dyknow_store::{EnvironmentPart, KnowledgeBase};
 use tokio::sync::{Notify, broadcast};
 
 use crate::error::LifecycleError;
-use crate::executor::{CuView, Executor};
+use crate::executor::{CuView, Executor, ReportedCu};
 use crate::history::History;
 use crate::perturbation::Perturbation;
 use crate::schedule::{Schedule, Status};
@@ -130,6 +131,16 @@ impl Committed {
     }
 }
 
+/// What reconciliation did before its change set is committed: the change set's id (taken
+/// already: its number is the generation the stops carried), how many of its first actions
+/// it carried out itself, and the CUs it adopted or stopped.
+#[derive(Default)]
+struct Reconciled {
+    id: Option<dyknow_engine::ChangeSetId>,
+    done: usize,
+    outcomes: BTreeMap<Cid, CuOutcome>,
+}
+
 /// The life-cycle manager: owns the configuration of one knowledge base, driven by
 /// [`Manager::run`] and by the service's requests.
 pub struct Manager {
@@ -148,6 +159,10 @@ pub struct Manager {
     runnable: Mutex<BTreeSet<Tid>>,
     wake: Notify,
     events: broadcast::Sender<Arc<ChangeSet>>,
+    /// Set from [`Manager::hold_reviews`] until the start-up reconciliation
+    /// ([`Manager::reconcile`] with `respawn`): no review runs before it.
+    starting: std::sync::atomic::AtomicBool,
+    started: Notify,
 }
 
 impl std::fmt::Debug for Manager {
@@ -200,6 +215,8 @@ impl Manager {
             runnable: Mutex::default(),
             wake: Notify::new(),
             events,
+            starting: std::sync::atomic::AtomicBool::new(false),
+            started: Notify::new(),
             kb,
         })
     }
@@ -516,7 +533,15 @@ impl Manager {
                 .collect(),
             optimal: false,
         };
-        self.commit(configuration, ids, loaded, Cause::Manual, compiled, after)
+        self.commit(
+            configuration,
+            ids,
+            loaded,
+            Cause::Manual,
+            compiled,
+            after,
+            Reconciled::default(),
+        )
     }
 
     /// One review interval: EXPLORE on the current environment, COMPILE, and the change set
@@ -558,6 +583,7 @@ impl Manager {
             cause,
             reviewed.compiled,
             reviewed.after,
+            Reconciled::default(),
         )?;
         Ok(Some(committed.change_set))
     }
@@ -569,6 +595,10 @@ impl Manager {
     /// allows. The names minted for it (`ids`) and its number are the configuration's from
     /// the moment the executor is asked, so a write that fails after it never hands them out
     /// again.
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the one path every change set takes; each argument is a distinct input"
+    )]
     fn commit(
         &self,
         configuration: &mut Configuration,
@@ -577,17 +607,35 @@ impl Manager {
         cause: Cause,
         compiled: Compiled,
         mut after: Environment,
+        reconciled: Reconciled,
     ) -> Result<Committed, LifecycleError> {
         let planned = model::delta(&loaded.env, &after, &loaded.iris);
-        let id = self
-            .history
-            .write()
-            .unwrap_or_else(PoisonError::into_inner)
-            .take_id();
+        let id = match reconciled.id {
+            Some(id) => id,
+            None => self
+                .history
+                .write()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take_id(),
+        };
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
-        let mut applied = self.executor.apply(&change_set, &loaded.specs);
-        change_set.cus = std::mem::take(&mut applied.cus);
+        // The first `reconciled.done` actions (reconciliation's stops) were carried out
+        // already; the executor applies the rest.
+        let mut applied = if reconciled.done == 0 {
+            self.executor.apply(&change_set, &loaded.specs)
+        } else {
+            let mut rest = change_set.clone();
+            rest.actions
+                .drain(..reconciled.done.min(rest.actions.len()));
+            let mut applied = self.executor.apply(&rest, &loaded.specs);
+            for failure in &mut applied.failures {
+                failure.action += reconciled.done;
+            }
+            applied
+        };
+        change_set.cus = reconciled.outcomes;
+        change_set.cus.append(&mut applied.cus);
         let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;
@@ -669,6 +717,180 @@ impl Manager {
             self.wake.notify_one();
         }
         Ok(Committed { change_set, after })
+    }
+
+    /// Holds reviews until the start-up reconciliation ([`Manager::reconcile`] with
+    /// `respawn`): a restarted manager first learns what its executors still run, so no
+    /// review replans CUs that are running but not yet reported.
+    pub fn hold_reviews(&self) {
+        self.starting
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    /// Whether the start-up reconciliation is still to come.
+    pub fn starting(&self) -> bool {
+        self.starting.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Whether every CU of the model runs on some executor (start-up need wait no longer).
+    pub fn all_placed(&self) -> Result<bool, LifecycleError> {
+        let loaded = self.specs.load(&self.kb, None)?;
+        Ok(loaded
+            .env
+            .cus
+            .keys()
+            .all(|cu| self.executor.placed(cu).is_some()))
+    }
+
+    /// Reconciliation, Kubernetes-style: the model says what should run, the executors'
+    /// reports what does. When a restarted manager sees its executors again, or an executor
+    /// comes back from a partition, the CUs `executor` reports are compared with the model:
+    /// a CU the model has (same transformation, running on no other executor) is *adopted*
+    /// and its bindings corrected to the model's; any other is *stopped* (the model replanned
+    /// it away, or it was spawned by a change set the manager never recorded). With `respawn`
+    /// (the start-up pass, once executors had time to come back), every CU of the model that
+    /// runs nowhere is spawned again under its name and bound as the model says. What it did
+    /// is recorded as one change set with cause `reconcile` (none when nothing was to do); the
+    /// model does not change. The start-up pass also ends [`Manager::hold_reviews`].
+    pub fn reconcile(
+        &self,
+        executor: Option<&str>,
+        reported: Vec<ReportedCu>,
+        respawn: bool,
+    ) -> Result<Option<Arc<ChangeSet>>, LifecycleError> {
+        let result = self.reconcile_locked(executor, reported, respawn);
+        if respawn
+            && self
+                .starting
+                .swap(false, std::sync::atomic::Ordering::SeqCst)
+        {
+            tracing::info!("start-up reconciliation done: reviews may run");
+            self.started.notify_waiters();
+            self.wake.notify_one();
+        }
+        result
+    }
+
+    fn reconcile_locked(
+        &self,
+        executor: Option<&str>,
+        reported: Vec<ReportedCu>,
+        respawn: bool,
+    ) -> Result<Option<Arc<ChangeSet>>, LifecycleError> {
+        let mut configuration = lock(&self.configuration);
+        let loaded = self.load()?;
+        let name = executor.unwrap_or_default();
+        let mut stops: Vec<Cid> = Vec::new();
+        let mut adopted: Vec<Cid> = Vec::new();
+        let mut fixes: Vec<Action> = Vec::new();
+        let mut outcomes: BTreeMap<Cid, CuOutcome> = BTreeMap::new();
+        let mut newly_adopted = 0;
+        for report in reported {
+            let wanted = loaded.env.cus.get(&report.cu).filter(|cu| {
+                cu.tid == report.transformation
+                    && self
+                        .executor
+                        .placed(&report.cu)
+                        .is_none_or(|placed| placed == name)
+            });
+            let Some(cu) = wanted else {
+                stops.push(report.cu);
+                continue;
+            };
+            if self.executor.placed(&report.cu).is_none() {
+                newly_adopted += 1;
+            }
+            fixes.extend(corrections(cu, &report));
+            outcomes.insert(
+                report.cu.clone(),
+                CuOutcome {
+                    executor: Some(name.to_owned()),
+                    state: CuOutcomeState::Running,
+                },
+            );
+            adopted.push(report.cu);
+        }
+        let mut respawns: Vec<Action> = Vec::new();
+        let mut labour = 0.0;
+        if respawn {
+            for (cid, cu) in &loaded.env.cus {
+                if adopted.contains(cid) || self.executor.placed(cid).is_some() {
+                    continue;
+                }
+                labour += loaded.env.library.get(&cu.tid).map_or(0.0, |tf| tf.labour);
+                respawns.push(Action::Spawn {
+                    cu: cid.clone(),
+                    transformation: cu.tid.clone(),
+                });
+                respawns.extend(bindings(cu));
+            }
+        }
+        // CUs it already knew ran there, as the model has them: nothing happened.
+        if stops.is_empty() && newly_adopted == 0 && fixes.is_empty() && respawns.is_empty() {
+            return Ok(None);
+        }
+        let id = self
+            .history
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take_id();
+        let generation = id.number().unwrap_or(0);
+        let failed = self.executor.stop(name, &stops, generation);
+        for cu in &stops {
+            match failed.iter().find(|(c, _)| c == cu) {
+                Some((_, why)) => {
+                    tracing::warn!("reconcile: cannot stop {cu} on {name}: {why}");
+                }
+                None => {
+                    tracing::info!(
+                        "reconcile: stopped {cu} on {name}, which the model does not run there"
+                    );
+                    outcomes.insert(
+                        cu.clone(),
+                        CuOutcome {
+                            executor: Some(name.to_owned()),
+                            state: CuOutcomeState::Stopped,
+                        },
+                    );
+                }
+            }
+        }
+        self.executor.adopt(name, &adopted);
+        if !adopted.is_empty() {
+            tracing::info!("reconcile: adopted {} CUs running on {name}", adopted.len());
+        }
+        let mut ids = configuration.ids.clone();
+        for cu in &stops {
+            // It ran: its name is never handed out again.
+            ids.reserve_cu(cu);
+        }
+        let done = stops.len();
+        let mut actions: Vec<Action> = stops.into_iter().map(|cu| Action::Destroy { cu }).collect();
+        actions.extend(fixes);
+        actions.extend(respawns);
+        let after = loaded.env.clone();
+        let compiled = Compiled {
+            actions,
+            cost: CostSummary::of(&after, self.settings.horizon, labour),
+            unsatisfied_targets: unsatisfied(&after, &loaded),
+            optimal: false,
+        };
+        let committed = self.commit(
+            &mut configuration,
+            ids,
+            &loaded,
+            Cause::Reconcile {
+                executor: executor.map(str::to_owned),
+            },
+            compiled,
+            after,
+            Reconciled {
+                id: Some(id),
+                done,
+                outcomes,
+            },
+        )?;
+        Ok(Some(committed.change_set))
     }
 
     /// Records observed costs in one write (what executors report every interval); those of
@@ -755,6 +977,13 @@ impl Manager {
     /// interval, then reviews. Runs until the task is dropped.
     pub async fn run(self: Arc<Self>) {
         loop {
+            let started = self.started.notified();
+            if !self.starting() {
+                break;
+            }
+            started.await;
+        }
+        loop {
             let wait = lock(&self.schedule).wait();
             tokio::select! {
                 () = self.wake.notified() => {}
@@ -785,4 +1014,66 @@ impl Manager {
             }
         }
     }
+}
+
+/// The actions that bind a CU's ports as the model has them (a respawned CU).
+fn bindings(cu: &ComputationUnit) -> Vec<Action> {
+    let mut actions = Vec::new();
+    for (port, channel) in &cu.inputs {
+        if let Some(channel) = channel {
+            actions.push(Action::ConnectIn {
+                cu: cu.cid.clone(),
+                port: port.clone(),
+                channel: channel.clone(),
+            });
+        }
+    }
+    for (port, channel) in &cu.outputs {
+        if let Some(channel) = channel {
+            actions.push(Action::ConnectOut {
+                cu: cu.cid.clone(),
+                port: port.clone(),
+                channel: channel.clone(),
+            });
+        }
+    }
+    actions
+}
+
+/// The actions that bring an adopted CU's bindings (as its executor reports them) to the
+/// model's.
+fn corrections(cu: &ComputationUnit, report: &ReportedCu) -> Vec<Action> {
+    let mut actions = Vec::new();
+    for (port, wanted) in &cu.inputs {
+        if report.inputs.get(port).cloned().flatten() == *wanted {
+            continue;
+        }
+        let (cu, port) = (cu.cid.clone(), port.clone());
+        actions.push(match wanted.clone() {
+            Some(channel) => Action::ConnectIn { cu, port, channel },
+            None => Action::DisconnectIn { cu, port },
+        });
+    }
+    for (port, wanted) in &cu.outputs {
+        if report.outputs.get(port).cloned().flatten() == *wanted {
+            continue;
+        }
+        let (cu, port) = (cu.cid.clone(), port.clone());
+        actions.push(match wanted.clone() {
+            Some(channel) => Action::ConnectOut { cu, port, channel },
+            None => Action::DisconnectOut { cu, port },
+        });
+    }
+    actions
+}
+
+/// The targets `env` leaves unsatisfied.
+fn unsatisfied(env: &Environment, loaded: &Loaded) -> Vec<dyknow_engine::Qid> {
+    env.invalidities(&loaded.candidates)
+        .into_iter()
+        .filter_map(|i| match i {
+            Invalidity::UnsatisfiedTarget { target } => Some(target),
+            _ => None,
+        })
+        .collect()
 }

@@ -354,3 +354,171 @@ fn an_unreadable_change_set_record_is_left_out_and_its_number_kept() {
     assert_eq!(cu.tid, "tid3");
     assert_eq!(manager.change_sets(None)[0].id, "cs-8");
 }
+
+/// An executor that places every spawned CU on executor `x` and can adopt and stop CUs, as
+/// the fleet does.
+#[derive(Default)]
+struct Placing {
+    placement: Mutex<std::collections::BTreeMap<Cid, String>>,
+    applied: Mutex<Vec<ChangeSet>>,
+    stopped: Mutex<Vec<(String, Cid, u64)>>,
+}
+
+impl Executor for Placing {
+    fn apply(
+        &self,
+        change_set: &ChangeSet,
+        _: &std::collections::BTreeMap<dyknow_engine::Tid, dyknow_store::spec::TransformationSpec>,
+    ) -> Applied {
+        self.applied.lock().unwrap().push(change_set.clone());
+        let mut placement = self.placement.lock().unwrap();
+        for action in &change_set.actions {
+            match action {
+                Action::Spawn { cu, .. } => {
+                    placement.insert(cu.clone(), "x".to_owned());
+                }
+                Action::Destroy { cu } => {
+                    placement.remove(cu);
+                }
+                _ => {}
+            }
+        }
+        Applied::all()
+    }
+
+    fn placed(&self, cu: &Cid) -> Option<String> {
+        self.placement.lock().unwrap().get(cu).cloned()
+    }
+
+    fn adopt(&self, executor: &str, cus: &[Cid]) {
+        let mut placement = self.placement.lock().unwrap();
+        for cu in cus {
+            placement.insert(cu.clone(), executor.to_owned());
+        }
+    }
+
+    fn stop(&self, executor: &str, cus: &[Cid], generation: u64) -> Vec<(Cid, String)> {
+        let mut stopped = self.stopped.lock().unwrap();
+        for cu in cus {
+            stopped.push((executor.to_owned(), cu.clone(), generation));
+        }
+        Vec::new()
+    }
+}
+
+#[test]
+fn a_restarted_manager_adopts_stops_and_respawns() {
+    let kb = example_12();
+    let first = Manager::new(
+        kb.clone(),
+        Arc::new(Placing::default()),
+        Settings::default(),
+    )
+    .unwrap();
+    let kept = first.spawn(SpawnRequest::new("tid3")).unwrap();
+    let rewired = first.spawn(SpawnRequest::new("tid3")).unwrap();
+    let lost = first.spawn(SpawnRequest::new("tid3")).unwrap();
+    let model_before = first.load().unwrap().env.cus;
+    drop(first);
+
+    // The restart: nothing is placed until the executors report.
+    let executor = Arc::new(Placing::default());
+    let manager = Manager::new(kb, executor.clone(), Settings::default()).unwrap();
+    manager.hold_reviews();
+    assert!(manager.starting());
+    assert!(!manager.all_placed().unwrap());
+    let report = |cu: &dyknow_engine::ComputationUnit| dyknow_lifecycle::ReportedCu {
+        cu: cu.cid.clone(),
+        transformation: cu.tid.clone(),
+        inputs: cu.inputs.clone(),
+        outputs: cu.outputs.clone(),
+        generation: 1,
+    };
+    // Executor x runs `kept` as the model has it, `rewired` with an output bound elsewhere,
+    // and `ghost`, which the model never had (a change set the old manager did not record).
+    let mut wrong = report(&rewired);
+    let port = wrong.outputs.keys().next().unwrap().clone();
+    wrong.outputs.insert(port.clone(), Some("elsewhere".into()));
+    let ghost = dyknow_lifecycle::ReportedCu {
+        cu: "ghost".into(),
+        transformation: "tid3".into(),
+        inputs: Default::default(),
+        outputs: Default::default(),
+        generation: 9,
+    };
+    let change_set = manager
+        .reconcile(Some("x"), vec![report(&kept), wrong, ghost], false)
+        .unwrap()
+        .expect("a reconcile change set");
+    assert_eq!(
+        change_set.cause,
+        Cause::Reconcile {
+            executor: Some("x".to_owned())
+        }
+    );
+    assert_eq!(change_set.status, ChangeSetStatus::Applied);
+    assert_eq!(
+        change_set.actions,
+        [
+            Action::Destroy { cu: "ghost".into() },
+            Action::DisconnectOut {
+                cu: rewired.cid.clone(),
+                port
+            },
+        ]
+    );
+    let generation = change_set.id.number().unwrap();
+    assert_eq!(
+        *executor.stopped.lock().unwrap(),
+        [("x".to_owned(), Cid::from("ghost"), generation)]
+    );
+    // The executor was given only the correction: the stop was carried out directly.
+    assert_eq!(
+        executor.applied.lock().unwrap().last().unwrap().actions,
+        change_set.actions[1..]
+    );
+    let running = CuOutcome {
+        executor: Some("x".to_owned()),
+        state: CuOutcomeState::Running,
+    };
+    assert_eq!(change_set.cus[&kept.cid], running);
+    assert_eq!(change_set.cus[&rewired.cid], running);
+    assert_eq!(
+        change_set.cus[&Cid::from("ghost")].state,
+        CuOutcomeState::Stopped
+    );
+    assert_eq!(manager.describe(&kept.cid), None);
+    assert_eq!(executor.placed(&kept.cid).as_deref(), Some("x"));
+    assert!(manager.starting(), "only the start-up pass ends the hold");
+
+    // The start-up pass: `lost` runs nowhere and is spawned again under its name.
+    let respawn = manager
+        .reconcile(None, Vec::new(), true)
+        .unwrap()
+        .expect("a respawn");
+    assert_eq!(respawn.cause, Cause::Reconcile { executor: None });
+    assert_eq!(
+        respawn.actions,
+        [Action::Spawn {
+            cu: lost.cid.clone(),
+            transformation: "tid3".into()
+        }]
+    );
+    assert!(!manager.starting());
+    assert!(manager.all_placed().unwrap());
+    // The model is what it was, the history has no gap, and "ghost" is never handed out.
+    assert_eq!(manager.load().unwrap().env.cus, model_before);
+    let ids: Vec<u64> = manager
+        .change_sets(None)
+        .iter()
+        .map(|c| c.id.number().unwrap())
+        .collect();
+    assert_eq!(ids, (1..=ids.len() as u64).collect::<Vec<_>>());
+    // Nothing left to reconcile: no change set.
+    assert!(
+        manager
+            .reconcile(Some("x"), vec![report(&kept)], true)
+            .unwrap()
+            .is_none()
+    );
+}

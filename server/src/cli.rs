@@ -210,15 +210,16 @@ pub struct ServeArgs {
     /// The largest accepted request body, in bytes.
     #[arg(long, value_name = "BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_body: usize,
-    /// The Zenoh endpoint the service's router listens on (executors and process CUs connect
-    /// here).
+    /// The Zenoh endpoints the service's router listens on (executors and process CUs connect
+    /// here); repeat it or separate endpoints with commas to listen on several.
     #[arg(
         long,
         value_name = "ENDPOINT",
         env = "DYKNOW_ZENOH",
-        default_value = "tcp/127.0.0.1:7447"
+        default_value = "tcp/127.0.0.1:7447",
+        value_delimiter = ','
     )]
-    pub zenoh_listen: String,
+    pub zenoh_listen: Vec<String>,
     /// The key namespace of channels and control keys.
     #[arg(long, value_name = "NS", default_value = "dyknow")]
     pub namespace: String,
@@ -229,6 +230,15 @@ pub struct ServeArgs {
     /// to the model only.
     #[arg(long)]
     pub model_only: bool,
+    /// At start-up, how long to wait for executors to come back before CUs of the model that
+    /// run nowhere are respawned (the start-up reconciliation; docs/reliability.md). Ends
+    /// earlier once every CU of the model is accounted for.
+    #[arg(long, value_name = "SECONDS", default_value_t = 5.0)]
+    pub reconcile_grace: f64,
+    /// Zenoh's link lease in milliseconds: a peer silent this long (a cut link, a hung
+    /// process) is declared gone, and so are its executor's CUs (docs/reliability.md).
+    #[arg(long, value_name = "MS", default_value_t = dataplane::DEFAULT_LEASE_MS)]
+    pub zenoh_lease_ms: u64,
 }
 
 /// How `dyknow listen` and `dyknow publish` reach the data plane.
@@ -284,6 +294,9 @@ pub struct ExecutorArgs {
     /// The key namespace.
     #[arg(long, value_name = "NS", default_value = "dyknow")]
     pub namespace: String,
+    /// Zenoh's link lease in milliseconds (see `dyknow serve --zenoh-lease-ms`).
+    #[arg(long, value_name = "MS", default_value_t = dataplane::DEFAULT_LEASE_MS)]
+    pub zenoh_lease_ms: u64,
 }
 
 /// A failure of a subcommand: the one-line message and the exit status.
@@ -741,6 +754,12 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "--time-unit must be a positive number of seconds".into(),
         ));
     }
+    if !(args.reconcile_grace.is_finite() && (0.0..1e6).contains(&args.reconcile_grace)) {
+        return Err(Failure(
+            2,
+            "--reconcile-grace must be a non-negative number of seconds".into(),
+        ));
+    }
     if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {
         return Err(Failure(
             2,
@@ -792,10 +811,17 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             .with_groups(None, group_store)
             .map_err(|e| Failure(2, format!("groups: {e}")))?
     } else {
-        let listen = vec![args.zenoh_listen.clone()];
-        let session =
-            dataplane::open(dataplane::router_config(&listen, &[]).map_err(|e| Failure(2, e))?)
-                .map_err(|e| Failure(2, format!("{e} (listening on {})", args.zenoh_listen)))?;
+        let listen = args.zenoh_listen.clone();
+        let session = dataplane::open(
+            dataplane::router_config(&listen, &[], args.zenoh_lease_ms)
+                .map_err(|e| Failure(2, e))?,
+        )
+        .map_err(|e| {
+            Failure(
+                2,
+                format!("{e} (listening on {})", args.zenoh_listen.join(", ")),
+            )
+        })?;
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
             .map_err(|e| Failure(2, format!("zenoh: {e}")))?;
         let fleet = Arc::new(fleet);
@@ -814,7 +840,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         };
         tracing::info!(
             "data plane: Zenoh router on {}, namespace {}, {}",
-            args.zenoh_listen,
+            args.zenoh_listen.join(", "),
             namespace,
             if local.is_some() {
                 "embedded executor local"
@@ -846,10 +872,14 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     };
     runtime.block_on(async move {
         if let Some(events) = events {
+            // No review before the start-up reconciliation: a restarted manager first learns
+            // what its executors still run.
+            state.lifecycle.hold_reviews();
             tokio::spawn(dataplane::forward(
                 events,
                 state.lifecycle.clone(),
                 Duration::from_secs(1),
+                Duration::from_secs_f64(args.reconcile_grace),
             ));
         }
         let listener = tokio::net::TcpListener::bind(args.bind)
@@ -891,7 +921,8 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
         .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
     let listen: Vec<String> = args.listen.iter().cloned().collect();
     let session = dataplane::open(
-        dataplane::router_config(&listen, &args.connect).map_err(|e| Failure(2, e))?,
+        dataplane::router_config(&listen, &args.connect, args.zenoh_lease_ms)
+            .map_err(|e| Failure(2, e))?,
     )
     .map_err(|e| Failure(2, e))?;
     let process_connect = if listen.is_empty() {

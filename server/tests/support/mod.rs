@@ -29,7 +29,11 @@ pub fn wait_for_line(child: &mut Child, marker: &str) -> String {
     let marker = marker.to_owned();
     std::thread::spawn(move || {
         let mut sent = false;
+        let verbose = std::env::var_os("DYKNOW_TEST_VERBOSE").is_some();
         for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if verbose {
+                eprintln!("| {line}");
+            }
             if !sent && line.contains(&marker) {
                 let _ = tx.send(line);
                 sent = true;
