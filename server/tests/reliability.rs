@@ -11,7 +11,6 @@
 )]
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -24,34 +23,12 @@ mod support;
 
 use support::*;
 
-fn spec(name: &str) -> String {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../specs/turtle")
-        .join(name);
-    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
 /// A stand-alone executor that also listens on an endpoint of its own (its process CUs and
 /// the test's listeners connect there, so they do not depend on the manager's router).
 fn executor_listening(service_zenoh: &str, name: &str) -> (Killed, String) {
     let listen = format!("tcp/127.0.0.1:{}", free_port());
-    let dir = Path::new(BIN).parent().unwrap();
-    let path = format!(
-        "{}:{}",
-        dir.display(),
-        std::env::var("PATH").unwrap_or_default()
-    );
-    let mut child = Command::new(BIN)
-        .args(["executor", "--name", name, "--connect", service_zenoh])
-        .args(["--listen", &listen])
-        .env("PATH", path)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_line(&mut child, "connected to");
-    (Killed(child), listen)
+    let executor = executor_with(service_zenoh, name, &["--listen", &listen]);
+    (executor, listen)
 }
 
 fn session(endpoint: &str) -> zenoh::Session {

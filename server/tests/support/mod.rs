@@ -151,6 +151,11 @@ pub struct Killed(pub Child);
 /// A stand-alone `dyknow executor` named `name` connected to the service; its PATH finds
 /// `dyknow` (the command of process CUs such as the lab's segmenters).
 pub fn executor(service: &Service, name: &str) -> Killed {
+    executor_with(&service.zenoh, name, &[])
+}
+
+/// A stand-alone executor connected to the Zenoh endpoint `connect`, with `args`.
+pub fn executor_with(connect: &str, name: &str, args: &[&str]) -> Killed {
     let dir = std::path::Path::new(BIN).parent().unwrap();
     let path = format!(
         "{}:{}",
@@ -158,7 +163,8 @@ pub fn executor(service: &Service, name: &str) -> Killed {
         std::env::var("PATH").unwrap_or_default()
     );
     let mut child = Command::new(BIN)
-        .args(["executor", "--name", name, "--connect", &service.zenoh])
+        .args(["executor", "--name", name, "--connect", connect])
+        .args(args)
         .env("PATH", path)
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())
@@ -195,6 +201,14 @@ pub fn wait_exit(child: &mut Child) -> std::process::ExitStatus {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
+}
+
+/// A spec of `specs/turtle/`.
+pub fn spec(name: &str) -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../specs/turtle")
+        .join(name);
+    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 pub fn agent() -> ureq::Agent {
