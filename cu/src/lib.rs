@@ -39,7 +39,7 @@ mod unit;
 
 pub use error::{CuError, KeyError};
 pub use keys::Namespace;
-pub use process::{ProcessEnv, client_config, run_process};
+pub use process::{ProcessEnv, client_config, client_config_file, run_process};
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};
 pub use transformation::{NodeHandle, Outputs, TimerId, Transformation};

@@ -13,6 +13,7 @@
 //! | `DYKNOW_EXECUTOR` | the executor's name (the CU exits when its parent, the executor, dies) |
 //! | `DYKNOW_INPUTS`, `DYKNOW_OUTPUTS` | port names, comma-separated |
 //! | `DYKNOW_PARAMS` | the parameters, a JSON object |
+//! | `DYKNOW_ZENOH_CONFIG` | optional: a Zenoh configuration file (TLS certificates), the executor's `--zenoh-config` |
 //!
 //! The CU then declares its liveliness token and its control queryable (which answers
 //! [`ControlRequest`]s with [`ControlReply`]s), and runs until told to stop, until it
@@ -42,6 +43,8 @@ pub struct ProcessEnv {
     pub connect: Vec<String>,
     /// The executor's name.
     pub executor: Option<String>,
+    /// Zenoh's own configuration file the executor runs with, if any (TLS certificates).
+    pub zenoh_config: Option<std::path::PathBuf>,
 }
 
 fn list(var: &str) -> Vec<String> {
@@ -77,16 +80,45 @@ impl ProcessEnv {
             )?,
             connect: list("DYKNOW_CONNECT"),
             executor: std::env::var("DYKNOW_EXECUTOR").ok(),
+            zenoh_config: std::env::var_os("DYKNOW_ZENOH_CONFIG")
+                .filter(|v| !v.is_empty())
+                .map(Into::into),
         })
     }
 }
 
 /// A Zenoh client configuration connecting to `endpoints` (scouting off).
 pub fn client_config(endpoints: &[String]) -> Result<zenoh::Config, CuError> {
-    let mut config = zenoh::Config::default();
+    client_config_from(zenoh::Config::default(), endpoints)
+}
+
+/// A Zenoh client configuration connecting to `endpoints`, on top of Zenoh's own
+/// configuration file `file` when there is one (its TLS certificates, for `tls/` endpoints):
+/// client mode, scouting off, `endpoints` as the only ones.
+pub fn client_config_file(
+    file: Option<&std::path::Path>,
+    endpoints: &[String],
+) -> Result<zenoh::Config, CuError> {
+    let base = match file {
+        Some(path) => zenoh::Config::from_file(path).map_err(|e| {
+            CuError::failed(format!(
+                "cannot read the Zenoh configuration {}: {e}",
+                path.display()
+            ))
+        })?,
+        None => zenoh::Config::default(),
+    };
+    client_config_from(base, endpoints)
+}
+
+fn client_config_from(
+    mut config: zenoh::Config,
+    endpoints: &[String],
+) -> Result<zenoh::Config, CuError> {
     let json = |v: &dyn erased::Json| v.json();
     config.insert_json5("mode", &json(&"client"))?;
     config.insert_json5("connect/endpoints", &json(&endpoints))?;
+    config.insert_json5("listen/endpoints", "[]")?;
     config.insert_json5("scouting/multicast/enabled", "false")?;
     config.insert_json5("scouting/gossip/enabled", "false")?;
     Ok(config)
@@ -136,7 +168,11 @@ fn serve<T: Transformation>(
     make: impl FnOnce(&UnitSpec) -> Result<T, CuError>,
 ) -> Result<Exit, CuError> {
     let env = ProcessEnv::from_env()?;
-    let session = zenoh::open(client_config(&env.connect)?).wait()?;
+    let session = zenoh::open(client_config_file(
+        env.zenoh_config.as_deref(),
+        &env.connect,
+    )?)
+    .wait()?;
     let transformation = make(&env.spec)?;
     let (exit_tx, exit_rx) = mpsc::channel::<Exit>();
     let timers = Timers::start();

@@ -40,6 +40,9 @@ pub struct ExecutorConfig {
     pub report_interval: Duration,
     /// How long a process CU may take to announce itself.
     pub start_timeout: Duration,
+    /// Zenoh's own configuration file its process CUs read too (`DYKNOW_ZENOH_CONFIG`: the
+    /// TLS certificates for `tls/` endpoints), if any.
+    pub zenoh_config: Option<std::path::PathBuf>,
 }
 
 impl ExecutorConfig {
@@ -55,6 +58,7 @@ impl ExecutorConfig {
             process_connect,
             report_interval: Duration::from_secs(1),
             start_timeout: Duration::from_secs(10),
+            zenoh_config: None,
         }
     }
 }
@@ -556,6 +560,7 @@ impl Inner {
                     namespace: self.config.namespace.clone(),
                     connect: self.config.process_connect.clone(),
                     start_timeout: self.config.start_timeout,
+                    zenoh_config: self.config.zenoh_config.clone(),
                 };
                 let p = ProcessCu::start(&self.session, &launch, spec, &command, self.on_crash())?;
                 let labour = p.labour();

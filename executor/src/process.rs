@@ -95,6 +95,8 @@ pub struct Launch {
     pub connect: Vec<String>,
     /// How long a child may take to announce itself.
     pub start_timeout: Duration,
+    /// Zenoh's own configuration file, handed to the child (`DYKNOW_ZENOH_CONFIG`).
+    pub zenoh_config: Option<std::path::PathBuf>,
 }
 
 struct Life {
@@ -152,7 +154,11 @@ impl ProcessCu {
                 let _ = up_tx.send(sample.kind() == SampleKind::Put);
             })
             .wait()?;
-        let mut child = Command::new(&program)
+        let mut child = Command::new(&program);
+        if let Some(file) = &launch.zenoh_config {
+            child.env("DYKNOW_ZENOH_CONFIG", file);
+        }
+        let mut child = child
             .args(&command[1..])
             .env("DYKNOW_CU", &spec.name)
             .env("DYKNOW_TRANSFORMATION", &spec.transformation)

@@ -18,9 +18,12 @@ fuzz_target!(|data: &[u8]| {
         domains: [("D".to_owned(), vec!["a".to_owned(), "b".to_owned()])].into(),
         ..Default::default()
     };
-    if let Ok(verdicts) =
-        dyknow_mstl::trace::check(std::slice::from_ref(&formula), trace.as_bytes(), header, &mut out)
-    {
+    if let Ok(verdicts) = dyknow_mstl::trace::check(
+        std::slice::from_ref(&formula),
+        trace.as_bytes(),
+        header,
+        &mut out,
+    ) {
         assert_eq!(verdicts.len(), 1, "{formula}: {verdicts:?}");
         assert_eq!(String::from_utf8(out).unwrap().lines().count(), 1);
     }

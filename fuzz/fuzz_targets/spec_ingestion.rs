@@ -26,7 +26,11 @@ fn state() -> &'static State {
         let kb = KnowledgeBase::in_memory().expect("in-memory store");
         let baseline = kb.store().len().expect("len");
         let again = KnowledgeBase::in_memory().expect("in-memory store");
-        State { kb, again, baseline }
+        State {
+            kb,
+            again,
+            baseline,
+        }
     })
 }
 
@@ -34,30 +38,55 @@ fuzz_target!(|data: &[u8]| {
     let Some((&selector, body)) = data.split_first() else {
         return;
     };
-    let kind = if selector & 1 == 0 { SpecKind::Transformation } else { SpecKind::Target };
+    let kind = if selector & 1 == 0 {
+        SpecKind::Transformation
+    } else {
+        SpecKind::Target
+    };
     let format = match selector >> 1 & 3 {
         0 | 1 => InputFormat::Turtle,
         2 => InputFormat::NTriples,
         _ => InputFormat::JsonLd,
     };
-    let State { kb, again, baseline } = state();
+    let State {
+        kb,
+        again,
+        baseline,
+    } = state();
     match kb.post_specs(body, format, kind) {
-        Err(_) => assert_eq!(kb.store().len().expect("len"), *baseline, "a rejected post wrote"),
+        Err(_) => assert_eq!(
+            kb.store().len().expect("len"),
+            *baseline,
+            "a rejected post wrote"
+        ),
         Ok(report) => {
             for label in &report.labels {
-                let spec = kb.spec(kind, label).expect("read").expect("posted spec is there");
-                let graph = kb.graph_triples(spec_graph(kind, label).as_ref()).expect("read");
+                let spec = kb
+                    .spec(kind, label)
+                    .expect("read")
+                    .expect("posted spec is there");
+                let graph = kb
+                    .graph_triples(spec_graph(kind, label).as_ref())
+                    .expect("read");
                 let printed = serialize(&graph, RdfFormat::NTriples).expect("print");
                 again
                     .post_specs(&printed, InputFormat::NTriples, kind)
                     .expect("a stored spec posts again");
-                assert_eq!(again.spec(kind, label).expect("read"), Some(spec), "reparse differs");
+                assert_eq!(
+                    again.spec(kind, label).expect("read"),
+                    Some(spec),
+                    "reparse differs"
+                );
                 again.remove_spec(kind, label).expect("remove");
             }
             for label in &report.labels {
                 kb.remove_spec(kind, label).expect("remove");
             }
-            assert_eq!(kb.store().len().expect("len"), *baseline, "removal left triples");
+            assert_eq!(
+                kb.store().len().expect("len"),
+                *baseline,
+                "removal left triples"
+            );
         }
     }
 });

@@ -69,8 +69,8 @@ pub fn parse(text: &str) -> Result<Vec<Network>, ParseError> {
                 return Err(err(
                     column_of(trimmed),
                     format!(
-                        "{} variables is more than the {MAX_VARIABLES} accepted",
-                        max + 1
+                        "the highest variable index {max} is beyond the {} accepted ({MAX_VARIABLES} variables)",
+                        MAX_VARIABLES - 1
                     ),
                 ));
             }
@@ -139,13 +139,20 @@ pub fn parse(text: &str) -> Result<Vec<Network>, ParseError> {
 }
 
 /// Writes a network in the same format: the header, then every pair `i < j` whose relation is
-/// not universal, in order, then `.`.
+/// not universal, in order, then `.`. A variable's relation to itself is written too when it
+/// is not `EQ` (an instance that constrains `i i` without `EQ` is inconsistent, and reads back
+/// so).
 pub fn write(network: &Network, out: &mut impl std::fmt::Write) -> std::fmt::Result {
     writeln!(out, "{}", network.len().saturating_sub(1))?;
     for i in 0..network.len() {
-        for j in i + 1..network.len() {
+        for j in i..network.len() {
             let r = network.get(i, j);
-            if r != Relation::UNIVERSAL {
+            let implied = if i == j {
+                Relation::EQ
+            } else {
+                Relation::UNIVERSAL
+            };
+            if r != implied {
                 writeln!(out, "{i} {j} {r}")?;
             }
         }

@@ -183,6 +183,44 @@ fn gqr_sample_instances() {
     }
 }
 
+/// Found by the `gqr_parse` fuzz target: a variable constrained against itself without `EQ`
+/// (`2 2 ( TPP EC )`) makes the instance inconsistent; printing dropped that constraint, so
+/// the printed instance read back as a different (consistent) one.
+#[test]
+fn a_self_constraint_without_eq_prints_and_stays_inconsistent() {
+    let text = "2\n0 1 ( TPP DC )\n2 2 ( TPP EC )\n0 2 ( TPP)\n";
+    let nets = gqr::parse(text).unwrap();
+    assert_eq!(nets[0].get(2, 2), Relation::EMPTY);
+    assert!(nets[0].clone().algebraic_closure().is_err());
+    let mut printed = String::new();
+    gqr::write(&nets[0], &mut printed).unwrap();
+    assert!(printed.contains("2 2 ( )"), "{printed}");
+    let back = gqr::parse(&printed).unwrap();
+    assert_eq!(back, nets);
+    assert!(back[0].clone().algebraic_closure().is_err());
+    // A self constraint that allows EQ changes nothing and is not printed.
+    let nets = gqr::parse("1\n1 1 ( EQ PO )\n.\n").unwrap();
+    let mut printed = String::new();
+    gqr::write(&nets[0], &mut printed).unwrap();
+    assert_eq!(printed, "1\n.\n");
+}
+
+/// Found by the `gqr_parse` fuzz target: the error for a header beyond `usize::MAX - 1`
+/// computed the number of variables as `max + 1` and overflowed (a panic in debug builds, a
+/// wrong message in release builds).
+#[test]
+fn a_huge_header_is_an_error_not_an_overflow() {
+    for header in ["18446744073709551615", "4096", "99999999999"] {
+        let e = gqr::parse(&format!("{header}\n.\n")).unwrap_err();
+        assert_eq!((e.line, e.column), (1, 1));
+        assert!(
+            e.message.contains(header) && e.message.contains("4095"),
+            "{e}"
+        );
+    }
+    assert_eq!(gqr::parse("4095\n.\n").unwrap()[0].len(), 4096);
+}
+
 #[test]
 fn gqr_format_errors_name_the_place() {
     let e = gqr::parse("2\n0 1 ( XX )\n.\n").unwrap_err();

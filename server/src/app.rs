@@ -1,10 +1,12 @@
 //! The router: `app(state)` joins the route modules and the middleware.
 
-use std::sync::Arc;
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
 use axum::Router;
-use axum::body::{Body, to_bytes};
+use axum::body::{Body, BodyDataStream, Bytes, HttpBody, to_bytes};
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::http::{Method, StatusCode, header};
 use axum::middleware::{self, Next};
@@ -139,6 +141,7 @@ pub fn app(state: AppState) -> Router {
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))
+        .layer(middleware::from_fn_with_state(state.clone(), linger))
         .layer(middleware::from_fn(json_errors))
         .layer(middleware::from_fn_with_state(
             state.clone(),
@@ -178,6 +181,112 @@ async fn authorize(State(state): State<AppState>, request: Request, next: Next) 
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// At most this much of a request body the handler left unread is read and discarded before
+/// the answer goes out (a "lingering close"), so that a client that writes its whole body
+/// before reading (Python's `urllib`, most blocking clients) reads the answer instead of a
+/// connection reset.
+pub const LINGER_BYTES: u64 = 64 * 1024 * 1024;
+/// And for at most this long.
+pub const LINGER_TIME: Duration = Duration::from_secs(5);
+
+/// The body limit and the lingering close. A body whose `Content-Length` exceeds
+/// `--max-body` is answered 413 at once, without calling the handler; a body the handler
+/// left unread (a 413 of a streamed body over the limit, a 401, any early error) is drained
+/// after it answered. Both drain at most [`LINGER_BYTES`] within [`LINGER_TIME`]: a body
+/// drained to its end leaves the connection open, one that is not closes it
+/// (`Connection: close`). A client waiting for `100 Continue` is answered without draining:
+/// it sends no body unless asked.
+async fn linger(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    let (parts, body) = request.into_parts();
+    if body.is_end_stream() {
+        return next.run(Request::from_parts(parts, body)).await;
+    }
+    let expects_continue = parts
+        .headers
+        .get(header::EXPECT)
+        .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"100-continue"));
+    let declared = body.size_hint().exact();
+    let max = state.config.max_body_bytes as u64;
+    if let Some(declared) = declared.filter(|&n| n > max) {
+        let drained =
+            !expects_continue && declared <= LINGER_BYTES && drain(body.into_data_stream()).await;
+        let mut response = ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "the request body ({declared} bytes) is larger than the server accepts \
+                 ({max} bytes, --max-body)"
+            ),
+        )
+        .into_response();
+        if !drained {
+            close(&mut response);
+        }
+        return response;
+    }
+    if expects_continue {
+        // Draining would ask for the body the client held back: hyper closes instead.
+        return next.run(Request::from_parts(parts, body)).await;
+    }
+    let shared = SharedBody(Arc::new(Mutex::new(body.into_data_stream())));
+    let mut response = next
+        .run(Request::from_parts(
+            parts,
+            Body::from_stream(shared.clone()),
+        ))
+        .await;
+    if !drain(shared).await {
+        close(&mut response);
+    }
+    response
+}
+
+/// Marks the connection to be closed after `response`.
+fn close(response: &mut Response) {
+    response.headers_mut().insert(
+        header::CONNECTION,
+        axum::http::HeaderValue::from_static("close"),
+    );
+}
+
+/// Reads and discards the rest of a body, up to [`LINGER_BYTES`] and [`LINGER_TIME`]; whether
+/// it reached the end.
+async fn drain(
+    mut body: impl futures_core::Stream<Item = Result<Bytes, axum::Error>> + Unpin,
+) -> bool {
+    let read_all = async {
+        let mut read = 0u64;
+        while let Some(chunk) = std::future::poll_fn(|cx| Pin::new(&mut body).poll_next(cx)).await {
+            let Ok(chunk) = chunk else {
+                return false;
+            };
+            read += chunk.len() as u64;
+            if read > LINGER_BYTES {
+                return false;
+            }
+        }
+        true
+    };
+    tokio::time::timeout(LINGER_TIME, read_all)
+        .await
+        .unwrap_or(false)
+}
+
+/// A request body shared by the handler and [`linger`], which drains what the handler left.
+#[derive(Clone)]
+struct SharedBody(Arc<Mutex<BodyDataStream>>);
+
+impl futures_core::Stream for SharedBody {
+    type Item = Result<Bytes, axum::Error>;
+
+    fn poll_next(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Self::Item>> {
+        match self.0.lock() {
+            Ok(mut body) => Pin::new(&mut *body).poll_next(cx),
+            // A handler panicked while reading: nothing more is read.
+            Err(_) => Poll::Ready(None),
+        }
+    }
 }
 
 /// Every error answer is the contract's JSON, including those axum produces itself (405 from

@@ -211,15 +211,20 @@ pub struct ServeArgs {
     #[arg(long, value_name = "BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_body: usize,
     /// The Zenoh endpoints the service's router listens on (executors and process CUs connect
-    /// here); repeat it or separate endpoints with commas to listen on several.
+    /// here); repeat it or separate endpoints with commas to listen on several. Default: the
+    /// `--zenoh-config` file's `listen/endpoints`, else tcp/127.0.0.1:7447. An endpoint other
+    /// machines can reach needs access control or mutual TLS (docs/reliability.md).
     #[arg(
         long,
         value_name = "ENDPOINT",
         env = "DYKNOW_ZENOH",
-        default_value = "tcp/127.0.0.1:7447",
         value_delimiter = ','
     )]
     pub zenoh_listen: Vec<String>,
+    /// Zenoh's own configuration file (JSON5; TLS and mutual TLS certificates, access control);
+    /// the flags override what it says about endpoints and the lease. Process CUs read it too.
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
     /// The key namespace of channels and control keys.
     #[arg(long, value_name = "NS", default_value = "dyknow")]
     pub namespace: String,
@@ -237,8 +242,9 @@ pub struct ServeArgs {
     pub reconcile_grace: f64,
     /// Zenoh's link lease in milliseconds: a peer silent this long (a cut link, a hung
     /// process) is declared gone, and so are its executor's CUs (docs/reliability.md).
-    #[arg(long, value_name = "MS", default_value_t = dataplane::DEFAULT_LEASE_MS)]
-    pub zenoh_lease_ms: u64,
+    /// Default: the `--zenoh-config` file's, else 10000.
+    #[arg(long, value_name = "MS")]
+    pub zenoh_lease_ms: Option<u64>,
 }
 
 /// How `dyknow listen` and `dyknow publish` reach the data plane.
@@ -255,6 +261,9 @@ pub struct ClientArgs {
     /// The key namespace.
     #[arg(long, value_name = "NS", default_value = "dyknow")]
     pub namespace: String,
+    /// Zenoh's own configuration file (TLS certificates for a tls/ endpoint).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
 }
 
 impl ClientArgs {
@@ -266,8 +275,11 @@ impl ClientArgs {
             .channel(channel)
             .map_err(|e| Failure(2, e.to_string()))?;
         let session = dataplane::open(
-            dataplane::client_config(std::slice::from_ref(&self.connect))
-                .map_err(|e| Failure(2, e))?,
+            dataplane::client_config(
+                self.zenoh_config.as_deref(),
+                std::slice::from_ref(&self.connect),
+            )
+            .map_err(|e| Failure(2, e))?,
         )
         .map_err(|e| {
             Failure(
@@ -295,8 +307,12 @@ pub struct ExecutorArgs {
     #[arg(long, value_name = "NS", default_value = "dyknow")]
     pub namespace: String,
     /// Zenoh's link lease in milliseconds (see `dyknow serve --zenoh-lease-ms`).
-    #[arg(long, value_name = "MS", default_value_t = dataplane::DEFAULT_LEASE_MS)]
-    pub zenoh_lease_ms: u64,
+    #[arg(long, value_name = "MS")]
+    pub zenoh_lease_ms: Option<u64>,
+    /// Zenoh's own configuration file (see `dyknow serve --zenoh-config`); its process CUs
+    /// read it too.
+    #[arg(long, value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
 }
 
 /// A failure of a subcommand: the one-line message and the exit status.
@@ -745,6 +761,22 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             ),
         ));
     }
+    let zenoh_file = args
+        .zenoh_config
+        .as_deref()
+        .map(dataplane::ZenohFile::read)
+        .transpose()
+        .map_err(|e| Failure(2, e))?;
+    let listen = if !args.zenoh_listen.is_empty() {
+        args.zenoh_listen.clone()
+    } else if let Some(listen) = zenoh_file.as_ref().and_then(dataplane::ZenohFile::listen) {
+        listen.to_vec()
+    } else {
+        vec![dataplane::DEFAULT_LISTEN.to_owned()]
+    };
+    if !args.model_only {
+        dataplane::check_access(&listen, zenoh_file.as_ref()).map_err(|e| Failure(2, e))?;
+    }
     if !(args.horizon.is_finite() && args.horizon >= 0.0) {
         return Err(Failure(2, "--horizon must be a non-negative number".into()));
     }
@@ -811,28 +843,22 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             .with_groups(None, group_store)
             .map_err(|e| Failure(2, format!("groups: {e}")))?
     } else {
-        let listen = args.zenoh_listen.clone();
         let session = dataplane::open(
-            dataplane::router_config(&listen, &[], args.zenoh_lease_ms)
+            dataplane::router_config(zenoh_file.as_ref(), &listen, &[], args.zenoh_lease_ms)
                 .map_err(|e| Failure(2, e))?,
         )
-        .map_err(|e| {
-            Failure(
-                2,
-                format!("{e} (listening on {})", args.zenoh_listen.join(", ")),
-            )
-        })?;
+        .map_err(|e| Failure(2, format!("{e} (listening on {})", listen.join(", "))))?;
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
             .map_err(|e| Failure(2, format!("zenoh: {e}")))?;
         let fleet = Arc::new(fleet);
         let local = if args.no_executor {
             None
         } else {
-            let executor = dyknow_executor::Executor::start(
-                &session,
-                dyknow_executor::ExecutorConfig::new("local", namespace.clone(), listen.clone()),
-            )
-            .map_err(|e| Failure(2, format!("executor: {e}")))?;
+            let mut config =
+                dyknow_executor::ExecutorConfig::new("local", namespace.clone(), listen.clone());
+            config.zenoh_config = zenoh_file.as_ref().map(|f| f.path.clone());
+            let executor = dyknow_executor::Executor::start(&session, config)
+                .map_err(|e| Failure(2, format!("executor: {e}")))?;
             if !fleet.wait_for("local", Duration::from_secs(10)) {
                 tracing::warn!("the embedded executor did not show up within 10 s");
             }
@@ -840,7 +866,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         };
         tracing::info!(
             "data plane: Zenoh router on {}, namespace {}, {}",
-            args.zenoh_listen.join(", "),
+            listen.join(", "),
             namespace,
             if local.is_some() {
                 "embedded executor local"
@@ -919,10 +945,26 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     init_logging();
     let namespace = dyknow_cu::Namespace::new(args.namespace.clone())
         .map_err(|e| Failure(2, format!("--namespace: {e}")))?;
-    let listen: Vec<String> = args.listen.iter().cloned().collect();
+    let zenoh_file = args
+        .zenoh_config
+        .as_deref()
+        .map(dataplane::ZenohFile::read)
+        .transpose()
+        .map_err(|e| Failure(2, e))?;
+    let listen: Vec<String> = match (&args.listen, &zenoh_file) {
+        (Some(listen), _) => vec![listen.clone()],
+        (None, Some(file)) => file.listen().map(<[String]>::to_vec).unwrap_or_default(),
+        (None, None) => Vec::new(),
+    };
+    dataplane::check_access(&listen, zenoh_file.as_ref()).map_err(|e| Failure(2, e))?;
     let session = dataplane::open(
-        dataplane::router_config(&listen, &args.connect, args.zenoh_lease_ms)
-            .map_err(|e| Failure(2, e))?,
+        dataplane::router_config(
+            zenoh_file.as_ref(),
+            &listen,
+            &args.connect,
+            args.zenoh_lease_ms,
+        )
+        .map_err(|e| Failure(2, e))?,
     )
     .map_err(|e| Failure(2, e))?;
     let process_connect = if listen.is_empty() {
@@ -930,11 +972,11 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     } else {
         listen
     };
-    let executor = dyknow_executor::Executor::start(
-        &session,
-        dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect),
-    )
-    .map_err(|e| Failure(2, format!("executor: {e}")))?;
+    let mut config =
+        dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect);
+    config.zenoh_config = zenoh_file.map(|f| f.path);
+    let executor = dyknow_executor::Executor::start(&session, config)
+        .map_err(|e| Failure(2, format!("executor: {e}")))?;
     tracing::info!(
         "executor {} connected to {}",
         args.name,

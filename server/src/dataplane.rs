@@ -14,20 +14,130 @@ use tokio::time::Instant;
 /// Zenoh's default link lease, in milliseconds.
 pub const DEFAULT_LEASE_MS: u64 = 10_000;
 
-/// A Zenoh router configuration: listening on `listen`, connecting to `connect`, scouting off
-/// (explicit endpoints only), links declared gone after `lease_ms` of silence.
+/// Where the manager's Zenoh router listens unless told otherwise: loopback only.
+pub const DEFAULT_LISTEN: &str = "tcp/127.0.0.1:7447";
+
+/// Zenoh's own configuration, read from `--zenoh-config FILE` (JSON5, JSON or YAML, Zenoh's
+/// format: TLS certificates, access control, buffers…). DyKnow then sets what its flags say.
+#[derive(Debug, Clone)]
+pub struct ZenohFile {
+    /// The file.
+    pub path: std::path::PathBuf,
+    config: zenoh::Config,
+    /// The endpoints the file lists under `listen/endpoints`, when it lists any.
+    listen: Option<Vec<String>>,
+}
+
+impl ZenohFile {
+    /// Reads `path`.
+    pub fn read(path: &std::path::Path) -> Result<Self, String> {
+        let config = zenoh::Config::from_file(path).map_err(|e| {
+            format!(
+                "cannot read the Zenoh configuration {}: {e}",
+                path.display()
+            )
+        })?;
+        let endpoints = |c: &zenoh::Config| c.get_json("listen/endpoints").unwrap_or_default();
+        // Zenoh's default (`tcp/[::]:7447` for a router: every interface) is never used: a
+        // file that does not list endpoints leaves them to the flags and their defaults.
+        let listen = (endpoints(&config) != endpoints(&zenoh::Config::default()))
+            .then(|| router_endpoints(&endpoints(&config)));
+        Ok(Self {
+            path: path.to_owned(),
+            config,
+            listen,
+        })
+    }
+
+    /// The endpoints the file lists under `listen/endpoints`, if it lists any.
+    pub fn listen(&self) -> Option<&[String]> {
+        self.listen.as_deref()
+    }
+
+    /// Whether the file turns on Zenoh's access control.
+    pub fn access_control(&self) -> bool {
+        self.config
+            .get_json("access_control/enabled")
+            .is_ok_and(|v| v == "true")
+    }
+
+    /// Whether TLS links require client certificates (mutual TLS).
+    pub fn mutual_tls(&self) -> bool {
+        self.config
+            .get_json("transport/link/tls/enable_mtls")
+            .is_ok_and(|v| v == "true")
+    }
+}
+
+/// The router's endpoints in a `listen/endpoints` value: a list, or one list per mode.
+fn router_endpoints(json: &str) -> Vec<String> {
+    let value: serde_json::Value = serde_json::from_str(json).unwrap_or_default();
+    let list = match &value {
+        serde_json::Value::Object(per_mode) => per_mode.get("router").cloned().unwrap_or_default(),
+        v => v.clone(),
+    };
+    serde_json::from_value(list).unwrap_or_default()
+}
+
+/// Whether `endpoint` (`proto/address[?metadata][#config]`) can only be reached from this
+/// machine: a Unix socket, or an IP address or `localhost` that is loopback.
+pub fn is_local(endpoint: &str) -> bool {
+    let Some((proto, rest)) = endpoint.split_once('/') else {
+        return false;
+    };
+    if matches!(proto, "unixsock-stream" | "unixpipe") {
+        return true;
+    }
+    let address = rest.split(['?', '#']).next().unwrap_or_default();
+    let host = address.rsplit_once(':').map_or(address, |(host, _)| host);
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// The access rule (`docs/reliability.md`): the data plane carries every stream and lets any
+/// peer that reaches it host CUs, so a Zenoh endpoint that other machines can reach is only
+/// opened with access control (`access_control` in `--zenoh-config`) or, for `tls/` and
+/// `quic/` endpoints, mutual TLS (client certificates). TLS without client certificates
+/// encrypts but lets anyone in.
+pub fn check_access(listen: &[String], file: Option<&ZenohFile>) -> Result<(), String> {
+    if file.is_some_and(ZenohFile::access_control) {
+        return Ok(());
+    }
+    let mutual_tls = file.is_some_and(ZenohFile::mutual_tls);
+    for endpoint in listen {
+        let tls = endpoint.starts_with("tls/") || endpoint.starts_with("quic/");
+        let protected = is_local(endpoint) || (tls && mutual_tls);
+        if !protected {
+            return Err(format!(
+                "refusing to listen on the non-loopback Zenoh endpoint {endpoint} without access \
+                 control: use a tls/ endpoint with client certificates \
+                 (transport/link/tls/enable_mtls) or turn on access_control, in a --zenoh-config \
+                 file (docs/reliability.md)"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A Zenoh router configuration: Zenoh's own configuration `file` if any, then listening on
+/// `listen`, connecting to `connect`, scouting off (explicit endpoints only), links declared
+/// gone after `lease_ms` of silence (the file's lease, or Zenoh's 10 s, when `None`).
 pub fn router_config(
+    file: Option<&ZenohFile>,
     listen: &[String],
     connect: &[String],
-    lease_ms: u64,
+    lease_ms: Option<u64>,
 ) -> Result<zenoh::Config, String> {
-    if !(100..=3_600_000).contains(&lease_ms) {
+    if let Some(lease_ms) = lease_ms.filter(|l| !(100..=3_600_000).contains(l)) {
         return Err(format!(
             "the Zenoh lease must be between 100 ms and one hour, not {lease_ms} ms"
         ));
     }
     let json = |v: &[String]| serde_json::to_string(v).unwrap_or_default();
-    let mut config = zenoh::Config::default();
+    let mut config = file.map_or_else(zenoh::Config::default, |f| f.config.clone());
     let set = |config: &mut zenoh::Config, key: &str, value: &str| {
         config
             .insert_json5(key, value)
@@ -38,11 +148,13 @@ pub fn router_config(
     set(&mut config, "connect/endpoints", &json(connect))?;
     set(&mut config, "scouting/multicast/enabled", "false")?;
     set(&mut config, "scouting/gossip/enabled", "false")?;
-    set(
-        &mut config,
-        "transport/link/tx/lease",
-        &lease_ms.to_string(),
-    )?;
+    if let Some(lease_ms) = lease_ms {
+        set(
+            &mut config,
+            "transport/link/tx/lease",
+            &lease_ms.to_string(),
+        )?;
+    }
     // A lost link to a configured endpoint (the manager restarting) is retried every 250 ms
     // at first and at least once a second, not with Zenoh's default back-off up to 4 s: an
     // executor is back well within the manager's start-up grace.
@@ -54,9 +166,13 @@ pub fn router_config(
     Ok(config)
 }
 
-/// A Zenoh client configuration connecting to `connect` (for `dyknow listen`).
-pub fn client_config(connect: &[String]) -> Result<zenoh::Config, String> {
-    dyknow_cu::client_config(connect).map_err(|e| e.to_string())
+/// A Zenoh client configuration connecting to `connect` (for `dyknow listen` and
+/// `dyknow publish`), on Zenoh's own configuration `file` if any.
+pub fn client_config(
+    file: Option<&std::path::Path>,
+    connect: &[String],
+) -> Result<zenoh::Config, String> {
+    dyknow_cu::client_config_file(file, connect).map_err(|e| e.to_string())
 }
 
 /// Opens a session.
@@ -167,5 +283,89 @@ async fn run(f: impl FnOnce() -> Result<(), LifecycleError> + Send + 'static) {
         Ok(Ok(())) => {}
         Ok(Err(e)) => tracing::error!("data plane: {e}"),
         Err(e) => tracing::error!("data plane: {e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(text: &str) -> ZenohFile {
+        let dir = std::env::temp_dir().join(format!("dyknow-zenoh-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{:x}.json5", fxhash(text)));
+        std::fs::write(&path, text).unwrap();
+        ZenohFile::read(&path).unwrap()
+    }
+
+    fn fxhash(text: &str) -> u64 {
+        text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+        })
+    }
+
+    #[test]
+    fn loopback_and_unix_sockets_are_local() {
+        for e in [
+            "tcp/127.0.0.1:7447",
+            "tcp/127.0.0.2:1",
+            "tcp/[::1]:7447",
+            "tcp/localhost:7447",
+            "tls/localhost:7447",
+            "tcp/127.0.0.1:7447#iface=lo",
+            "unixsock-stream//tmp/dyknow.sock",
+        ] {
+            assert!(is_local(e), "{e}");
+        }
+        for e in [
+            "tcp/0.0.0.0:7447",
+            "tcp/[::]:7447",
+            "tcp/10.0.0.1:7447",
+            "tcp/robot.local:7447",
+            "tls/192.168.1.2:7447",
+            "nonsense",
+        ] {
+            assert!(!is_local(e), "{e}");
+        }
+    }
+
+    #[test]
+    fn exposed_endpoints_need_mutual_tls_or_access_control() {
+        let exposed = ["tcp/0.0.0.0:7447".to_owned()];
+        let exposed_tls = ["tls/0.0.0.0:7447".to_owned()];
+        assert!(check_access(&[DEFAULT_LISTEN.to_owned()], None).is_ok());
+        assert!(check_access(&exposed, None).is_err());
+        assert!(check_access(&exposed_tls, None).is_err());
+        let tls_only = file(r#"{transport: {link: {tls: {enable_mtls: false}}}}"#);
+        assert!(check_access(&exposed_tls, Some(&tls_only)).is_err());
+        let mtls = file(r#"{transport: {link: {tls: {enable_mtls: true}}}}"#);
+        assert!(check_access(&exposed_tls, Some(&mtls)).is_ok());
+        // Mutual TLS protects the TLS endpoint only, not a plain TCP one next to it.
+        let both = ["tls/0.0.0.0:7447".to_owned(), "tcp/0.0.0.0:7448".to_owned()];
+        let error = check_access(&both, Some(&mtls)).unwrap_err();
+        assert!(error.contains("tcp/0.0.0.0:7448"), "{error}");
+        let acl = file(r#"{access_control: {enabled: true, default_permission: "deny"}}"#);
+        assert!(check_access(&both, Some(&acl)).is_ok());
+    }
+
+    #[test]
+    fn a_file_gives_its_endpoints_and_zenohs_default_is_never_used() {
+        assert_eq!(file("{}").listen(), None);
+        let f = file(r#"{listen: {endpoints: ["tcp/127.0.0.1:7500"]}}"#);
+        assert_eq!(f.listen(), Some(&["tcp/127.0.0.1:7500".to_owned()][..]));
+        let f = file(r#"{listen: {endpoints: {router: ["tcp/127.0.0.1:7501"], peer: []}}}"#);
+        assert_eq!(f.listen(), Some(&["tcp/127.0.0.1:7501".to_owned()][..]));
+        // The flags win over the file.
+        let config = router_config(Some(&f), &[DEFAULT_LISTEN.to_owned()], &[], None).unwrap();
+        assert_eq!(
+            router_endpoints(&config.get_json("listen/endpoints").unwrap()),
+            vec![DEFAULT_LISTEN.to_owned()]
+        );
+        let lease = file("{transport: {link: {tx: {lease: 2500}}}}");
+        let config = router_config(Some(&lease), &[], &[], None).unwrap();
+        assert_eq!(config.get_json("transport/link/tx/lease").unwrap(), "2500");
+        let config = router_config(Some(&lease), &[], &[], Some(700)).unwrap();
+        assert_eq!(config.get_json("transport/link/tx/lease").unwrap(), "700");
+        assert!(router_config(None, &[], &[], Some(5)).is_err());
     }
 }

@@ -6,6 +6,7 @@ pub mod dataplane;
 mod error;
 pub mod group_cli;
 pub mod groups;
+mod json_body;
 mod metrics;
 mod negotiate;
 mod openapi;

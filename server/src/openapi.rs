@@ -1,6 +1,9 @@
 //! The OpenAPI description, generated from the handlers' annotations.
 
-use utoipa::OpenApi;
+use utoipa::openapi::content::ContentBuilder;
+use utoipa::openapi::path::Operation;
+use utoipa::openapi::{Ref, ResponseBuilder};
+use utoipa::{Modify, OpenApi};
 
 use crate::error::ErrorBody;
 use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, specs};
@@ -8,6 +11,7 @@ use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, s
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
 #[openapi(
+    modifiers(&CommonResponses),
     info(
         title = "DyKnow knowledge service",
         description = "Stream reasoning knowledge service: the DyKnow model as a live ontology."
@@ -66,14 +70,84 @@ use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, s
         ontology::ExtensionPostedJson,
         model::ModelJson,
         model::ChannelJson,
+        model::ModelFormatName,
         ops::Health,
         reconfig::CuJson,
         reconfig::SpawnJson,
         reconfig::PerturbationJson,
-        reconfig::StatisticsJson,
+        reconfig::ObservationJson,
         reconfig::EnvironmentJson,
         reconfig::EnvironmentCostJson,
         groups::FormulaJson,
+        groups::GroupSpecJson,
     ))
 )]
 pub struct ApiDoc;
+
+/// The answers every operation of a kind can give, whatever its handler does: an operation
+/// with a body can answer 400 (malformed), 413 (over `--max-body`) and 415 (another
+/// `Content-Type`); a mutating one (every POST, PUT and DELETE but `POST /sparql`) 401 when
+/// the server has a token.
+struct CommonResponses;
+
+impl Modify for CommonResponses {
+    fn modify(&self, api: &mut utoipa::openapi::OpenApi) {
+        for (path, item) in &mut api.paths.paths {
+            let operations = [
+                (true, &mut item.post),
+                (true, &mut item.put),
+                (true, &mut item.delete),
+                (false, &mut item.get),
+            ];
+            for (writes, operation) in operations {
+                let Some(operation) = operation else {
+                    continue;
+                };
+                if operation.request_body.is_some() {
+                    add(operation, "400", "The body is malformed.");
+                    add(
+                        operation,
+                        "413",
+                        &format!(
+                            "The body is larger than `--max-body`. The service reads and discards up to {} MiB of it within {} s first, so that a client that writes its whole body before reading reads this answer.",
+                            crate::app::LINGER_BYTES / (1024 * 1024),
+                            crate::app::LINGER_TIME.as_secs()
+                        ),
+                    );
+                    add(
+                        operation,
+                        "415",
+                        "The body's `Content-Type` is not one of those listed.",
+                    );
+                }
+                if writes && path != "/sparql" {
+                    add(
+                        operation,
+                        "401",
+                        "The server has a token and the request does not carry it (`Authorization: Bearer <token>`).",
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Adds an error answer with the contract's JSON body, unless the operation lists the status.
+fn add(operation: &mut Operation, status: &str, description: &str) {
+    operation
+        .responses
+        .responses
+        .entry(status.to_owned())
+        .or_insert_with(|| {
+            ResponseBuilder::new()
+                .description(description)
+                .content(
+                    "application/json",
+                    ContentBuilder::new()
+                        .schema(Some(Ref::from_schema_name("ErrorBody")))
+                        .build(),
+                )
+                .build()
+                .into()
+        });
+}

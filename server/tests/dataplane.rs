@@ -88,7 +88,7 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
         .into_iter()
         .find(|c| c["cause"]["kind"] == "target-added")
         .unwrap();
-    assert_eq!(spawned["status"], "applied");
+    assert_eq!(spawned["status"], "applied", "{spawned}");
     assert_eq!(
         spawned["cus"][tenfold["name"].as_str().unwrap()],
         json!({"executor": "local", "state": "running"}),

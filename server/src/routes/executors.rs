@@ -12,6 +12,7 @@ use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking};
 use crate::error::ApiError;
+use crate::json_body::JsonBody;
 use crate::routes::reconfig::{CuJson, cu_json};
 
 /// The routes.
@@ -86,9 +87,8 @@ pub struct SetConfigJson {
 pub async fn set_config(
     State(state): State<AppState>,
     Path(name): Path<String>,
-    body: Result<Json<SetConfigJson>, axum::extract::rejection::JsonRejection>,
+    JsonBody(body): JsonBody<SetConfigJson>,
 ) -> Result<Json<CuJson>, ApiError> {
-    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let s = state.clone();
     blocking(move || {
         let channels = |m: std::collections::BTreeMap<String, Option<String>>| {

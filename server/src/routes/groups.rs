@@ -84,6 +84,13 @@ fn json_body<T: serde::de::DeserializeOwned>(
             json!({"line": e.line(), "column": e.column(), "message": e.to_string()}),
         ])
     })?;
+    // serde reads a JSON array as a struct, field by field: refuse it.
+    if !value.is_object() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "the body does not fit: it must be a JSON object",
+        ));
+    }
     serde_json::from_value(value).map_err(|e| {
         ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -92,10 +99,105 @@ fn json_body<T: serde::de::DeserializeOwned>(
     })
 }
 
+/// `POST /groups`'s body as the OpenAPI description gives it (the service reads it as
+/// `dyknow_group::GroupSpec`; `groups.md`). Formulas are MSTL text (`mstl.md`), which a
+/// schema cannot state: one that does not parse is 400, one that does not ground is 422.
+#[derive(ToSchema)]
+#[serde(deny_unknown_fields)]
+#[allow(dead_code, reason = "the schema of the body only")]
+pub struct GroupSpecJson {
+    /// The label (`g-N` when absent): 1 to 200 characters, no control character, no '/'.
+    #[schema(pattern = "^[^/\\u0000-\\u001F\\u007F-\\u009F]{1,200}$")]
+    label: Option<String>,
+    /// Where verdicts are published (`/dyknow/verdicts/<label>` when absent).
+    #[schema(pattern = "^[^\\u0000-\\u001F\\u007F-\\u009F]{1,200}$")]
+    result_channel: Option<String>,
+    /// The formulas (MSTL).
+    #[serde(default)]
+    formulas: Vec<String>,
+    /// Named domains for quantifiers: name → constants.
+    #[serde(default)]
+    domains: std::collections::BTreeMap<String, Vec<String>>,
+    /// Landmark regions.
+    #[serde(default)]
+    landmarks: Vec<String>,
+    /// Static regions.
+    #[serde(default, rename = "static")]
+    static_regions: Vec<String>,
+    /// Symbol → the tag its target asks for.
+    #[serde(default)]
+    grounding: std::collections::BTreeMap<String, GroundingJson>,
+    /// The synchronisation policy (`wait`, P = 100 ms, D = 500 ms when absent; not null).
+    #[serde(default)]
+    sync: SyncJson,
+    /// Start at once.
+    #[serde(default)]
+    start: bool,
+}
+
+/// The tag a symbol's target asks for: a tag value, or a tag description concept (an
+/// absolute IRI).
+#[derive(ToSchema)]
+#[serde(untagged)]
+#[allow(dead_code, reason = "the schema of the body only")]
+pub enum GroundingJson {
+    /// A tag value (`dyknow:hasValue`).
+    #[serde(deny_unknown_fields)]
+    Tag {
+        /// The value.
+        tag: String,
+    },
+    /// A tag description concept (`dyknow:hasTagDescription`).
+    #[serde(deny_unknown_fields)]
+    Description {
+        /// The concept's IRI.
+        description: String,
+    },
+}
+
+/// A synchronisation policy (`groups.md`): times in milliseconds; periods from 1 ms to an
+/// hour, `wait`'s and `hold`'s other times at most a day, `event`'s delay at most an hour.
+#[derive(ToSchema)]
+#[serde(tag = "policy", rename_all = "lowercase")]
+#[allow(dead_code, reason = "the schema of the body only")]
+pub enum SyncJson {
+    /// A state every `period_ms` once every stream has a sample valid at its time, or
+    /// `max_delay_ms` after it.
+    #[serde(deny_unknown_fields)]
+    Wait {
+        /// `P`.
+        #[schema(minimum = 1, maximum = 3_600_000)]
+        period_ms: u64,
+        /// `D`.
+        #[schema(maximum = 86_400_000)]
+        max_delay_ms: u64,
+    },
+    /// A state every `period_ms`; values held while younger than `max_age_ms`.
+    #[serde(deny_unknown_fields)]
+    Hold {
+        /// `P`.
+        #[schema(minimum = 1, maximum = 3_600_000)]
+        period_ms: u64,
+        /// `A`.
+        #[schema(maximum = 86_400_000)]
+        max_age_ms: u64,
+        /// `D` (default `P`).
+        #[schema(maximum = 86_400_000)]
+        max_delay_ms: Option<u64>,
+    },
+    /// A state at every sample's time.
+    #[serde(deny_unknown_fields)]
+    Event {
+        /// `D` (default 2).
+        #[schema(maximum = 3_600_000)]
+        max_delay_ms: Option<u64>,
+    },
+}
+
 /// CreateGroup: `{"label"?, "result_channel"?, "formulas"?, "domains"?, "landmarks"?,
 /// "static"?, "grounding"?, "sync"?, "start"?}`. Every symbol becomes a target at once.
 #[utoipa::path(post, path = "/groups", tag = "groups",
-    request_body(content = Object, content_type = "application/json", description = "the group (groups.md)"),
+    request_body(content = GroupSpecJson, content_type = "application/json", description = "the group (groups.md)"),
     responses((status = 201, body = Object), (status = 400, body = crate::error::ErrorBody),
               (status = 409, body = crate::error::ErrorBody), (status = 415, body = crate::error::ErrorBody),
               (status = 422, body = crate::error::ErrorBody)))]
@@ -243,13 +345,20 @@ pub struct Since {
 /// `?since=<t>` replays the recorded ones from `t` on first.
 #[utoipa::path(get, path = "/groups/{label}/verdicts", tag = "groups",
     params(("label" = String, Path, description = "the group's label"), ("since" = Option<u64>, Query, description = "replay recorded verdicts from this t on")),
-    responses((status = 200, content_type = "text/event-stream", body = String), (status = 404, body = crate::error::ErrorBody)))]
+    responses((status = 200, content_type = "text/event-stream", body = String), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody)))]
 pub async fn verdicts(
     State(state): State<AppState>,
     Path(label): Path<String>,
     query: Result<Query<Since>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(since) = query.map_err(|e| ApiError::bad_request(e.body_text()))?;
+    // Times are milliseconds since the epoch; the API describes them as 64-bit signed integers.
+    if let Some(t) = since.since.filter(|&t| i64::try_from(t).is_err()) {
+        return Err(ApiError::bad_request(format!(
+            "since={t} is beyond the largest time ({})",
+            i64::MAX
+        )));
+    }
     let group = state.groups.get(&label)?;
     let (recorded, mut rx) = group.watch();
     let stream = async_stream_lite(move |tx| async move {

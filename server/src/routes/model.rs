@@ -28,9 +28,31 @@ pub(crate) fn router() -> Router<AppState> {
 #[derive(Debug, Default, Deserialize, utoipa::IntoParams)]
 pub struct ModelParams {
     /// `turtle`, `rdfxml`, `owx`, `ofn`, `ntriples`, `jsonld` or `dyknow`; overrides `Accept`.
+    #[param(value_type = Option<ModelFormatName>)]
     pub format: Option<String>,
     /// `false` leaves out inferred triples.
     pub inferred: Option<bool>,
+}
+
+/// The names `?format=` accepts (the schema of the parameter; anything else is 400).
+#[derive(ToSchema)]
+#[serde(rename_all = "lowercase")]
+#[allow(dead_code, reason = "the schema of the parameter only")]
+pub enum ModelFormatName {
+    /// `text/turtle`.
+    Turtle,
+    /// `application/rdf+xml`.
+    Rdfxml,
+    /// `application/owl+xml`.
+    Owx,
+    /// `text/owl-functional`.
+    Ofn,
+    /// `application/n-triples`.
+    Ntriples,
+    /// `application/ld+json`.
+    Jsonld,
+    /// `application/json`.
+    Dyknow,
 }
 
 /// A channel of the model.

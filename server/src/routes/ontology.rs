@@ -45,13 +45,15 @@ pub struct ExtensionJson {
 /// The `graph` query parameter of DELETE.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 pub struct GraphParam {
-    /// The graph to remove.
+    /// The graph to remove (400 without it).
+    #[param(required = true)]
     pub graph: Option<String>,
 }
 
 /// Posts an ontology extension (Turtle, N-Triples or JSON-LD).
 #[utoipa::path(post, path = "/ontology", tag = "ontology",
-    request_body(content = String, content_type = "text/turtle"),
+    request_body(description = "An ontology extension as RDF. A schema cannot state RDF's grammar: a syntax error is 400 (with its line and column); an empty extension, or one that holds specs or contradicts the ontology, is 422.",
+        content((String = "text/turtle"), (String = "application/n-triples"), (serde_json::Value = "application/ld+json"))),
     responses((status = 201, body = ExtensionPostedJson), (status = 400, body = ErrorBody),
               (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn post_extension(

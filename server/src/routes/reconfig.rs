@@ -17,6 +17,7 @@ use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking, typed};
 use crate::error::ApiError;
+use crate::json_body::JsonBody;
 use crate::negotiate::negotiate;
 
 pub(crate) fn router() -> Router<AppState> {
@@ -165,9 +166,8 @@ pub struct SpawnJson {
               (status = 409, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
 pub async fn spawn_cu(
     State(state): State<AppState>,
-    body: Result<Json<SpawnJson>, axum::extract::rejection::JsonRejection>,
+    JsonBody(body): JsonBody<SpawnJson>,
 ) -> Result<Response, ApiError> {
-    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let s = state.clone();
     let cu = blocking(move || {
         let cu = s.lifecycle.spawn(SpawnRequest {
@@ -307,11 +307,21 @@ mod tokio_stream_lite {
 
 /// A perturbation report: `{"kind": "cu-crashed", "cu": "<name>"}`.
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct PerturbationJson {
-    /// `cu-crashed`.
-    pub kind: String,
+    /// The kind: `cu-crashed` is the one clients report (the others are the service's own:
+    /// 422).
+    pub kind: PerturbationKind,
     /// The CU.
     pub cu: String,
+}
+
+/// The perturbation kinds clients report.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum PerturbationKind {
+    /// A CU crashed: it is removed from the model and a review starts at once.
+    CuCrashed,
 }
 
 /// A perturbation: `{"kind": "cu-crashed", "cu": "<name>"}` removes the CU from the model and
@@ -320,9 +330,8 @@ pub struct PerturbationJson {
     responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
 pub async fn post_perturbation(
     State(state): State<AppState>,
-    body: Result<Json<serde_json::Value>, axum::extract::rejection::JsonRejection>,
+    JsonBody(body): JsonBody<serde_json::Value>,
 ) -> Result<StatusCode, ApiError> {
-    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let kind = body
         .get("kind")
         .and_then(serde_json::Value::as_str)
@@ -362,15 +371,39 @@ pub struct StatisticsJson {
     pub labour: Option<f64>,
 }
 
+/// `POST /statistics`'s body as the OpenAPI description gives it: one of two shapes.
+#[derive(ToSchema)]
+#[serde(untagged)]
+#[allow(dead_code, reason = "the schema of the body only")]
+pub enum ObservationJson {
+    /// The upkeep of a CU observed for one time unit.
+    #[serde(deny_unknown_fields)]
+    Upkeep {
+        /// The CU (404 if absent).
+        cu: String,
+        /// Finite and not negative (422 otherwise).
+        #[schema(minimum = 0.0)]
+        upkeep: f64,
+    },
+    /// The labour of one spawn of a transformation.
+    #[serde(deny_unknown_fields)]
+    Labour {
+        /// The transformation (404 if absent).
+        transformation: String,
+        /// Finite and not negative (422 otherwise).
+        #[schema(minimum = 0.0)]
+        labour: f64,
+    },
+}
+
 /// Statistics: `{"cu", "upkeep"}` or `{"transformation", "labour"}` update the historical
 /// averages per transformation (seed Ch. 5.3.2). Does not start a review. 202.
-#[utoipa::path(post, path = "/statistics", tag = "reconfiguration", request_body = StatisticsJson,
+#[utoipa::path(post, path = "/statistics", tag = "reconfiguration", request_body = ObservationJson,
     responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
 pub async fn post_statistics(
     State(state): State<AppState>,
-    body: Result<Json<StatisticsJson>, axum::extract::rejection::JsonRejection>,
+    JsonBody(body): JsonBody<StatisticsJson>,
 ) -> Result<StatusCode, ApiError> {
-    let Json(body) = body.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let observation = match body {
         StatisticsJson {
             cu: Some(cu),

@@ -20,12 +20,15 @@ pub(crate) fn router() -> Router<AppState> {
     Router::new().route("/sparql", get(sparql_get).post(sparql_post))
 }
 
-/// The protocol's parameters.
-#[derive(Debug, Default, Deserialize, utoipa::IntoParams)]
+/// The protocol's parameters, as `?query=` or as a form body. A schema cannot state SPARQL's
+/// grammar: a query that does not parse is 400 (with its line and column).
+#[derive(Debug, Default, Deserialize, utoipa::IntoParams, utoipa::ToSchema)]
 pub struct SparqlParams {
-    /// The query.
+    /// The query (400 without it, unless `update` is given).
+    #[param(required = true)]
+    #[schema(required = true)]
     pub query: Option<String>,
-    /// An update: always refused here.
+    /// An update: always refused here (403).
     pub update: Option<String>,
 }
 
@@ -105,7 +108,8 @@ pub async fn sparql_get(
 
 /// A query as a form (`query=`) or directly (`application/sparql-query`).
 #[utoipa::path(post, path = "/sparql", tag = "sparql",
-    request_body(content = String, content_type = "application/sparql-query"),
+    request_body(description = "A SPARQL 1.1 query, directly or as a form (`query=`). A schema cannot state SPARQL's grammar: a query that does not parse is 400 (with its line and column); an update (`application/sparql-update`, or a form's `update=`) is 403.",
+        content((String = "application/sparql-query"), (SparqlParams = "application/x-www-form-urlencoded"))),
     responses((status = 200, description = "results, negotiated by Accept"), (status = 400, body = ErrorBody),
               (status = 403, body = ErrorBody), (status = 406, body = ErrorBody), (status = 415, body = ErrorBody),
               (status = 503, body = ErrorBody)))]

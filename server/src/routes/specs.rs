@@ -329,7 +329,8 @@ async fn delete_spec(
 /// AddTransformation: one or more transformation specs (Turtle, N-Triples or JSON-LD); a label
 /// that exists is replaced. Atomic.
 #[utoipa::path(post, path = "/transformations", tag = "specs",
-    request_body(content = String, content_type = "text/turtle", description = "transformation specs"),
+    request_body(description = "One or more transformation specs (specs.md) as RDF. A schema cannot state RDF's grammar: a syntax error is 400 (with its line and column); a document that describes no transformation, or violates the ontology or the DyKnow model, is 422.",
+        content((String = "text/turtle"), (String = "application/n-triples"), (serde_json::Value = "application/ld+json"))),
     responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
               (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn post_transformations(
@@ -375,7 +376,8 @@ pub async fn delete_transformation(
 
 /// AddTarget: one or more target specs; a label that exists is replaced. Atomic.
 #[utoipa::path(post, path = "/targets", tag = "specs",
-    request_body(content = String, content_type = "text/turtle", description = "target specs"),
+    request_body(description = "One or more target specs (specs.md) as RDF. A schema cannot state RDF's grammar: a syntax error is 400 (with its line and column); a document that describes no target, or violates the ontology or the DyKnow model, is 422.",
+        content((String = "text/turtle"), (String = "application/n-triples"), (serde_json::Value = "application/ld+json"))),
     responses((status = 201, body = PostedJson), (status = 400, body = ErrorBody),
               (status = 413, body = ErrorBody), (status = 415, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn post_targets(

@@ -1,0 +1,96 @@
+//! `JsonBody<T>`: the body of the JSON endpoints (`POST /cus`, `PUT /cus/{name}/config`,
+//! `POST /perturbations`, `POST /statistics`), read as the contract says: 415 unless it is
+//! declared as JSON, 413 over `--max-body`, 400 when it is not a JSON object of the expected
+//! shape.
+
+use axum::Json;
+use axum::extract::{FromRequest, Request};
+use serde::de::DeserializeOwned;
+use serde_json::Value;
+
+use crate::error::ApiError;
+
+/// A JSON object body read as `T`. Unlike axum's `Json<T>`, a JSON array is refused even when
+/// `T` is a struct (serde reads arrays as structs, field by field), and every rejection is
+/// the contract's JSON error with the contract's status.
+#[derive(Debug)]
+pub struct JsonBody<T>(pub T);
+
+impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
+    type Rejection = ApiError;
+
+    async fn from_request(request: Request, state: &S) -> Result<Self, ApiError> {
+        let Json(value) = Json::<Value>::from_request(request, state).await?;
+        if !value.is_object() {
+            return Err(ApiError::bad_request(
+                "the body must be a JSON object (see /openapi.json)",
+            ));
+        }
+        serde_json::from_value(value).map(Self).map_err(|e| {
+            ApiError::bad_request(format!(
+                "Failed to deserialize the JSON body into the target type: {e}"
+            ))
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::body::Body;
+    use axum::http::StatusCode;
+
+    #[derive(Debug, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Shape {
+        name: String,
+    }
+
+    async fn read(content_type: Option<&str>, body: &str) -> Result<String, StatusCode> {
+        let mut request = Request::builder().method("POST").uri("/");
+        if let Some(t) = content_type {
+            request = request.header("content-type", t);
+        }
+        let request = request.body(Body::from(body.to_owned())).unwrap();
+        JsonBody::<Shape>::from_request(request, &())
+            .await
+            .map(|JsonBody(s)| s.name)
+            .map_err(|e| e.status)
+    }
+
+    #[tokio::test]
+    async fn bodies_read_as_the_contract_says() {
+        let json = Some("application/json");
+        assert_eq!(read(json, r#"{"name": "a"}"#).await, Ok("a".into()));
+        assert_eq!(
+            read(Some("application/json; charset=utf-8"), r#"{"name": "a"}"#).await,
+            Ok("a".into())
+        );
+        // Not declared as JSON: 415, whatever the body.
+        for t in [
+            None,
+            Some("text/plain"),
+            Some("application/x-www-form-urlencoded"),
+        ] {
+            assert_eq!(
+                read(t, r#"{"name": "a"}"#).await,
+                Err(StatusCode::UNSUPPORTED_MEDIA_TYPE)
+            );
+        }
+        // Not JSON, not an object (an array would read as a struct), not the shape: 400.
+        for body in [
+            "{",
+            r#"["a"]"#,
+            "1",
+            r#"{"name": 1}"#,
+            r#"{"name": "a", "x": 1}"#,
+            "{}",
+        ] {
+            assert_eq!(
+                read(json, body).await,
+                Err(StatusCode::BAD_REQUEST),
+                "{body}"
+            );
+        }
+    }
+}

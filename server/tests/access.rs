@@ -1,0 +1,246 @@
+//! Access to the data plane (docs/reliability.md, "Access"): the manager's Zenoh listens on
+//! loopback unless told otherwise; an endpoint other machines can reach is refused without
+//! access control or mutual TLS; `--zenoh-config FILE` passes Zenoh's own configuration, and
+//! an executor, its process CUs and a client run over mutual TLS with certificates this test
+//! generates, while a client without a certificate is refused.
+#![expect(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use dyknow_cu::client_config_file;
+use dyknow_cu::zenoh::{self, Wait};
+use rcgen::{
+    BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
+};
+
+mod support;
+
+use support::*;
+
+/// `dyknow <args>`: its exit code and standard error.
+fn run(args: &[&str]) -> (Option<i32>, String) {
+    let out = Command::new(BIN)
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn endpoints_other_machines_reach_are_refused_without_access_control() {
+    let dir = tempfile::tempdir().unwrap();
+    let exposed = format!("tcp/0.0.0.0:{}", free_port());
+    let (code, stderr) = run(&[
+        "serve",
+        "--in-memory",
+        "--bind",
+        "127.0.0.1:0",
+        "--zenoh-listen",
+        &exposed,
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "refusing to listen on the non-loopback Zenoh endpoint {exposed}"
+        )),
+        "{stderr}"
+    );
+    // The same rule for a stand-alone executor's own endpoint.
+    let (code, stderr) = run(&[
+        "executor",
+        "--name",
+        "e",
+        "--connect",
+        "tcp/127.0.0.1:9",
+        "--listen",
+        &exposed,
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("refusing to listen"), "{stderr}");
+    // TLS without client certificates encrypts but lets anyone in: refused too.
+    let certificates = Certificates::generate(dir.path());
+    let tls_only = certificates.config(dir.path(), "tls-only.json5", false);
+    let exposed_tls = format!("tls/0.0.0.0:{}", free_port());
+    let (code, stderr) = run(&[
+        "serve",
+        "--in-memory",
+        "--bind",
+        "127.0.0.1:0",
+        "--zenoh-listen",
+        &exposed_tls,
+        "--zenoh-config",
+        tls_only.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains(&exposed_tls), "{stderr}");
+    // A file that cannot be read is a clear error, not Zenoh's defaults.
+    let (code, stderr) = run(&[
+        "serve",
+        "--in-memory",
+        "--bind",
+        "127.0.0.1:0",
+        "--zenoh-config",
+        "/nonexistent/zenoh.json5",
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(
+        stderr.contains("cannot read the Zenoh configuration /nonexistent/zenoh.json5"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn an_executor_its_process_cus_and_a_client_run_over_mutual_tls() {
+    let dir = tempfile::tempdir().unwrap();
+    let certificates = Certificates::generate(dir.path());
+    let mtls = certificates.config(dir.path(), "mtls.json5", true);
+    let mtls_arg = mtls.to_str().unwrap();
+    let endpoint = format!("tls/localhost:{}", free_port());
+    // No embedded executor: every CU runs on the executor that joined over TLS.
+    let service = Service::start_with(
+        &["--in-memory"],
+        &endpoint,
+        &["--no-executor", "--zenoh-config", mtls_arg],
+    );
+    let _executor = executor_with(&endpoint, "tls-1", &["--zenoh-config", mtls_arg]);
+    eventually("the TLS executor to join", Duration::from_secs(30), || {
+        service
+            .get("/executors")
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["name"] == "tls-1" && e["present"] == true)
+            .then_some(())
+    });
+    let process_map = format!("{BIN} cu dyknow/map");
+    for spec in [
+        tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20")],
+            &[],
+            &[("out", "Count")],
+        ),
+        // A process CU: it connects to its executor's endpoint, over TLS, with the
+        // certificates of the executor's --zenoh-config (DYKNOW_ZENOH_CONFIG).
+        tf(
+            "tenfold",
+            "process",
+            &process_map,
+            &[("scale", "10")],
+            &[("in", "Count")],
+            &[("out", "Tenfold")],
+        ),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let client =
+        zenoh::open(client_config_file(Some(&mtls), std::slice::from_ref(&endpoint)).unwrap())
+            .wait()
+            .unwrap();
+    let out = Listener::new(&client, "/tenfold");
+    service.post("/targets", &target("tenfold-q", "/tenfold", "Tenfold"));
+    let (_, first) = out.next();
+    let (_, second) = out.next();
+    let a = first.value.as_i64().unwrap();
+    assert_eq!(a % 10, 0, "{a} is a count times ten");
+    assert_eq!(second.value.as_i64(), Some(a + 10));
+    let tenfold = service.cu_of("tenfold").unwrap();
+    assert_eq!(tenfold["executor"], "tls-1", "{tenfold}");
+
+    // A client that trusts the service's certificate but has none of its own is refused.
+    let anonymous = certificates.anonymous_config(dir.path());
+    let refused =
+        zenoh::open(client_config_file(Some(&anonymous), std::slice::from_ref(&endpoint)).unwrap())
+            .wait();
+    assert!(refused.is_err(), "a client without a certificate joined");
+    // And one that speaks plain TCP to the TLS endpoint.
+    let plain = endpoint.replacen("tls/", "tcp/", 1);
+    assert!(
+        zenoh::open(dyknow_cu::client_config(&[plain]).unwrap())
+            .wait()
+            .is_err(),
+        "a plain TCP client joined a TLS endpoint"
+    );
+}
+
+/// A certificate authority and one certificate it signed for `localhost` (server and client
+/// use), written as PEM files in a directory.
+struct Certificates {
+    ca: PathBuf,
+    certificate: PathBuf,
+    key: PathBuf,
+}
+
+impl Certificates {
+    fn generate(dir: &Path) -> Self {
+        let ca_key = KeyPair::generate().unwrap();
+        let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+        ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        ca_params
+            .distinguished_name
+            .push(DnType::CommonName, "DyKnow test authority");
+        let ca = ca_params.self_signed(&ca_key).unwrap();
+        let issuer = Issuer::new(ca_params, ca_key);
+        let key = KeyPair::generate().unwrap();
+        let mut params =
+            CertificateParams::new(vec!["localhost".to_owned(), "127.0.0.1".to_owned()]).unwrap();
+        params
+            .distinguished_name
+            .push(DnType::CommonName, "dyknow-test-peer");
+        params.extended_key_usages = vec![
+            ExtendedKeyUsagePurpose::ServerAuth,
+            ExtendedKeyUsagePurpose::ClientAuth,
+        ];
+        let certificate = params.signed_by(&key, &issuer).unwrap();
+        let write = |name: &str, pem: String| {
+            let path = dir.join(name);
+            std::fs::write(&path, pem).unwrap();
+            path
+        };
+        Self {
+            ca: write("ca.pem", ca.pem()),
+            certificate: write("peer.pem", certificate.pem()),
+            key: write("peer-key.pem", key.serialize_pem()),
+        }
+    }
+
+    /// A Zenoh configuration file: TLS with these certificates, mutual or not.
+    fn config(&self, dir: &Path, name: &str, mutual: bool) -> PathBuf {
+        let text = format!(
+            r#"{{ transport: {{ link: {{ tls: {{
+                root_ca_certificate: {ca:?},
+                listen_certificate: {cert:?}, listen_private_key: {key:?},
+                connect_certificate: {cert:?}, connect_private_key: {key:?},
+                enable_mtls: {mutual}, verify_name_on_connect: true }} }} }} }}"#,
+            ca = self.ca,
+            cert = self.certificate,
+            key = self.key,
+        );
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    /// A client configuration that trusts the authority but has no certificate of its own.
+    fn anonymous_config(&self, dir: &Path) -> PathBuf {
+        let path = dir.join("anonymous.json5");
+        let text = format!(
+            "{{ transport: {{ link: {{ tls: {{ root_ca_certificate: {:?} }} }} }} }}",
+            self.ca
+        );
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+}
