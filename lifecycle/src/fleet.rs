@@ -174,9 +174,13 @@ impl Fleet {
         let events = session
             .declare_subscriber(namespace.all_executor_events())
             .callback(move |sample| {
+                // `<ns>/@dyknow/events/<executor>`: who says it.
+                let Some(executor) = sample.key_expr().as_str().rsplit('/').next() else {
+                    return;
+                };
                 match serde_json::from_slice::<Event>(&sample.payload().to_bytes()) {
-                    Ok(event) => reporter.event(event),
-                    Err(e) => tracing::debug!("an executor event that does not parse: {e}"),
+                    Ok(event) => reporter.event(executor, event),
+                    Err(e) => tracing::debug!("an event of {executor} that does not parse: {e}"),
                 }
             })
             .wait()?;
@@ -256,16 +260,12 @@ impl Inner {
                 name.to_owned(),
                 Known {
                     present: true,
-                    builtins: info.builtins.into_iter().collect(),
+                    builtins: info.builtins.iter().cloned().collect(),
                     processes: info.processes,
                     checks: BTreeMap::new(),
                 },
             );
-            let cus = info.cus.into_iter().map(reported).collect();
-            let _ = self.events.send(FleetEvent::Appeared {
-                executor: name.to_owned(),
-                cus,
-            });
+            let _ = self.events.send(appeared(name, info));
         } else {
             tracing::warn!("executor {name} vanished");
             if let Some(known) = lock(&self.executors).get_mut(name) {
@@ -316,35 +316,19 @@ impl Inner {
         }
     }
 
-    fn event(&self, event: Event) {
-        let out = match event {
-            Event::Running {
-                transformation,
-                labour_cpu_ms,
-                ..
-            } => FleetEvent::Labour {
-                transformation: transformation.into(),
-                cpu_ms: labour_cpu_ms,
-            },
-            Event::CuCrashed { cu, reason, .. } => {
-                lock(&self.placement).remove(cu.as_str());
-                FleetEvent::Crashed {
-                    cu: cu.into(),
-                    reason,
-                }
+    fn event(&self, executor: &str, event: Event) {
+        let out = {
+            let mut placement = lock(&self.placement);
+            let placed = placement.get(event_cu(&event)).map(String::as_str);
+            let out = executor_event(executor, placed, event);
+            if let Some(FleetEvent::Crashed { cu, .. }) = &out {
+                placement.remove(cu);
             }
-            Event::Upkeep {
-                cu,
-                cpu_ms,
-                over_ms,
-                ..
-            } => FleetEvent::Upkeep {
-                cu: cu.into(),
-                cpu_ms,
-                over_ms,
-            },
+            out
         };
-        let _ = self.events.send(out);
+        if let Some(out) = out {
+            let _ = self.events.send(out);
+        }
     }
 
     /// Asks executor `name`'s `service`; `None` when it does not answer in time.
@@ -696,6 +680,60 @@ impl Executor for Fleet {
             }
         }
         views
+    }
+}
+
+/// The CU an executor's event is about.
+fn event_cu(event: &Event) -> &str {
+    match event {
+        Event::Running { cu, .. } | Event::CuCrashed { cu, .. } | Event::Upkeep { cu, .. } => cu,
+    }
+}
+
+/// What the manager makes of an event `executor` published on its key
+/// (`<ns>/@dyknow/events/<executor>`), given where the fleet places its CU (`placed`). An
+/// event about a CU placed on *another* executor is dropped: a rogue or confused peer must not
+/// crash, or skew the costs of, a CU it does not host. A CU not placed yet (its change set is
+/// still being applied) is the sender's word.
+pub fn executor_event(executor: &str, placed: Option<&str>, event: Event) -> Option<FleetEvent> {
+    if let Some(host) = placed.filter(|host| *host != executor) {
+        tracing::warn!(
+            "ignoring an event of {executor} about {}, which runs on {host}",
+            event_cu(&event)
+        );
+        return None;
+    }
+    Some(match event {
+        Event::Running {
+            transformation,
+            labour_cpu_ms,
+            ..
+        } => FleetEvent::Labour {
+            transformation: transformation.into(),
+            cpu_ms: labour_cpu_ms,
+        },
+        Event::CuCrashed { cu, reason, .. } => FleetEvent::Crashed {
+            cu: cu.into(),
+            reason,
+        },
+        Event::Upkeep {
+            cu,
+            cpu_ms,
+            over_ms,
+            ..
+        } => FleetEvent::Upkeep {
+            cu: cu.into(),
+            cpu_ms,
+            over_ms,
+        },
+    })
+}
+
+/// The event of an executor that appeared and described itself (its `info`).
+pub fn appeared(executor: &str, info: ExecutorInfo) -> FleetEvent {
+    FleetEvent::Appeared {
+        executor: executor.to_owned(),
+        cus: info.cus.into_iter().map(reported).collect(),
     }
 }
 

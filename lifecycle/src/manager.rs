@@ -20,6 +20,7 @@ use tokio::sync::{Notify, broadcast};
 
 use crate::error::LifecycleError;
 use crate::executor::{CuView, Executor, ReportedCu};
+use crate::fleet::FleetEvent;
 use crate::history::History;
 use crate::perturbation::Perturbation;
 use crate::schedule::{Schedule, Status};
@@ -36,6 +37,10 @@ pub struct Settings {
     /// configuration lock, so this also bounds how long Spawn, Destroy and crash reports wait.
     /// `None`: until optimality is proven.
     pub explore_timeout: Option<Duration>,
+    /// Crashes start a review at once, but not sooner than this after the last review
+    /// started: a burst of crashes (a crash storm) is repaired by one review per spacing, not
+    /// one per crash. Other perturbations are not held back. Zero: one review per crash.
+    pub review_spacing: Duration,
 }
 
 impl Default for Settings {
@@ -44,6 +49,7 @@ impl Default for Settings {
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
             explore_timeout: Some(Duration::from_secs(1)),
+            review_spacing: Duration::from_millis(100),
         }
     }
 }
@@ -891,6 +897,49 @@ impl Manager {
             },
         )?;
         Ok(Some(committed.change_set))
+    }
+
+    /// What the manager does with one event of its fleet (the executors' protocol, from
+    /// [`crate::Fleet`]): an executor that appeared is reconciled, a change in the executors
+    /// present starts a review, a crash is a perturbation (that of a CU the model does not
+    /// have is ignored), and a measured cost comes back as an observation, to be recorded in
+    /// batches with [`Manager::observe_all`] (upkeep as CPU ms per time unit; none for an
+    /// interval that is not positive). Nothing an executor sends makes it panic.
+    pub fn handle(&self, event: FleetEvent) -> Result<Option<Observation>, LifecycleError> {
+        match event {
+            FleetEvent::Appeared { executor, cus } => {
+                self.reconcile(Some(&executor), cus, false)?;
+            }
+            FleetEvent::ExecutorsChanged => self.executors_changed()?,
+            FleetEvent::Crashed { cu, reason } => {
+                tracing::warn!("{cu} crashed: {reason}");
+                match self.report(Perturbation::CuCrashed { cu }) {
+                    Ok(()) | Err(LifecycleError::UnknownCu(_)) => {}
+                    Err(e) => return Err(e),
+                }
+            }
+            FleetEvent::Labour {
+                transformation,
+                cpu_ms,
+            } => {
+                return Ok(Some(Observation::Labour {
+                    transformation,
+                    value: cpu_ms,
+                }));
+            }
+            FleetEvent::Upkeep {
+                cu,
+                cpu_ms,
+                over_ms,
+            } => {
+                let time_unit_ms = self.settings().time_unit.as_secs_f64() * 1e3;
+                return Ok((over_ms > 0.0).then(|| Observation::Upkeep {
+                    cu,
+                    value: cpu_ms * time_unit_ms / over_ms,
+                }));
+            }
+        }
+        Ok(None)
     }
 
     /// Records observed costs in one write (what executors report every interval); those of

@@ -6,7 +6,7 @@
 //! longer after each failure in a row (from 100 ms, doubling, at most the stable interval), so
 //! an executor that cannot run something is not asked again and again.
 
-use std::time::{Duration, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 
 use dyknow_engine::{Cause, Tid};
 use serde::Serialize;
@@ -35,6 +35,9 @@ pub struct Status {
     pub review_pending: bool,
     /// Reviews completed since the service started.
     pub reviews: u64,
+    /// CU crashes recorded since the service started (each a perturbation; one reported
+    /// twice, or of a CU the model no longer has, counts once or not at all).
+    pub crashes: u64,
     /// Why the last review failed, if it did.
     pub last_error: Option<String>,
 }
@@ -47,6 +50,11 @@ pub(crate) struct Schedule {
     next_review_at: SystemTime,
     /// A review is due at once.
     urgent: bool,
+    /// A review is due because CUs crashed: at once, unless the last review started less than
+    /// `review_spacing` ago (a crash storm is then coalesced into one review per spacing).
+    crashed: bool,
+    /// When the last review started.
+    last_start: Option<Instant>,
     /// Registrations and deregistrations asking whether the environment is still valid:
     /// how many were reported, and up to which one the answer is known (a review answers all).
     checks_asked: u64,
@@ -57,6 +65,7 @@ pub(crate) struct Schedule {
     /// Transformations of lost CUs, tried first (Ch. 4.3.3).
     prefer: Vec<Tid>,
     reviews: u64,
+    crashes: u64,
     last_error: Option<String>,
     /// Change sets in a row with failed actions.
     failures_in_a_row: u32,
@@ -73,11 +82,14 @@ impl Schedule {
             phase: Phase::Stable,
             next_review_at: SystemTime::now() + settings.time_unit.mul_f64(settings.horizon),
             urgent: false,
+            crashed: false,
+            last_start: None,
             checks_asked: 0,
             checks_done: 0,
             causes: Vec::new(),
             prefer: Vec::new(),
             reviews: 0,
+            crashes: 0,
             last_error: None,
             failures_in_a_row: 0,
         }
@@ -93,6 +105,7 @@ impl Schedule {
             next_review_at: self.next_review_at,
             review_pending: self.urgent || self.checks_asked > self.checks_done,
             reviews: self.reviews,
+            crashes: self.crashes,
             last_error: self.last_error.clone(),
         }
     }
@@ -101,7 +114,12 @@ impl Schedule {
     /// environment is invalid.
     pub(crate) fn perturbed(&mut self, perturbation: &Perturbation) {
         let cause = match perturbation {
-            Perturbation::CuCrashed { cu } => Some(Cause::CuCrashed { cu: cu.clone() }),
+            Perturbation::CuCrashed { cu } => {
+                self.crashes += 1;
+                self.causes.push(Cause::CuCrashed { cu: cu.clone() });
+                self.crashed = true;
+                return;
+            }
             Perturbation::TargetAdded { target } => Some(Cause::TargetAdded {
                 target: target.clone(),
             }),
@@ -144,21 +162,39 @@ impl Schedule {
         self.prefer.push(tid);
     }
 
+    /// How long until crashes may start a review: what is left of `review_spacing` since the
+    /// last review started.
+    fn spacing_left(&self) -> Duration {
+        self.last_start.map_or(Duration::ZERO, |start| {
+            start
+                .checked_add(self.settings.review_spacing)
+                .map_or(self.settings.review_spacing, |t| {
+                    t.saturating_duration_since(Instant::now())
+                })
+        })
+    }
+
     /// How long the loop may sleep.
     pub(crate) fn wait(&self) -> Duration {
+        let scheduled = self
+            .next_review_at
+            .duration_since(SystemTime::now())
+            .unwrap_or(Duration::ZERO);
         if self.urgent || self.checks_asked > self.checks_done {
             Duration::ZERO
+        } else if self.crashed {
+            self.spacing_left().min(scheduled)
         } else {
-            self.next_review_at
-                .duration_since(SystemTime::now())
-                .unwrap_or(Duration::ZERO)
+            scheduled
         }
     }
 
     /// Whether a review is due (urgent, or the stable interval is over), and, if the
     /// environment's validity is to be checked, up to which check ([`Schedule::checked`]).
     pub(crate) fn due(&self) -> (bool, Option<u64>) {
-        let due = self.urgent || SystemTime::now() >= self.next_review_at;
+        let due = self.urgent
+            || (self.crashed && self.spacing_left().is_zero())
+            || SystemTime::now() >= self.next_review_at;
         let check = (self.checks_asked > self.checks_done).then_some(self.checks_asked);
         (due, check)
     }
@@ -171,6 +207,8 @@ impl Schedule {
     /// A review starts: takes what perturbed the environment.
     pub(crate) fn review_starts(&mut self) -> (Vec<Cause>, Vec<Tid>) {
         self.urgent = false;
+        self.crashed = false;
+        self.last_start = Some(Instant::now());
         // The next regular review is a stable interval away; a failure while this one runs
         // brings it forward by the back-off only (from a time in the past, the back-off would
         // be no wait at all).
@@ -210,7 +248,41 @@ mod tests {
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
             explore_timeout: None,
+            review_spacing: Duration::from_millis(100),
         })
+    }
+
+    #[test]
+    fn crashes_soon_after_a_review_wait_for_the_spacing_other_perturbations_do_not() {
+        let mut s = schedule();
+        // A crash after a calm period: a review at once.
+        s.perturbed(&Perturbation::CuCrashed { cu: "cu-1".into() });
+        assert_eq!(s.wait(), Duration::ZERO);
+        assert!(s.due().0);
+        let (causes, _) = s.review_starts();
+        assert_eq!(causes.len(), 1);
+        s.review_ends(causes, None);
+        // Crashes right after it: held back until 100 ms after it started, then one review
+        // for all of them.
+        for cu in ["cu-2", "cu-3", "cu-4"] {
+            s.perturbed(&Perturbation::CuCrashed { cu: cu.into() });
+        }
+        assert!(!s.due().0, "a crash storm is coalesced");
+        let wait = s.wait();
+        assert!(
+            wait > Duration::ZERO && wait <= Duration::from_millis(100),
+            "{wait:?}"
+        );
+        std::thread::sleep(wait);
+        assert!(s.due().0);
+        let (causes, _) = s.review_starts();
+        assert_eq!(causes.len(), 3);
+        assert_eq!(s.status().crashes, 4);
+        s.review_ends(causes, None);
+        // A target added right after a review is not held back.
+        s.perturbed(&Perturbation::TargetAdded { target: "q".into() });
+        assert_eq!(s.wait(), Duration::ZERO);
+        assert!(s.due().0);
     }
 
     #[test]

@@ -522,3 +522,82 @@ fn a_restarted_manager_adopts_stops_and_respawns() {
             .is_none()
     );
 }
+
+#[test]
+fn an_event_about_a_cu_on_another_executor_is_ignored() {
+    use dyknow_cu::protocol::Event;
+    use dyknow_lifecycle::{FleetEvent, executor_event};
+    let crash = || Event::CuCrashed {
+        cu: "cu-1".into(),
+        transformation: "t".into(),
+        reason: "boom".into(),
+    };
+    let upkeep = || Event::Upkeep {
+        cu: "cu-1".into(),
+        transformation: "t".into(),
+        cpu_ms: 1e9,
+        over_ms: 1.0,
+    };
+    // A peer that does not host the CU can neither crash it nor skew its costs.
+    assert_eq!(executor_event("rogue", Some("a"), crash()), None);
+    assert_eq!(executor_event("rogue", Some("a"), upkeep()), None);
+    let crashed = FleetEvent::Crashed {
+        cu: "cu-1".into(),
+        reason: "boom".into(),
+    };
+    assert_eq!(
+        executor_event("a", Some("a"), crash()),
+        Some(crashed.clone())
+    );
+    // A CU not placed yet (its change set is being applied) is its executor's word.
+    assert_eq!(executor_event("a", None, crash()), Some(crashed));
+}
+
+#[test]
+fn what_executors_send_is_handled_without_trusting_it() {
+    use dyknow_lifecycle::{FleetEvent, Observation};
+    let manager = Manager::new(example_12(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager.review().unwrap();
+    let before = manager.change_sets(None).len();
+    // The crash of a CU the model does not have: nothing happens.
+    let unknown = FleetEvent::Crashed {
+        cu: "no-such-cu".into(),
+        reason: "rogue".into(),
+    };
+    assert_eq!(manager.handle(unknown).unwrap(), None);
+    // Upkeep over an interval that is not positive gives no observation.
+    for over_ms in [0.0, -5.0] {
+        let upkeep = FleetEvent::Upkeep {
+            cu: "no-such-cu".into(),
+            cpu_ms: 1.0,
+            over_ms,
+        };
+        assert_eq!(manager.handle(upkeep).unwrap(), None);
+    }
+    // Observations that are not finite and non-negative are not recorded.
+    let hostile = [f64::INFINITY, -1.0, f64::NAN].map(|value| Observation::Labour {
+        transformation: "tid3".into(),
+        value,
+    });
+    assert_eq!(manager.observe_all(hostile.to_vec()).unwrap(), 0);
+    // An unknown executor claiming CUs the model does not have: they are stopped (ModelOnly
+    // has nothing to stop) and nothing in the model changes.
+    let cus = manager.load().unwrap().env.cus.len();
+    let appeared = FleetEvent::Appeared {
+        executor: "rogue".into(),
+        cus: vec![dyknow_lifecycle::ReportedCu {
+            cu: "stray".into(),
+            transformation: "tid3".into(),
+            inputs: Default::default(),
+            outputs: Default::default(),
+            generation: u64::MAX,
+        }],
+    };
+    manager.handle(appeared).unwrap();
+    assert_eq!(manager.load().unwrap().env.cus.len(), cus);
+    let history = manager.change_sets(None);
+    assert!(history.len() <= before + 1);
+    for (i, c) in history.iter().enumerate() {
+        assert_eq!(c.id.number(), Some(i as u64 + 1));
+    }
+}

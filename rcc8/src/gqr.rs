@@ -15,6 +15,10 @@ use crate::relation::Relation;
 /// The largest number of variables accepted in an instance (the matrix is n² bytes).
 pub const MAX_VARIABLES: usize = 4_096;
 
+/// The most matrix cells (bytes) all the instances of one file may take together: four
+/// instances of [`MAX_VARIABLES`], so that a few bytes of headers cannot ask for gigabytes.
+pub const MAX_CELLS: usize = 4 * MAX_VARIABLES * MAX_VARIABLES;
+
 /// A syntax error, located.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("line {line}, column {column}: {message}")]
@@ -32,6 +36,7 @@ pub struct ParseError {
 pub fn parse(text: &str) -> Result<Vec<Network>, ParseError> {
     let mut out = Vec::new();
     let mut current: Option<Network> = None;
+    let mut cells = 0usize;
     for (index, raw) in text.lines().enumerate() {
         let line = index + 1;
         let content = raw.split('#').next().unwrap_or("");
@@ -71,6 +76,16 @@ pub fn parse(text: &str) -> Result<Vec<Network>, ParseError> {
                     format!(
                         "the highest variable index {max} is beyond the {} accepted ({MAX_VARIABLES} variables)",
                         MAX_VARIABLES - 1
+                    ),
+                ));
+            }
+            cells += (max + 1) * (max + 1);
+            if cells > MAX_CELLS {
+                return Err(err(
+                    column_of(trimmed),
+                    format!(
+                        "the instances of this file would need more than {MAX_CELLS} matrix cells \
+                         together (n² per instance of n variables)"
                     ),
                 ));
             }

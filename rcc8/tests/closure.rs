@@ -222,6 +222,17 @@ fn a_huge_header_is_an_error_not_an_overflow() {
 }
 
 #[test]
+fn a_small_file_cannot_ask_for_gigabytes() {
+    // 100 headers of the largest instance: 700 bytes asking for 1.6 GB before the bound.
+    let text = "4095\n.\n".repeat(100);
+    let e = gqr::parse(&text).unwrap_err();
+    assert_eq!(e.line, 9, "the fifth instance is one too many: {e}");
+    assert!(e.message.contains("matrix cells"), "{e}");
+    // Four of them fit.
+    assert_eq!(gqr::parse(&"4095\n.\n".repeat(4)).unwrap().len(), 4);
+}
+
+#[test]
 fn gqr_format_errors_name_the_place() {
     let e = gqr::parse("2\n0 1 ( XX )\n.\n").unwrap_err();
     assert_eq!((e.line, e.column), (2, 7));

@@ -201,6 +201,11 @@ pub struct ServeArgs {
     /// optimality is proven. Spawn, Destroy and crash reports wait for a running review.
     #[arg(long, value_name = "MS", default_value_t = 1000)]
     pub explore_timeout_ms: u64,
+    /// Crashes start a review at once, but not sooner than this many milliseconds after the
+    /// last review started: a crash storm is repaired by one review per interval, not one per
+    /// crash (docs/reliability.md). 0: a review per crash.
+    #[arg(long, value_name = "MS", default_value_t = 100)]
+    pub review_spacing_ms: u64,
     /// Turtle specs and ontology extensions (files or directories) to load at start-up.
     #[arg(long, value_name = "FILE_OR_DIR", num_args = 1..)]
     pub specs: Vec<PathBuf>,
@@ -777,6 +782,12 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     if !args.model_only {
         dataplane::check_access(&listen, zenoh_file.as_ref()).map_err(|e| Failure(2, e))?;
     }
+    if args.review_spacing_ms > 3_600_000 {
+        return Err(Failure(
+            2,
+            "--review-spacing-ms must be at most an hour (3600000)".into(),
+        ));
+    }
     if !(args.horizon.is_finite() && args.horizon >= 0.0) {
         return Err(Failure(2, "--horizon must be a non-negative number".into()));
     }
@@ -829,6 +840,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             time_unit: Duration::from_secs_f64(args.time_unit),
             explore_timeout: (args.explore_timeout_ms > 0)
                 .then(|| Duration::from_millis(args.explore_timeout_ms)),
+            review_spacing: Duration::from_millis(args.review_spacing_ms),
         },
     };
     let namespace = dyknow_cu::Namespace::new(args.namespace.clone())

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use dyknow_cu::zenoh::{self, Wait};
-use dyknow_lifecycle::{FleetEvent, LifecycleError, Manager, Observation, Perturbation};
+use dyknow_lifecycle::{FleetEvent, LifecycleError, Manager, Observation};
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio::time::Instant;
 
@@ -193,7 +193,6 @@ pub async fn forward(
     flush: Duration,
     grace: Duration,
 ) {
-    let time_unit_ms = manager.settings().time_unit.as_secs_f64() * 1e3;
     let mut pending: Vec<Observation> = Vec::new();
     let mut tick = tokio::time::interval(flush);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -212,44 +211,17 @@ pub async fn forward(
             }
             event = events.recv() => {
                 let Some(event) = event else { break };
-                match event {
-                    FleetEvent::Appeared { executor, cus } => {
-                        let m = manager.clone();
-                        run(move || m.reconcile(Some(&executor), cus, false).map(|_| ())).await;
-                        if starting && all_placed(&manager).await {
-                            starting = false;
-                            start_up_reconcile(&manager).await;
-                        }
-                    }
-                    FleetEvent::ExecutorsChanged => {
-                        let m = manager.clone();
-                        run(move || m.executors_changed()).await;
-                    }
-                    FleetEvent::Crashed { cu, reason } => {
-                        tracing::warn!("{cu} crashed: {reason}");
-                        let m = manager.clone();
-                        let name = cu.clone();
-                        match tokio::task::spawn_blocking(move || {
-                            m.report(Perturbation::CuCrashed { cu: name })
-                        })
-                        .await
-                        {
-                            Ok(Ok(())) | Ok(Err(LifecycleError::UnknownCu(_))) => {}
-                            Ok(Err(e)) => tracing::error!("cannot record the crash of {cu}: {e}"),
-                            Err(e) => tracing::error!("crash report panicked: {e}"),
-                        }
-                    }
-                    FleetEvent::Labour { transformation, cpu_ms } => {
-                        pending.push(Observation::Labour { transformation, value: cpu_ms });
-                    }
-                    FleetEvent::Upkeep { cu, cpu_ms, over_ms } => {
-                        if over_ms > 0.0 {
-                            pending.push(Observation::Upkeep {
-                                cu,
-                                value: cpu_ms * time_unit_ms / over_ms,
-                            });
-                        }
-                    }
+                let appeared = matches!(event, FleetEvent::Appeared { .. });
+                let m = manager.clone();
+                match tokio::task::spawn_blocking(move || m.handle(event)).await {
+                    Ok(Ok(Some(observation))) => pending.push(observation),
+                    Ok(Ok(None)) => {}
+                    Ok(Err(e)) => tracing::error!("data plane: {e}"),
+                    Err(e) => tracing::error!("data plane: {e}"),
+                }
+                if appeared && starting && all_placed(&manager).await {
+                    starting = false;
+                    start_up_reconcile(&manager).await;
                 }
             }
             _ = tick.tick() => {

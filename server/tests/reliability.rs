@@ -389,6 +389,16 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
     }
     let netns = Netns::new();
     let port = free_port();
+    // The manager listens on the host's end of the veth pair too: an address that is not
+    // loopback, which the access rule refuses without access control (docs/reliability.md).
+    // Zenoh's access control, allowing everything here, is what says it is intended.
+    let dir = tempfile::tempdir().unwrap();
+    let acl = dir.path().join("zenoh-acl.json5");
+    std::fs::write(
+        &acl,
+        r#"{ access_control: { enabled: true, default_permission: "allow" } }"#,
+    )
+    .unwrap();
     let service = Service::start_with(
         &["--in-memory"],
         &format!("tcp/127.0.0.1:{}", free_port()),
@@ -398,6 +408,8 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
             "1000",
             "--zenoh-listen",
             &format!("tcp/10.213.0.1:{port}"),
+            "--zenoh-config",
+            acl.to_str().unwrap(),
         ],
     );
     let source = tf(

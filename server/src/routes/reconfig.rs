@@ -552,6 +552,8 @@ pub struct EnvironmentJson {
     pub review_pending: bool,
     /// Reviews completed since the service started.
     pub reviews: u64,
+    /// CU crashes recorded since the service started (each one a perturbation).
+    pub crashes: u64,
     /// Why the last review failed (its change set was not applied), if it did.
     pub last_review_error: Option<String>,
     /// Every reason the environment is invalid.
@@ -589,6 +591,7 @@ pub async fn get_environment(
         next_review_at: dyknow_engine::rfc3339(life.next_review_at),
         review_pending: life.review_pending,
         reviews: life.reviews,
+        crashes: life.crashes,
         last_review_error: life.last_error,
         invalidities,
     }))

@@ -1,0 +1,233 @@
+//! Crash storms (docs/reliability.md, guarantee 3): a fault injector crashes CUs at 100 per
+//! second while ten pipelines run on a stand-alone executor. Reviews coalesce (far fewer
+//! reviews than crashes), no crash is lost (the manager records every crash the executor
+//! reported), and after the storm every target is satisfied again within one review. Memory
+//! does not stay flat (the guarantee is not met; the figures are printed and a loose bound
+//! guards against a worse leak). The storm lasts 5 s by default; `DYKNOW_STORM_SECS=60` runs the full minute the
+//! issue asks for, and the test prints its figures either way.
+#![expect(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "test harness: a failed set-up is a failed test"
+)]
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use dyknow_cu::protocol::Event;
+use dyknow_cu::zenoh::Wait;
+use dyknow_cu::{Namespace, Sample};
+use serde_json::json;
+
+mod support;
+
+use support::*;
+
+const PIPELINES: usize = 10;
+const CRASHES_PER_SECOND: u64 = 100;
+
+/// The service's resident memory, in kB.
+fn rss_kb(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap()
+}
+
+#[test]
+fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
+    let seconds: u64 = std::env::var("DYKNOW_STORM_SECS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    // The on-disk store, as `dyknow serve` runs by default.
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("store");
+    let service = Service::start_with(
+        &["--data", data.to_str().unwrap()],
+        &format!("tcp/127.0.0.1:{}", free_port()),
+        &["--no-executor"],
+    );
+    // A stand-alone executor: the memory of the manager and of the executor apart.
+    let executor = executor(&service, "storm");
+    let pid = service.child.id();
+    let executor_pid = executor.0.id();
+    let tags: Vec<(String, String)> = (0..PIPELINES)
+        .map(|i| (format!("Count{i}"), format!("Guarded{i}")))
+        .collect();
+    for (i, (count, guarded)) in tags.iter().enumerate() {
+        let counter = format!("counter{i}");
+        let guard = format!("guard{i}");
+        for spec in [
+            tf(
+                &counter,
+                "builtin",
+                "dyknow/signal",
+                &[("period_ms", "50")],
+                &[],
+                &[("out", count)],
+            ),
+            tf(
+                &guard,
+                "builtin",
+                "dyknow/fault",
+                &[],
+                &[("in", count)],
+                &[("out", guarded)],
+            ),
+        ] {
+            service.post("/transformations", &spec.turtle());
+        }
+        service.post(
+            "/targets",
+            &target(&format!("storm-{i}"), &format!("/storm{i}"), guarded),
+        );
+    }
+    let satisfied = |service: &Service| {
+        let environment = service.get("/environment");
+        (environment["unsatisfied_targets"]
+            .as_array()
+            .unwrap()
+            .is_empty()
+            && environment["valid"] == true)
+            .then_some(environment)
+    };
+    eventually("every target satisfied", Duration::from_secs(60), || {
+        satisfied(&service)
+    });
+    // The guards' in channels (their counters never crash, so these stay).
+    let channels: Vec<String> = (0..PIPELINES)
+        .map(|i| {
+            let guard = service.cu_of(&format!("guard{i}")).unwrap();
+            guard["inputs"]["in"].as_str().unwrap().to_owned()
+        })
+        .collect();
+
+    // The crashes the executor reports, counted where the manager hears them.
+    let session = service.session();
+    let reported = Arc::new(AtomicU64::new(0));
+    let counted = reported.clone();
+    let _events = session
+        .declare_subscriber(Namespace::default().executor_events("storm"))
+        .callback(move |sample| {
+            if let Ok(Event::CuCrashed { .. }) =
+                serde_json::from_slice::<Event>(&sample.payload().to_bytes())
+            {
+                counted.fetch_add(1, Ordering::SeqCst);
+            }
+        })
+        .wait()
+        .unwrap();
+    let before = service.get("/environment");
+    let crashes_before = before["crashes"].as_u64().unwrap();
+    let reviews_before = before["reviews"].as_u64().unwrap();
+    let publishers: Vec<_> = channels
+        .iter()
+        .map(|c| {
+            session
+                .declare_publisher(Namespace::default().channel(c).unwrap())
+                .wait()
+                .unwrap()
+        })
+        .collect();
+
+    // The storm: one fault command every 10 ms, round robin over the guards.
+    let start = Instant::now();
+    let end = start + Duration::from_secs(seconds);
+    let period = Duration::from_nanos(1_000_000_000 / CRASHES_PER_SECOND);
+    let mut next = start;
+    let mut injected = 0u64;
+    let mut rss: Vec<(Duration, u64)> = vec![(Duration::ZERO, rss_kb(pid))];
+    let mut executor_rss = vec![rss_kb(executor_pid)];
+    let mut next_sample = start + Duration::from_secs(1);
+    while Instant::now() < end {
+        let i = (injected as usize) % PIPELINES;
+        publishers[i]
+            .put(Sample::now(json!({"fault": "panic"})).to_bytes())
+            .wait()
+            .unwrap();
+        injected += 1;
+        if Instant::now() >= next_sample {
+            rss.push((start.elapsed(), rss_kb(pid)));
+            executor_rss.push(rss_kb(executor_pid));
+            next_sample += Duration::from_secs(1);
+        }
+        next += period;
+        if let Some(wait) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+    }
+    let storm = start.elapsed();
+    let crashed = reported.load(Ordering::SeqCst);
+
+    // After the storm: every crash recorded, every target satisfied again.
+    let recorded = eventually(
+        "the manager to record every reported crash",
+        Duration::from_secs(60),
+        || {
+            let environment = service.get("/environment");
+            let recorded = environment["crashes"].as_u64().unwrap() - crashes_before;
+            (recorded == reported.load(Ordering::SeqCst)).then_some(recorded)
+        },
+    );
+    let storm_end = service.get("/environment");
+    let reviews_at_end = storm_end["reviews"].as_u64().unwrap();
+    let in_flight = storm_end["phase"] == "review";
+    let repaired = eventually(
+        "every target satisfied after the storm",
+        Duration::from_secs(60),
+        || satisfied(&service),
+    );
+    let repaired_after = start.elapsed() - storm;
+    let reviews_to_repair = repaired["reviews"].as_u64().unwrap() - reviews_at_end;
+    let reviews = repaired["reviews"].as_u64().unwrap() - reviews_before;
+    // The streams flow again: a sample on every target channel.
+    for i in 0..PIPELINES {
+        let out = Listener::new(&session, &format!("/storm{i}"));
+        let (_, sample): (_, Sample) = out.next();
+        assert!(sample.value.is_number(), "{sample:?}");
+    }
+    let rss_after = rss_kb(pid);
+    let half = rss.len() / 2;
+    let first_half = rss[..half.max(1)].iter().map(|r| r.1).max().unwrap();
+    let second_half = rss[half..].iter().map(|r| r.1).max().unwrap();
+    let history = service.change_sets().len();
+    println!(
+        "storm: {seconds} s, {injected} fault commands ({:.0}/s), {crashed} crashes reported, \
+         {recorded} recorded; {reviews} reviews ({:.1} crashes per review); RSS max first half \
+         {first_half} kB, second half {second_half} kB, after {rss_after} kB \
+         (samples: {:?}; the executor's: {executor_rss:?}); satisfied again {} ms after the storm, {reviews_to_repair} review(s) \
+         after the last crash was recorded; {history} change sets",
+        injected as f64 / storm.as_secs_f64(),
+        crashed as f64 / reviews.max(1) as f64,
+        rss.iter().map(|r| r.1).collect::<Vec<_>>(),
+        repaired_after.as_millis(),
+    );
+    assert!(crashed > 0, "the injector crashed nothing");
+    assert_eq!(recorded, crashed, "a crash was lost");
+    assert!(
+        reviews < crashed,
+        "{reviews} reviews for {crashed} crashes: reviews did not coalesce"
+    );
+    // "Within one review": the review that starts after the last crash; one already running
+    // then (it began before that crash) may finish first.
+    let allowed = 1 + u64::from(in_flight);
+    assert!(
+        reviews_to_repair <= allowed,
+        "{reviews_to_repair} reviews after the last crash was recorded before every target was \
+         satisfied (a review in flight then: {in_flight})"
+    );
+    // Flat memory is NOT met (docs/reliability.md, guarantee 3): the manager grows with every
+    // review (~250 kB measured). This bound only guards against a worse leak.
+    let manager_first = rss[0].1;
+    let manager_last = rss.last().unwrap().1;
+    let per_review = manager_last.saturating_sub(manager_first) / reviews.max(1);
+    assert!(
+        per_review <= 1024,
+        "the manager grew {per_review} kB per review ({manager_first} → {manager_last} kB)"
+    );
+}
