@@ -9,6 +9,7 @@
 #   benches/run.sh groups      a formula group of 1,000 formulas over 100 live channels at 100 Hz (issue 15)
 #   benches/run.sh ui          the web view with 500 running CUs in headless chromium (issue 16)
 #   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
+#   benches/run.sh load        64 HTTP clients for 10 minutes with Chapter 6 running; SPARQL against `oxigraph serve`
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -62,4 +63,7 @@ if [ "$which" = all ] || [ "$which" = dataplane ]; then
   cargo bench --locked --workspace --bench chain -- --messages 1000 --rate 5 --idle-cus 0
   benches/peers/dora/run.sh --messages 1000 --rate 5
   cargo bench --locked --workspace --bench recovery
+fi
+if [ "$which" = all ] || [ "$which" = load ]; then
+  cargo bench --locked --workspace --bench load -- --secs 600 --clients 64
 fi

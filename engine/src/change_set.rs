@@ -34,8 +34,12 @@ pub enum Cause {
     },
     /// A CU crashed.
     CuCrashed {
-        /// The CU.
+        /// The CU (the first, when one review repairs several crashes).
         cu: Cid,
+        /// The other CUs that crashed before the review began (a burst of crashes is
+        /// repaired by one review, `--review-spacing-ms`).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        also: Vec<Cid>,
     },
     /// A client asked for it (Spawn, Destroy).
     Manual,
@@ -208,7 +212,10 @@ mod tests {
         let change_set = ChangeSet {
             id: ChangeSetId::numbered(2),
             at: "2026-11-21T12:00:00Z".to_owned(),
-            cause: Cause::CuCrashed { cu: "cu-3".into() },
+            cause: Cause::CuCrashed {
+                cu: "cu-3".into(),
+                also: vec!["cu-4".into()],
+            },
             cost: CostSummary {
                 total: 31.0,
                 labour: 1.0,
@@ -265,7 +272,7 @@ mod tests {
         assert_eq!(json["id"], "cs-2");
         assert_eq!(
             json["cause"],
-            serde_json::json!({"kind": "cu-crashed", "cu": "cu-3"})
+            serde_json::json!({"kind": "cu-crashed", "cu": "cu-3", "also": ["cu-4"]})
         );
         assert_eq!(
             json["actions"][1],

@@ -461,6 +461,7 @@ impl Executor for Fleet {
         let mut batches: Vec<(String, Vec<(usize, CuAction)>)> = Vec::new();
         let mut placed: BTreeMap<Cid, String> = lock(&inner.placement).clone();
         let mut spawned_processes: BTreeMap<String, u32> = BTreeMap::new();
+        let mut spawned: Vec<(Cid, String)> = Vec::new();
         for (index, action) in change_set.actions.iter().enumerate() {
             let Some(cu) = action.cu() else { continue };
             if failures.iter().any(|f| &f.cu == cu) {
@@ -489,6 +490,7 @@ impl Executor for Fleet {
                         *spawned_processes.entry(executor.clone()).or_default() += 1;
                     }
                     placed.insert(cu.clone(), executor.clone());
+                    spawned.push((cu.clone(), executor.clone()));
                     (
                         executor,
                         CuAction::Spawn {
@@ -535,6 +537,15 @@ impl Executor for Fleet {
             match batches.iter_mut().find(|(e, _)| *e == executor) {
                 Some((_, actions)) => actions.push((index, cu_action)),
                 None => batches.push((executor, vec![(index, cu_action)])),
+            }
+        }
+        // A CU is placed on its executor from the moment its spawn is sent: what that
+        // executor reports about it while the change set is applied (it runs, it crashed) is
+        // taken, what others report is not (`executor_event`).
+        {
+            let mut placement = lock(&inner.placement);
+            for (cu, executor) in spawned {
+                placement.insert(cu, executor);
             }
         }
         for (executor, actions) in batches {
@@ -590,15 +601,18 @@ impl Executor for Fleet {
             let executor = placed.get(cu).cloned();
             cus.insert(cu.clone(), CuOutcome { executor, state });
         }
+        // Only what this change set changed: a crash reported while it was applied has
+        // removed its CU already, and stays removed.
+        let mut placement = lock(&inner.placement);
         for action in &change_set.actions {
             if let Action::Destroy { cu } = action {
-                placed.remove(cu);
+                placement.remove(cu);
             }
         }
         for failure in &failures {
-            placed.remove(&failure.cu);
+            placement.remove(&failure.cu);
         }
-        *lock(&inner.placement) = placed;
+        drop(placement);
         failures.sort_by_key(|f| f.action);
         Applied { failures, cus }
     }
@@ -691,15 +705,18 @@ fn event_cu(event: &Event) -> &str {
 }
 
 /// What the manager makes of an event `executor` published on its key
-/// (`<ns>/@dyknow/events/<executor>`), given where the fleet places its CU (`placed`). An
-/// event about a CU placed on *another* executor is dropped: a rogue or confused peer must not
-/// crash, or skew the costs of, a CU it does not host. A CU not placed yet (its change set is
-/// still being applied) is the sender's word.
+/// (`<ns>/@dyknow/events/<executor>`), given where the fleet places its CU (`placed`; a CU is
+/// placed from the moment its spawn is sent). Only events about a CU placed on the sender are
+/// taken: a stale or confused peer cannot crash, or skew the costs of, a CU it does not host.
+/// (The sender is named by the key: telling an impostor from the real executor is the job of
+/// Zenoh's access control, docs/reliability.md.) A CU placed nowhere is not running for the
+/// manager; after a restart, reconciliation finds out what runs.
 pub fn executor_event(executor: &str, placed: Option<&str>, event: Event) -> Option<FleetEvent> {
-    if let Some(host) = placed.filter(|host| *host != executor) {
-        tracing::warn!(
-            "ignoring an event of {executor} about {}, which runs on {host}",
-            event_cu(&event)
+    if placed != Some(executor) {
+        tracing::debug!(
+            "ignoring an event of {executor} about {}, which runs {}",
+            event_cu(&event),
+            placed.map_or_else(|| "nowhere".to_owned(), |host| format!("on {host}"))
         );
         return None;
     }

@@ -37,9 +37,10 @@ pub struct Settings {
     /// configuration lock, so this also bounds how long Spawn, Destroy and crash reports wait.
     /// `None`: until optimality is proven.
     pub explore_timeout: Option<Duration>,
-    /// Crashes start a review at once, but not sooner than this after the last review
-    /// started: a burst of crashes (a crash storm) is repaired by one review per spacing, not
-    /// one per crash. Other perturbations are not held back. Zero: one review per crash.
+    /// Crashes the executors detect start a review at once, but not sooner than this after the
+    /// last review started: a burst of crashes (a crash storm) is repaired by one review per
+    /// spacing, not one per crash. Other perturbations, and crashes clients report, are not
+    /// held back. Zero: one review per crash.
     pub review_spacing: Duration,
 }
 
@@ -335,6 +336,9 @@ impl Manager {
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
+            // A crash a client reports is reviewed at once (`POST /perturbations`); those the
+            // executors detect are spaced (`Manager::handle`, `Settings::review_spacing`).
+            lock(&self.schedule).urgent();
         } else {
             lock(&self.schedule).perturbed(&perturbation);
         }
@@ -581,7 +585,21 @@ impl Manager {
         if reviewed.compiled.actions.is_empty() {
             return Ok(None);
         }
-        let cause = causes.first().cloned().unwrap_or(Cause::Review);
+        let cause = match causes.first().cloned().unwrap_or(Cause::Review) {
+            // One review for a burst of crashes: its cause names every CU it repairs.
+            Cause::CuCrashed { cu, mut also } => {
+                for other in &causes[1..] {
+                    if let Cause::CuCrashed { cu: other, .. } = other
+                        && *other != cu
+                        && !also.contains(other)
+                    {
+                        also.push(other.clone());
+                    }
+                }
+                Cause::CuCrashed { cu, also }
+            }
+            cause => cause,
+        };
         let committed = self.commit(
             configuration,
             ids,
@@ -913,8 +931,9 @@ impl Manager {
             FleetEvent::ExecutorsChanged => self.executors_changed()?,
             FleetEvent::Crashed { cu, reason } => {
                 tracing::warn!("{cu} crashed: {reason}");
-                match self.report(Perturbation::CuCrashed { cu }) {
-                    Ok(()) | Err(LifecycleError::UnknownCu(_)) => {}
+                match self.remove_crashed(&cu) {
+                    Ok(()) => self.wake.notify_one(),
+                    Err(LifecycleError::UnknownCu(_)) => {}
                     Err(e) => return Err(e),
                 }
             }

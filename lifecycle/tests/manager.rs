@@ -139,7 +139,8 @@ fn a_failed_action_is_recorded_and_its_cu_is_repaired_by_the_next_review() {
     assert_eq!(
         repair.cause,
         Cause::CuCrashed {
-            cu: failed.cu.clone()
+            cu: failed.cu.clone(),
+            also: Vec::new(),
         }
     );
     let loaded = manager.load().unwrap();

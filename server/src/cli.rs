@@ -201,9 +201,9 @@ pub struct ServeArgs {
     /// optimality is proven. Spawn, Destroy and crash reports wait for a running review.
     #[arg(long, value_name = "MS", default_value_t = 1000)]
     pub explore_timeout_ms: u64,
-    /// Crashes start a review at once, but not sooner than this many milliseconds after the
-    /// last review started: a crash storm is repaired by one review per interval, not one per
-    /// crash (docs/reliability.md). 0: a review per crash.
+    /// Crashes the executors detect start a review at once, but not sooner than this many
+    /// milliseconds after the last review started: a crash storm is repaired by one review per
+    /// interval, not one per crash (docs/reliability.md). 0: a review per crash. At most 10 s.
     #[arg(long, value_name = "MS", default_value_t = 100)]
     pub review_spacing_ms: u64,
     /// Turtle specs and ontology extensions (files or directories) to load at start-up.
@@ -782,10 +782,10 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     if !args.model_only {
         dataplane::check_access(&listen, zenoh_file.as_ref()).map_err(|e| Failure(2, e))?;
     }
-    if args.review_spacing_ms > 3_600_000 {
+    if args.review_spacing_ms > 10_000 {
         return Err(Failure(
             2,
-            "--review-spacing-ms must be at most an hour (3600000)".into(),
+            "--review-spacing-ms must be at most 10 s (10000)".into(),
         ));
     }
     if !(args.horizon.is_finite() && args.horizon >= 0.0) {

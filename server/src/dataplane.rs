@@ -41,7 +41,8 @@ impl ZenohFile {
         // Zenoh's default (`tcp/[::]:7447` for a router: every interface) is never used: a
         // file that does not list endpoints leaves them to the flags and their defaults.
         let listen = (endpoints(&config) != endpoints(&zenoh::Config::default()))
-            .then(|| router_endpoints(&endpoints(&config)));
+            .then(|| router_endpoints(&endpoints(&config)))
+            .filter(|listen| !listen.is_empty());
         Ok(Self {
             path: path.to_owned(),
             config,
@@ -54,11 +55,16 @@ impl ZenohFile {
         self.listen.as_deref()
     }
 
-    /// Whether the file turns on Zenoh's access control.
+    /// Whether the file turns on Zenoh's access control denying by default (rules then say
+    /// who may do what); access control that allows by default restricts nothing.
     pub fn access_control(&self) -> bool {
         self.config
             .get_json("access_control/enabled")
             .is_ok_and(|v| v == "true")
+            && self
+                .config
+                .get_json("access_control/default_permission")
+                .is_ok_and(|v| v == "\"deny\"")
     }
 
     /// Whether TLS links require client certificates (mutual TLS).
@@ -97,11 +103,23 @@ pub fn is_local(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
+/// A setting of an endpoint's configuration part (`proto/address#key=value;key=value`).
+fn endpoint_setting<'a>(endpoint: &'a str, key: &str) -> Option<&'a str> {
+    endpoint
+        .split_once('#')?
+        .1
+        .split(';')
+        .filter_map(|kv| kv.split_once('='))
+        .find(|(k, _)| k.trim() == key)
+        .map(|(_, v)| v.trim())
+}
+
 /// The access rule (`docs/reliability.md`): the data plane carries every stream and lets any
 /// peer that reaches it host CUs, so a Zenoh endpoint that other machines can reach is only
-/// opened with access control (`access_control` in `--zenoh-config`) or, for `tls/` and
-/// `quic/` endpoints, mutual TLS (client certificates). TLS without client certificates
-/// encrypts but lets anyone in.
+/// opened with access control denying by default (`access_control` in `--zenoh-config`) or,
+/// for `tls/` and `quic/` endpoints, mutual TLS (client certificates; the endpoint's own
+/// `#enable_mtls=` wins over the file's). TLS without client certificates encrypts but lets
+/// anyone in.
 pub fn check_access(listen: &[String], file: Option<&ZenohFile>) -> Result<(), String> {
     if file.is_some_and(ZenohFile::access_control) {
         return Ok(());
@@ -109,12 +127,15 @@ pub fn check_access(listen: &[String], file: Option<&ZenohFile>) -> Result<(), S
     let mutual_tls = file.is_some_and(ZenohFile::mutual_tls);
     for endpoint in listen {
         let tls = endpoint.starts_with("tls/") || endpoint.starts_with("quic/");
-        let protected = is_local(endpoint) || (tls && mutual_tls);
+        // An endpoint's own `#enable_mtls=…` overrides the file's.
+        let mutual = endpoint_setting(endpoint, "enable_mtls").map_or(mutual_tls, |v| v == "true");
+        let protected = is_local(endpoint) || (tls && mutual);
         if !protected {
             return Err(format!(
                 "refusing to listen on the non-loopback Zenoh endpoint {endpoint} without access \
                  control: use a tls/ endpoint with client certificates \
-                 (transport/link/tls/enable_mtls) or turn on access_control, in a --zenoh-config \
+                 (transport/link/tls/enable_mtls) or turn on access_control with \
+                 default_permission \"deny\", in a --zenoh-config \
                  file (docs/reliability.md)"
             ));
         }
@@ -318,11 +339,24 @@ mod tests {
         assert!(error.contains("tcp/0.0.0.0:7448"), "{error}");
         let acl = file(r#"{access_control: {enabled: true, default_permission: "deny"}}"#);
         assert!(check_access(&both, Some(&acl)).is_ok());
+        // Access control that allows by default restricts nothing.
+        let allow = file(r#"{access_control: {enabled: true, default_permission: "allow"}}"#);
+        assert!(check_access(&both, Some(&allow)).is_err());
+        // An endpoint that turns client certificates off is not protected by the file's.
+        let off = ["tls/0.0.0.0:7447#enable_mtls=false".to_owned()];
+        assert!(check_access(&off, Some(&mtls)).is_err());
+        let on = ["tls/0.0.0.0:7447#enable_mtls=true".to_owned()];
+        assert!(check_access(&on, Some(&tls_only)).is_ok());
     }
 
     #[test]
     fn a_file_gives_its_endpoints_and_zenohs_default_is_never_used() {
         assert_eq!(file("{}").listen(), None);
+        // Endpoints for other modes only: none for the router.
+        assert_eq!(
+            file(r#"{listen: {endpoints: {peer: ["tcp/127.0.0.1:7502"]}}}"#).listen(),
+            None
+        );
         let f = file(r#"{listen: {endpoints: ["tcp/127.0.0.1:7500"]}}"#);
         assert_eq!(f.listen(), Some(&["tcp/127.0.0.1:7500".to_owned()][..]));
         let f = file(r#"{listen: {endpoints: {router: ["tcp/127.0.0.1:7501"], peer: []}}}"#);

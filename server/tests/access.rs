@@ -9,15 +9,11 @@
     reason = "test harness: a failed set-up is a failed test"
 )]
 
-use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use dyknow_cu::client_config_file;
 use dyknow_cu::zenoh::{self, Wait};
-use rcgen::{
-    BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
-};
 
 mod support;
 
@@ -173,74 +169,4 @@ fn an_executor_its_process_cus_and_a_client_run_over_mutual_tls() {
             .is_err(),
         "a plain TCP client joined a TLS endpoint"
     );
-}
-
-/// A certificate authority and one certificate it signed for `localhost` (server and client
-/// use), written as PEM files in a directory.
-struct Certificates {
-    ca: PathBuf,
-    certificate: PathBuf,
-    key: PathBuf,
-}
-
-impl Certificates {
-    fn generate(dir: &Path) -> Self {
-        let ca_key = KeyPair::generate().unwrap();
-        let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
-        ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-        ca_params
-            .distinguished_name
-            .push(DnType::CommonName, "DyKnow test authority");
-        let ca = ca_params.self_signed(&ca_key).unwrap();
-        let issuer = Issuer::new(ca_params, ca_key);
-        let key = KeyPair::generate().unwrap();
-        let mut params =
-            CertificateParams::new(vec!["localhost".to_owned(), "127.0.0.1".to_owned()]).unwrap();
-        params
-            .distinguished_name
-            .push(DnType::CommonName, "dyknow-test-peer");
-        params.extended_key_usages = vec![
-            ExtendedKeyUsagePurpose::ServerAuth,
-            ExtendedKeyUsagePurpose::ClientAuth,
-        ];
-        let certificate = params.signed_by(&key, &issuer).unwrap();
-        let write = |name: &str, pem: String| {
-            let path = dir.join(name);
-            std::fs::write(&path, pem).unwrap();
-            path
-        };
-        Self {
-            ca: write("ca.pem", ca.pem()),
-            certificate: write("peer.pem", certificate.pem()),
-            key: write("peer-key.pem", key.serialize_pem()),
-        }
-    }
-
-    /// A Zenoh configuration file: TLS with these certificates, mutual or not.
-    fn config(&self, dir: &Path, name: &str, mutual: bool) -> PathBuf {
-        let text = format!(
-            r#"{{ transport: {{ link: {{ tls: {{
-                root_ca_certificate: {ca:?},
-                listen_certificate: {cert:?}, listen_private_key: {key:?},
-                connect_certificate: {cert:?}, connect_private_key: {key:?},
-                enable_mtls: {mutual}, verify_name_on_connect: true }} }} }} }}"#,
-            ca = self.ca,
-            cert = self.certificate,
-            key = self.key,
-        );
-        let path = dir.join(name);
-        std::fs::write(&path, text).unwrap();
-        path
-    }
-
-    /// A client configuration that trusts the authority but has no certificate of its own.
-    fn anonymous_config(&self, dir: &Path) -> PathBuf {
-        let path = dir.join("anonymous.json5");
-        let text = format!(
-            "{{ transport: {{ link: {{ tls: {{ root_ca_certificate: {:?} }} }} }} }}",
-            self.ca
-        );
-        std::fs::write(&path, text).unwrap();
-        path
-    }
 }

@@ -390,15 +390,12 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
     let netns = Netns::new();
     let port = free_port();
     // The manager listens on the host's end of the veth pair too: an address that is not
-    // loopback, which the access rule refuses without access control (docs/reliability.md).
-    // Zenoh's access control, allowing everything here, is what says it is intended.
+    // loopback, which the access rule refuses without protection (docs/reliability.md): a
+    // tls/ endpoint with client certificates, as a manager on a real network would.
     let dir = tempfile::tempdir().unwrap();
-    let acl = dir.path().join("zenoh-acl.json5");
-    std::fs::write(
-        &acl,
-        r#"{ access_control: { enabled: true, default_permission: "allow" } }"#,
-    )
-    .unwrap();
+    let certificates = Certificates::generate_for(dir.path(), &["10.213.0.1", "localhost"]);
+    let mtls = certificates.config(dir.path(), "mtls.json5", true);
+    let mtls = mtls.to_str().unwrap();
     let service = Service::start_with(
         &["--in-memory"],
         &format!("tcp/127.0.0.1:{}", free_port()),
@@ -407,9 +404,9 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
             "--zenoh-lease-ms",
             "1000",
             "--zenoh-listen",
-            &format!("tcp/10.213.0.1:{port}"),
+            &format!("tls/10.213.0.1:{port}"),
             "--zenoh-config",
-            acl.to_str().unwrap(),
+            mtls,
         ],
     );
     let source = tf(
@@ -434,8 +431,8 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
     // Executor b, in the namespace, runs the pipeline first.
     let mut b = Command::new("ip")
         .args(["netns", "exec", &netns.name, BIN, "executor", "--name", "b"])
-        .args(["--connect", &format!("tcp/10.213.0.1:{port}")])
-        .args(["--zenoh-lease-ms", "1000"])
+        .args(["--connect", &format!("tls/10.213.0.1:{port}")])
+        .args(["--zenoh-lease-ms", "1000", "--zenoh-config", mtls])
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())

@@ -5,12 +5,16 @@
 pub mod browser;
 
 use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use dyknow_cu::zenoh::{self, Wait};
 use dyknow_cu::{Namespace, Sample};
+use rcgen::{
+    BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
+};
 use serde_json::Value;
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
@@ -75,7 +79,7 @@ impl Service {
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
-        let line = wait_for_line(&mut child, "listening on ");
+        let line = wait_for_line(&mut child, "knowledge service listening on ");
         let url = line
             .split("listening on ")
             .nth(1)
@@ -367,10 +371,13 @@ pub fn crash_change_set(service: &Service, cu: &str) -> Value {
         "a change set repairing the crash",
         Duration::from_secs(30),
         || {
-            service
-                .change_sets()
-                .into_iter()
-                .find(|c| c["cause"]["kind"] == "cu-crashed" && c["cause"]["cu"] == cu)
+            service.change_sets().into_iter().find(|c| {
+                c["cause"]["kind"] == "cu-crashed"
+                    && (c["cause"]["cu"] == cu
+                        || c["cause"]["also"]
+                            .as_array()
+                            .is_some_and(|also| also.iter().any(|a| a == cu)))
+            })
         },
     )
 }
@@ -391,4 +398,80 @@ pub fn children(pid: u32) -> Vec<u32> {
         }
     }
     out
+}
+
+/// A certificate authority and one certificate it signed (server and client use), written as
+/// PEM files in a directory (the TLS tests: access.rs, reliability.rs).
+pub struct Certificates {
+    pub ca: PathBuf,
+    pub certificate: PathBuf,
+    pub key: PathBuf,
+}
+
+impl Certificates {
+    pub fn generate(dir: &Path) -> Self {
+        Self::generate_for(dir, &["localhost", "127.0.0.1"])
+    }
+
+    /// A certificate for these names and addresses.
+    pub fn generate_for(dir: &Path, names: &[&str]) -> Self {
+        let ca_key = KeyPair::generate().unwrap();
+        let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+        ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+        ca_params
+            .distinguished_name
+            .push(DnType::CommonName, "DyKnow test authority");
+        let ca = ca_params.self_signed(&ca_key).unwrap();
+        let issuer = Issuer::new(ca_params, ca_key);
+        let key = KeyPair::generate().unwrap();
+        let mut params =
+            CertificateParams::new(names.iter().map(|n| (*n).to_owned()).collect::<Vec<_>>())
+                .unwrap();
+        params
+            .distinguished_name
+            .push(DnType::CommonName, "dyknow-test-peer");
+        params.extended_key_usages = vec![
+            ExtendedKeyUsagePurpose::ServerAuth,
+            ExtendedKeyUsagePurpose::ClientAuth,
+        ];
+        let certificate = params.signed_by(&key, &issuer).unwrap();
+        let write = |name: &str, pem: String| {
+            let path = dir.join(name);
+            std::fs::write(&path, pem).unwrap();
+            path
+        };
+        Self {
+            ca: write("ca.pem", ca.pem()),
+            certificate: write("peer.pem", certificate.pem()),
+            key: write("peer-key.pem", key.serialize_pem()),
+        }
+    }
+
+    /// A Zenoh configuration file: TLS with these certificates, mutual or not.
+    pub fn config(&self, dir: &Path, name: &str, mutual: bool) -> PathBuf {
+        let text = format!(
+            r#"{{ transport: {{ link: {{ tls: {{
+                root_ca_certificate: {ca:?},
+                listen_certificate: {cert:?}, listen_private_key: {key:?},
+                connect_certificate: {cert:?}, connect_private_key: {key:?},
+                enable_mtls: {mutual}, verify_name_on_connect: true }} }} }} }}"#,
+            ca = self.ca,
+            cert = self.certificate,
+            key = self.key,
+        );
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    /// A client configuration that trusts the authority but has no certificate of its own.
+    pub fn anonymous_config(&self, dir: &Path) -> PathBuf {
+        let path = dir.join("anonymous.json5");
+        let text = format!(
+            "{{ transport: {{ link: {{ tls: {{ root_ca_certificate: {:?} }} }} }} }}",
+            self.ca
+        );
+        std::fs::write(&path, text).unwrap();
+        path
+    }
 }
