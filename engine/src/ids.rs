@@ -185,7 +185,9 @@ impl ChangeSetId {
 /// every number seen, skipping names in use (a CU or channel named `cu-5` by a client).
 ///
 /// Invariant: `next_cu` (`next_channel`) is at least every N of a `cu-N` (`ch-N`) handed out
-/// or observed, and `taken` holds every name observed, reserved or handed out.
+/// or observed, and `taken` holds every other name observed or reserved (a client's `camera`,
+/// a channel named `cu-5`). Minted names are only counted, so a service that respawns CUs for
+/// months keeps two counters, not every name it ever gave.
 #[derive(Debug, Clone, Default)]
 pub struct Ids {
     next_cu: u64,
@@ -231,21 +233,26 @@ impl Ids {
     pub fn reserve_cu(&mut self, cid: &Cid) {
         if let Some(n) = cid.minted_number() {
             self.next_cu = self.next_cu.max(n);
+        } else {
+            self.taken.insert(cid.0.clone());
         }
-        self.taken.insert(cid.0.clone());
     }
 
     /// Marks a channel name as used.
     pub fn reserve_channel(&mut self, channel: &Channel) {
         if let Some(n) = channel.minted_number() {
             self.next_channel = self.next_channel.max(n);
+        } else {
+            self.taken.insert(channel.0.clone());
         }
-        self.taken.insert(channel.0.clone());
     }
 
-    /// Whether `name` was observed, reserved or handed out (as a CU or a channel).
+    /// Whether `name` may not be handed out: observed, reserved or handed out (as a CU or a
+    /// channel), or a minted name at or below its counter.
     pub fn is_taken(&self, name: &str) -> bool {
         self.taken.contains(name)
+            || number(name, CU_PREFIX).is_some_and(|n| n <= self.next_cu)
+            || number(name, CHANNEL_PREFIX).is_some_and(|n| n <= self.next_channel)
     }
 
     fn fresh(&mut self, prefix: &str, counter: fn(&mut Self) -> &mut u64) -> String {
@@ -255,10 +262,34 @@ impl Ids {
                 *c += 1;
                 *c
             };
+            // A minted name above the counter can only be taken as a name of the other kind
+            // (a CU named `ch-7`), which `taken` holds.
             let id = format!("{prefix}{n}");
-            if self.taken.insert(id.clone()) {
+            if !self.taken.contains(&id) {
                 return id;
             }
+        }
+    }
+
+    /// The highest minted names handed out or observed, `cu-N` and `ch-N` (none before the
+    /// first): reserving them again reserves every minted name below them too.
+    pub fn highest_minted(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.next_cu > 0 {
+            out.push(format!("{CU_PREFIX}{}", self.next_cu));
+        }
+        if self.next_channel > 0 {
+            out.push(format!("{CHANNEL_PREFIX}{}", self.next_channel));
+        }
+        out
+    }
+
+    /// Reserves a name of either kind: `cu-N` as a CU, `ch-N` as a channel, any other as both.
+    pub fn reserve_name(&mut self, name: &str) {
+        if number(name, CU_PREFIX).is_some() {
+            self.reserve_cu(&Cid::from(name));
+        } else {
+            self.reserve_channel(&Channel::from(name));
         }
     }
 
@@ -303,7 +334,27 @@ mod tests {
         // A CU named like a channel (or the reverse) is never handed out as either.
         ids.reserve_cu(&Cid::from("ch-4"));
         assert_eq!(ids.channel(), "ch-5");
-        assert!(ids.is_taken("cu-4") && ids.is_taken("ch-4") && !ids.is_taken("cu-5"));
+        assert!(ids.is_taken("cu-4") && ids.is_taken("ch-4") && !ids.is_taken("cu-8"));
+        // Below the counter, a minted name is never handed out: taken.
+        assert!(ids.is_taken("cu-5"));
+        // Minted names are counted, not kept: a thousand respawns keep the set empty.
+        let mut ids = Ids::default();
+        for _ in 0..1000 {
+            let cu = ids.cu();
+            ids.reserve_cu(&cu);
+        }
+        assert!(ids.taken.is_empty());
+        assert_eq!(ids.cu(), "cu-1001");
+        // What the highest names reserve, read back into fresh counters.
+        ids.channel();
+        let mut again = Ids::default();
+        for name in ids.highest_minted() {
+            again.reserve_name(&name);
+        }
+        assert_eq!(again.highest_minted(), ["cu-1001", "ch-1"]);
+        assert_eq!(again.cu(), "cu-1002");
+        again.reserve_name("camera");
+        assert!(again.is_taken("camera"));
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! The change-set history: every change set the life-cycle recorded, oldest first, read back
-//! from the knowledge base at start-up.
+//! The change-set history: the change sets the life-cycle recorded, oldest first, read back
+//! from the knowledge base at start-up; the last `--history-limit` of them (older ones are
+//! pruned from the store and from memory, the names they used stay reserved).
 
 use std::sync::Arc;
 
@@ -51,6 +52,29 @@ impl History {
             .and_then(|s| self.change_sets.iter().position(|c| c.id == s))
             .map_or(0, |i| i + 1);
         self.change_sets[start..].to_vec()
+    }
+
+    /// The ids of the oldest change sets to prune so that, with one more recorded, at most
+    /// `limit` remain (none when `limit` is 0: no limit).
+    pub(crate) fn beyond(&self, limit: usize) -> Vec<ChangeSetId> {
+        if limit == 0 {
+            return Vec::new();
+        }
+        let excess = (self.change_sets.len() + 1).saturating_sub(limit);
+        self.change_sets[..excess.min(self.change_sets.len())]
+            .iter()
+            .map(|c| c.id.clone())
+            .collect()
+    }
+
+    /// Forgets the `n` oldest change sets (their records were removed from the store).
+    pub(crate) fn prune(&mut self, n: usize) {
+        self.change_sets.drain(..n.min(self.change_sets.len()));
+    }
+
+    /// The number of change sets held.
+    pub(crate) fn len(&self) -> usize {
+        self.change_sets.len()
     }
 
     /// The change set `id`.

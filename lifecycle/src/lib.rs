@@ -39,6 +39,6 @@ mod schedule;
 pub use error::LifecycleError;
 pub use executor::{Applied, CuView, Executor, ModelOnly, ReportedCu};
 pub use fleet::{ExecutorSummary, Fleet, FleetEvent, appeared, executor_event};
-pub use manager::{Manager, Observation, Settings, SpawnRequest};
+pub use manager::{DEFAULT_HISTORY_LIMIT, Manager, Observation, Settings, SpawnRequest};
 pub use perturbation::Perturbation;
 pub use schedule::{Phase, Status};

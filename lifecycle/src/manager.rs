@@ -42,7 +42,14 @@ pub struct Settings {
     /// spacing, not one per crash. Other perturbations, and crashes clients report, are not
     /// held back. Zero: one review per crash.
     pub review_spacing: Duration,
+    /// How many change sets the history keeps (in the store and in memory): recording one
+    /// more prunes the oldest, whose names stay reserved. 0: every change set is kept (memory
+    /// and start-up time then grow with the history).
+    pub history_limit: usize,
 }
+
+/// The default of [`Settings::history_limit`].
+pub const DEFAULT_HISTORY_LIMIT: usize = 1000;
 
 impl Default for Settings {
     fn default() -> Self {
@@ -51,6 +58,7 @@ impl Default for Settings {
             time_unit: Duration::from_secs(1),
             explore_timeout: Some(Duration::from_secs(1)),
             review_spacing: Duration::from_millis(100),
+            history_limit: DEFAULT_HISTORY_LIMIT,
         }
     }
 }
@@ -204,12 +212,34 @@ impl Manager {
             );
             unreadable.extend(record.id);
         }
-        let history = History::new(records.change_sets, &unreadable);
+        let mut history = History::new(records.change_sets, &unreadable);
         let learned = model::learned(&kb)?;
         let specs = SpecCache::default();
         let loaded = specs.load(&kb, Some(&learned))?;
         let mut ids = Ids::after(&loaded.env);
         history.reserve_names(&mut ids);
+        for name in model::reserved_names(&kb)? {
+            ids.reserve_name(&name);
+        }
+        // A history longer than the limit (the limit was lowered): pruned now.
+        let excess = history.len().saturating_sub(settings.history_limit);
+        if settings.history_limit > 0 && excess > 0 {
+            let mut parts: Vec<(EnvironmentPart, Vec<_>)> = history
+                .beyond(settings.history_limit + 1)
+                .into_iter()
+                .map(|id| (EnvironmentPart::ChangeSet(id), Vec::new()))
+                .collect();
+            parts.push((
+                EnvironmentPart::History,
+                model::history_triples(ids.highest_minted().iter().map(String::as_str)),
+            ));
+            kb.set_environment(&parts)?;
+            history.prune(excess);
+            tracing::info!(
+                "pruned the {excess} oldest change sets (--history-limit {})",
+                settings.history_limit
+            );
+        }
         let (events, _) = broadcast::channel(256);
         Ok(Self {
             executor,
@@ -688,6 +718,30 @@ impl Manager {
             EnvironmentPart::ChangeSet(id),
             model::change_set_triples(&change_set),
         ));
+        // The oldest records beyond the history limit go in the same write; the names they
+        // used stay reserved (the configuration's counters are above all of them).
+        let pruned = self
+            .history
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .beyond(self.settings.history_limit);
+        if !pruned.is_empty() {
+            parts.extend(
+                pruned
+                    .iter()
+                    .map(|id| (EnvironmentPart::ChangeSet(id.clone()), Vec::new())),
+            );
+            parts.push((
+                EnvironmentPart::History,
+                model::history_triples(
+                    configuration
+                        .ids
+                        .highest_minted()
+                        .iter()
+                        .map(String::as_str),
+                ),
+            ));
+        }
         // A spawn that failed cost labour and gave nothing: its transformation's labour
         // estimate doubles (as an observation), so a transformation that keeps failing to
         // start loses to its alternatives instead of crash-looping.
@@ -722,10 +776,11 @@ impl Manager {
             *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
         }
         let change_set = Arc::new(change_set);
-        self.history
-            .write()
-            .unwrap_or_else(PoisonError::into_inner)
-            .push(change_set.clone());
+        {
+            let mut history = self.history.write().unwrap_or_else(PoisonError::into_inner);
+            history.push(change_set.clone());
+            history.prune(pruned.len());
+        }
         let _ = self.events.send(change_set.clone());
         let mut schedule = lock(&self.schedule);
         if crashed.is_empty() {

@@ -255,6 +255,7 @@ mod tests {
             time_unit: Duration::from_secs(1),
             explore_timeout: None,
             review_spacing: Duration::from_millis(100),
+            history_limit: 0,
         })
     }
 

@@ -600,3 +600,82 @@ fn what_executors_send_is_handled_without_trusting_it() {
         assert_eq!(c.id.number(), Some(i as u64 + 1));
     }
 }
+
+/// The change-set graphs in the store.
+fn recorded_graphs(kb: &KnowledgeBase) -> usize {
+    kb.store()
+        .named_graphs()
+        .filter(|g| {
+            g.as_ref()
+                .is_ok_and(|g| g.to_string().contains("environment:changeset:"))
+        })
+        .count()
+}
+
+#[test]
+fn the_history_keeps_the_last_change_sets_and_the_names_they_used_stay_reserved() {
+    let kb = example_12();
+    let unlimited = Settings {
+        history_limit: 0,
+        ..Settings::default()
+    };
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), unlimited).unwrap();
+    let first = manager.spawn(SpawnRequest::new("tid3")).unwrap();
+    manager.destroy(&first.cid).unwrap();
+    manager
+        .spawn(SpawnRequest::new("tid3").named("camera"))
+        .unwrap();
+    assert_eq!(manager.change_sets(None).len(), 3);
+    drop(manager);
+    // Restarted with a limit of 1: the two oldest are pruned at start-up, from the store too,
+    // and the one left names only `camera`; the minted name of the pruned ones stays taken.
+    let limited = Settings {
+        history_limit: 1,
+        ..Settings::default()
+    };
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), limited).unwrap();
+    let ids: Vec<String> = manager
+        .change_sets(None)
+        .iter()
+        .map(|c| c.id.to_string())
+        .collect();
+    assert_eq!(ids, ["cs-3"]);
+    assert_eq!(recorded_graphs(&kb), 1);
+    assert_eq!(
+        dyknow_store::model::reserved_names(&kb).unwrap(),
+        [first.cid.to_string()]
+    );
+    let second = manager.spawn(SpawnRequest::new("tid3")).unwrap();
+    assert!(
+        second.cid.minted_number() > first.cid.minted_number(),
+        "{} after {}",
+        second.cid,
+        first.cid
+    );
+    // Recording prunes in the same write: still one record, numbers go on.
+    manager.destroy(&second.cid).unwrap();
+    let ids: Vec<String> = manager
+        .change_sets(None)
+        .iter()
+        .map(|c| c.id.to_string())
+        .collect();
+    assert_eq!(ids, ["cs-5"]);
+    assert_eq!(recorded_graphs(&kb), 1);
+    // `since` an id pruned meanwhile gives what is kept.
+    assert_eq!(manager.change_sets(Some("cs-1")).len(), 1);
+    assert!(manager.change_set("cs-1").is_none());
+    drop(manager);
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), limited).unwrap();
+    let third = manager.spawn(SpawnRequest::new("tid3")).unwrap();
+    assert!(third.cid.minted_number() > second.cid.minted_number());
+    assert_eq!(
+        manager.change_sets(None).last().unwrap().id.to_string(),
+        "cs-6"
+    );
+    // Pruned records leave no trace in the inferred graph either.
+    let (extra, missing) = kb.materialisation_drift().unwrap();
+    assert!(
+        extra.is_empty() && missing.is_empty(),
+        "{extra:?} {missing:?}"
+    );
+}

@@ -161,6 +161,9 @@ pub mod dkros {
         CAUSE = "cause";
         /// `dkros:changeSetJson`, the whole change set as change set JSON.
         CHANGE_SET_JSON = "changeSetJson";
+        /// `dkros:reservesName`: a name the life-cycle never hands out again, kept when the
+        /// change sets that used it are pruned from the history.
+        RESERVES_NAME = "reservesName";
     }
 }
 

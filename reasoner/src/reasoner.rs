@@ -114,6 +114,7 @@ impl Reasoner {
             reasoner.assert_fact(f, &mut queue);
         }
         reasoner.saturate(queue);
+        reasoner.dict.pin();
         reasoner
     }
 
@@ -130,6 +131,12 @@ impl Reasoner {
     /// Whether the materialisation is empty.
     pub fn is_empty(&self) -> bool {
         self.facts.len() == 0
+    }
+
+    /// The number of terms the reasoner holds: the schema's and those of the explicit triples
+    /// (terms no triple uses any more are released).
+    pub fn terms(&self) -> usize {
+        self.dict.len()
     }
 
     /// The number of distinct explicit triples.
@@ -265,11 +272,20 @@ impl Reasoner {
                 *n -= 1;
                 if *n == 0 {
                     self.explicit.remove(f);
+                    for id in f {
+                        self.dict.remove_use(*id);
+                    }
                 }
             }
         }
         for f in added {
-            *self.explicit.entry(*f).or_insert(0) += 1;
+            let n = self.explicit.entry(*f).or_insert(0);
+            *n += 1;
+            if *n == 1 {
+                for id in f {
+                    self.dict.add_use(*id);
+                }
+            }
         }
         let gone: Vec<Fact> = touched
             .keys()
@@ -317,6 +333,8 @@ impl Reasoner {
             self.check_fact(*f, &mut found);
         }
         update.violations = self.violations_of(found);
+        // Every fact is up to date: terms no explicit fact uses are in no fact any more.
+        self.dict.release_unused();
         update
     }
 

@@ -206,6 +206,11 @@ pub struct ServeArgs {
     /// interval, not one per crash (docs/reliability.md). 0: a review per crash. At most 10 s.
     #[arg(long, value_name = "MS", default_value_t = 100)]
     pub review_spacing_ms: u64,
+    /// How many change sets the history keeps: recording one more prunes the oldest from the
+    /// store and from memory (the names they used stay reserved), so memory and start-up time
+    /// do not grow with the service's age. 0 keeps every change set.
+    #[arg(long, value_name = "N", default_value_t = dyknow_lifecycle::DEFAULT_HISTORY_LIMIT)]
+    pub history_limit: usize,
     /// Turtle specs and ontology extensions (files or directories) to load at start-up.
     #[arg(long, value_name = "FILE_OR_DIR", num_args = 1..)]
     pub specs: Vec<PathBuf>,
@@ -841,6 +846,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             explore_timeout: (args.explore_timeout_ms > 0)
                 .then(|| Duration::from_millis(args.explore_timeout_ms)),
             review_spacing: Duration::from_millis(args.review_spacing_ms),
+            history_limit: args.history_limit,
         },
     };
     let namespace = dyknow_cu::Namespace::new(args.namespace.clone())

@@ -1,10 +1,11 @@
 //! Crash storms (docs/reliability.md, guarantee 3): a fault injector crashes CUs at 100 per
 //! second while ten pipelines run on a stand-alone executor. Reviews coalesce (far fewer
 //! reviews than crashes), no crash is lost (the manager records every crash the executor
-//! reported), and after the storm every target is satisfied again within one review. Memory
-//! does not stay flat (the guarantee is not met; the figures are printed and a loose bound
-//! guards against a worse leak). The storm lasts 5 s by default; `DYKNOW_STORM_SECS=60` runs the full minute the
-//! issue asks for, and the test prints its figures either way.
+//! reported), and after the storm every target is satisfied again within one review. What the
+//! manager holds is bounded, but its resident memory still creeps (the guarantee is partly
+//! met; the figures are printed and a bound guards against a leak). The storm lasts 5 s by
+//! default; `DYKNOW_STORM_SECS=60` runs the full minute the issue asks for, and the test prints
+//! its figures either way.
 #![expect(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -36,6 +37,44 @@ fn rss_kb(pid: u32) -> u64 {
         .and_then(|v| v.split_whitespace().next())
         .and_then(|v| v.parse().ok())
         .unwrap()
+}
+
+/// The change sets recorded since a point, read incrementally with `?since=`.
+struct Recorded {
+    last: Option<String>,
+    count: usize,
+    failed_cus: std::collections::BTreeSet<String>,
+}
+
+impl Recorded {
+    fn after(service: &Service) -> Self {
+        let last = service
+            .change_sets()
+            .last()
+            .and_then(|c| c["id"].as_str().map(str::to_owned));
+        Self {
+            last,
+            count: 0,
+            failed_cus: Default::default(),
+        }
+    }
+
+    fn read(&mut self, service: &Service) {
+        let path = match &self.last {
+            Some(id) => format!("/changesets?since={id}"),
+            None => "/changesets".to_owned(),
+        };
+        let new = service.get(&path);
+        for c in new.as_array().unwrap() {
+            self.count += 1;
+            self.last = c["id"].as_str().map(str::to_owned);
+            for f in c["failures"].as_array().cloned().unwrap_or_default() {
+                if let Some(cu) = f["cu"].as_str() {
+                    self.failed_cus.insert(cu.to_owned());
+                }
+            }
+        }
+    }
 }
 
 #[test]
@@ -125,7 +164,9 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
     let before = service.get("/environment");
     let crashes_before = before["crashes"].as_u64().unwrap();
     let reviews_before = before["reviews"].as_u64().unwrap();
-    let history_before = service.change_sets().len();
+    // The change sets recorded from here on, read as they come (`?since=`): the history keeps
+    // the last 1,000 only (`--history-limit`), and a long storm records more.
+    let mut recorded_sets = Recorded::after(&service);
     let publishers: Vec<_> = channels
         .iter()
         .map(|c| {
@@ -155,6 +196,7 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
         if Instant::now() >= next_sample {
             rss.push((start.elapsed(), rss_kb(pid)));
             executor_rss.push(rss_kb(executor_pid));
+            recorded_sets.read(&service);
             next_sample += Duration::from_secs(1);
         }
         next += period;
@@ -168,21 +210,14 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
     // recorded as one (`crashes`), or, when the CU crashed while its change set was still
     // being applied, as that change set's failed action (the model drops the CU then, and the
     // crash report finds it gone).
-    let failed_cus = |service: &Service| -> u64 {
-        service.change_sets()[history_before..]
-            .iter()
-            .flat_map(|c| c["failures"].as_array().cloned().unwrap_or_default())
-            .filter_map(|f| f["cu"].as_str().map(str::to_owned))
-            .collect::<std::collections::BTreeSet<_>>()
-            .len() as u64
-    };
     let (recorded, failed) = eventually(
         "the manager to account for every reported crash",
         Duration::from_secs(60),
         || {
             let environment = service.get("/environment");
             let recorded = environment["crashes"].as_u64().unwrap() - crashes_before;
-            let failed = failed_cus(&service);
+            recorded_sets.read(&service);
+            let failed = recorded_sets.failed_cus.len() as u64;
             (recorded + failed >= reported.load(Ordering::SeqCst)).then_some((recorded, failed))
         },
     );
@@ -208,13 +243,14 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
     let half = rss.len() / 2;
     let first_half = rss[..half.max(1)].iter().map(|r| r.1).max().unwrap();
     let second_half = rss[half..].iter().map(|r| r.1).max().unwrap();
-    let history = service.change_sets().len();
+    recorded_sets.read(&service);
+    let history = recorded_sets.count;
     println!(
         "storm: {seconds} s, {injected} fault commands ({:.0}/s), {crashed} crashes reported, \
          {recorded} recorded as crashes and {failed} as failed actions; {reviews} reviews ({:.1} crashes per review); RSS max first half \
          {first_half} kB, second half {second_half} kB, after {rss_after} kB \
          (samples: {:?}; the executor's: {executor_rss:?}); satisfied again {} ms after the storm, {reviews_to_repair} review(s) \
-         after the last crash was recorded; {history} change sets",
+         after the last crash was recorded; {history} change sets recorded",
         injected as f64 / storm.as_secs_f64(),
         crashed as f64 / reviews.max(1) as f64,
         rss.iter().map(|r| r.1).collect::<Vec<_>>(),
@@ -237,13 +273,16 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
         "{reviews_to_repair} reviews after the last crash was recorded before every target was \
          satisfied (a review in flight then: {in_flight})"
     );
-    // Flat memory is NOT met (docs/reliability.md, guarantee 3): the manager grows with every
-    // review (~250 kB measured). This bound only guards against a worse leak.
+    // Flat memory is not fully met (docs/reliability.md, guarantee 3): what the manager holds
+    // is bounded (history limit, released terms, flushed memtables), but its resident memory
+    // still creeps (allocator retention, ~60-120 kB per review measured). This bound guards
+    // against a leak of what it holds coming back (~250 kB per review before) over a minute
+    // or more; a short storm is mostly warm-up.
     let manager_first = rss[0].1;
     let manager_last = rss.last().unwrap().1;
     let per_review = manager_last.saturating_sub(manager_first) / reviews.max(1);
     assert!(
-        per_review <= 1024,
+        per_review <= if seconds >= 60 { 200 } else { 1024 },
         "the manager grew {per_review} kB per review ({manager_first} → {manager_last} kB)"
     );
 }

@@ -128,13 +128,16 @@ pub enum EnvironmentPart {
     ChangeSet(ChangeSetId),
     /// The learned cost estimates.
     Statistics,
+    /// What the change sets pruned from the history leave behind: the names they used, which
+    /// are never handed out again.
+    History,
     /// Computation units read from files as one part (`dyknow explore --environment`).
     Imported,
 }
 
 impl EnvironmentPart {
     /// The part's named graph: `urn:dyknow:graph:environment:cu:<name>`,
-    /// `…:changeset:<id>`, `…:statistics`, `…:imported`.
+    /// `…:changeset:<id>`, `…:statistics`, `…:history`, `…:imported`.
     pub fn graph(&self) -> NamedNode {
         NamedNode::new_unchecked(match self {
             Self::Cu(cid) => format!("{ENVIRONMENT_GRAPH_PREFIX}cu:{}", encode(cid.as_str())),
@@ -145,6 +148,7 @@ impl EnvironmentPart {
                 )
             }
             Self::Statistics => format!("{ENVIRONMENT_GRAPH_PREFIX}statistics"),
+            Self::History => format!("{ENVIRONMENT_GRAPH_PREFIX}history"),
             Self::Imported => format!("{ENVIRONMENT_GRAPH_PREFIX}imported"),
         })
     }
@@ -161,6 +165,7 @@ impl EnvironmentPart {
         }
         match rest {
             "statistics" => Some(Self::Statistics),
+            "history" => Some(Self::History),
             "imported" => Some(Self::Imported),
             _ => None,
         }
@@ -217,6 +222,7 @@ mod tests {
             EnvironmentPart::Cu("a b:c/ü".into()),
             EnvironmentPart::ChangeSet(ChangeSetId::numbered(7)),
             EnvironmentPart::Statistics,
+            EnvironmentPart::History,
             EnvironmentPart::Imported,
         ] {
             let g = part.graph();

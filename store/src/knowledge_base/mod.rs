@@ -47,6 +47,8 @@ pub struct KnowledgeBase {
     /// Bumped by every write that touches a graph other than the environment's (specs,
     /// extensions): lets readers cache what they derive from specs.
     spec_generation: std::sync::atomic::AtomicU64,
+    /// RocksDB's memtables, bounded: see [`KnowledgeBase::flush_if_due`].
+    flusher: write::Flusher,
 }
 
 /// Counts for monitoring.
@@ -85,6 +87,7 @@ impl KnowledgeBase {
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
             spec_generation: std::sync::atomic::AtomicU64::new(0),
+            flusher: write::Flusher::default(),
         };
         kb.refresh_classes()?;
         let reasoner = kb.materialise_at_open()?;
@@ -107,6 +110,7 @@ impl KnowledgeBase {
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
             spec_generation: std::sync::atomic::AtomicU64::new(0),
+            flusher: write::Flusher::default(),
         };
         kb.install_builtin_ontologies()?;
         kb.migrate_environment_graph_names()?;
@@ -476,6 +480,42 @@ mod tests {
             kb.check_identities(&other_kind),
             Err(IngestError::Invalid(_))
         ));
+    }
+
+    /// A service that keeps writing small environment parts flushes its memtables every
+    /// [`write::FLUSH_AFTER_QUADS`] quads (in the background), and loses nothing by it.
+    #[cfg(feature = "rocksdb")]
+    #[test]
+    fn many_small_writes_flush_the_memtables_and_lose_nothing() {
+        use crate::graphs::EnvironmentPart;
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let kb = KnowledgeBase::open(dir.path()).expect("open");
+        assert_eq!(kb.flushes_started(), 0);
+        let parts = 2 * write::FLUSH_AFTER_QUADS / 100 + 1;
+        for i in 0..parts {
+            let triples: Vec<Triple> = (0..100)
+                .map(|k| {
+                    Triple::new(
+                        ex(&format!("cu{i}")),
+                        ex("p"),
+                        oxigraph::model::Literal::from(k),
+                    )
+                })
+                .collect();
+            kb.set_environment(&[(EnvironmentPart::Cu(format!("cu-{i}").into()), triples)])
+                .expect("write");
+        }
+        assert!(
+            kb.flushes_started() >= 1,
+            "{} flushes",
+            kb.flushes_started()
+        );
+        drop(kb);
+        let kb = KnowledgeBase::open(dir.path()).expect("reopen");
+        for i in [0, parts - 1] {
+            let g = EnvironmentPart::Cu(format!("cu-{i}").into()).graph();
+            assert_eq!(kb.graph_triples(g.as_ref()).expect("read").len(), 100);
+        }
     }
 
     #[test]

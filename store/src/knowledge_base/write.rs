@@ -18,6 +18,43 @@ type NamedSources = Vec<(String, Vec<Triple>)>;
 /// From this many new triples on, a write is one SST ingestion rather than a write batch.
 const BULK_LOAD_THRESHOLD: usize = 50_000;
 
+/// After this many quads written or removed through memtables, the store is flushed.
+///
+/// Oxigraph opens RocksDB with a memtable budget of 512 MB (128 MB per column family before
+/// a flush), so a service that keeps writing small change sets (a review records one, a crash
+/// storm hundreds a minute) would otherwise grow its resident memory by hundreds of megabytes
+/// before RocksDB flushes by itself, and replay as much write-ahead log at every restart.
+/// A quad costs about 0.6 kB of memtable over its six indexes: this keeps them near 10 MB.
+pub(super) const FLUSH_AFTER_QUADS: usize = 16_384;
+
+/// Background flushes of the store's memtables (on-disk stores only).
+#[derive(Debug, Default)]
+pub(super) struct Flusher {
+    /// Quads written or removed through memtables since the last flush began.
+    unflushed: std::sync::atomic::AtomicUsize,
+    /// Whether a flush is running (at most one at a time).
+    running: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// Flushes started, for tests and monitoring.
+    started: std::sync::atomic::AtomicU64,
+    /// The last flush's thread: it holds the store open until it is done.
+    thread: std::sync::Mutex<Option<std::thread::JoinHandle<()>>>,
+}
+
+impl Drop for Flusher {
+    /// Waits for a running flush, so that a knowledge base dropped is closed (and may be
+    /// opened again) once the drop returns.
+    fn drop(&mut self) {
+        let thread = self
+            .thread
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        if let Some(thread) = thread {
+            let _ = thread.join();
+        }
+    }
+}
+
 impl KnowledgeBase {
     /// Replaces each graph of `writes` by its triples and removes the graphs of `removes`,
     /// atomically, with the matching change of the inferred graph; tells which graphs of
@@ -146,9 +183,29 @@ impl KnowledgeBase {
                 loader.commit()?;
             } else {
                 self.store.extend(quads)?;
+                self.flush_if_due(size);
             }
             return Ok(());
         }
+        let written = writes.iter().map(|(_, t)| t.len()).sum::<usize>()
+            + inferred_added.len()
+            + inferred_removed.len();
+        self.write_transaction(writes, removes, replaced, inferred_removed, quads)?;
+        // A replaced or removed graph's old quads are deleted too: count them as about as
+        // many as the write (the exact number would need a read).
+        self.flush_if_due(written + written.max(removes.len() * 16));
+        Ok(())
+    }
+
+    fn write_transaction(
+        &self,
+        writes: &[(&NamedNode, &[Triple])],
+        removes: &[&NamedNode],
+        replaced: &[bool],
+        inferred_removed: &[Triple],
+        quads: impl Iterator<Item = oxigraph::model::Quad>,
+    ) -> Result<(), StorageError> {
+        let inferred = NamedNodeRef::new_unchecked(INFERRED_GRAPH);
         let mut transaction = self.store.start_transaction()?;
         for g in removes {
             transaction.remove_named_graph(*g)?;
@@ -165,6 +222,60 @@ impl KnowledgeBase {
             transaction.insert(&quad);
         }
         transaction.commit()
+    }
+
+    /// Counts `quads` written through the memtables and, once [`FLUSH_AFTER_QUADS`] are
+    /// pending, flushes the on-disk store in the background (one flush at a time; writes go on
+    /// meanwhile). In-memory stores have nothing to flush.
+    #[cfg(feature = "rocksdb")]
+    pub(super) fn flush_if_due(&self, quads: usize) {
+        use std::sync::atomic::Ordering;
+        if self.location.is_none() {
+            return;
+        }
+        let flusher = &self.flusher;
+        let pending = flusher.unflushed.fetch_add(quads, Ordering::SeqCst) + quads;
+        if pending < FLUSH_AFTER_QUADS || flusher.running.swap(true, Ordering::SeqCst) {
+            return;
+        }
+        flusher.unflushed.store(0, Ordering::SeqCst);
+        flusher.started.fetch_add(1, Ordering::SeqCst);
+        let store = self.store.clone();
+        let running = std::sync::Arc::clone(&flusher.running);
+        let spawned = std::thread::Builder::new()
+            .name("dyknow-flush".into())
+            .spawn(move || {
+                // A failed flush loses nothing (the write-ahead log holds every write): RocksDB
+                // flushes by itself later.
+                if let Err(e) = store.flush() {
+                    tracing::warn!("flushing the store failed: {e}");
+                }
+                running.store(false, Ordering::SeqCst);
+            });
+        match spawned {
+            // The previous flush is done (`running` was false): its thread is joined.
+            Ok(thread) => {
+                let previous = flusher
+                    .thread
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .replace(thread);
+                if let Some(previous) = previous {
+                    let _ = previous.join();
+                }
+            }
+            Err(_) => flusher.running.store(false, Ordering::SeqCst),
+        }
+    }
+
+    #[cfg(not(feature = "rocksdb"))]
+    pub(super) fn flush_if_due(&self, _quads: usize) {}
+
+    /// How many background flushes of the memtables were started since the store was opened.
+    pub fn flushes_started(&self) -> u64 {
+        self.flusher
+            .started
+            .load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// The triples of the graphs that hold the schema (built-in ontologies and extensions) and

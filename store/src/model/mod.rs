@@ -11,8 +11,9 @@ mod triples;
 
 pub use read::{
     ChangeSetRecords, Iris, Loaded, SpecCache, UnreadableRecord, candidates, change_sets, learned,
-    load,
+    load, reserved_names,
 };
 pub use triples::{
-    Delta, change_set_triples, cu_triples, delta, split_environment, statistics_triples,
+    Delta, HISTORY_RESOURCE, change_set_triples, cu_triples, delta, history_triples,
+    split_environment, statistics_triples,
 };

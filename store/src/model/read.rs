@@ -302,3 +302,23 @@ pub fn change_sets(kb: &KnowledgeBase) -> Result<ChangeSetRecords, ModelReadErro
         .sort_by_key(|cs| (cs.id.number().unwrap_or(0), cs.id.clone()));
     Ok(out)
 }
+
+/// The names the history part reserves (`dkros:reservesName`): names pruned change sets used,
+/// never handed out again.
+pub fn reserved_names(kb: &KnowledgeBase) -> Result<Vec<String>, ModelReadError> {
+    let graph = crate::graphs::EnvironmentPart::History.graph();
+    let mut out = Vec::new();
+    for quad in kb.store().quads_for_pattern(
+        None,
+        Some(dyknow_ontology::vocab::dkros::RESERVES_NAME),
+        None,
+        Some(graph.as_ref().into()),
+    ) {
+        let quad = quad?;
+        if let Term::Literal(l) = quad.object {
+            out.push(l.value().to_owned());
+        }
+    }
+    out.sort();
+    Ok(out)
+}

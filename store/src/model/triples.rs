@@ -296,6 +296,25 @@ pub fn change_set_triples(change_set: &ChangeSet) -> Vec<Triple> {
     out
 }
 
+/// The resource the history part describes.
+pub const HISTORY_RESOURCE: &str = "urn:dyknow:history";
+
+/// The triples of the history part: the names (of CUs and channels) pruned change sets used,
+/// which are never handed out again (`dkros:reservesName`).
+pub fn history_triples<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<Triple> {
+    let me = NamedNode::new_unchecked(HISTORY_RESOURCE);
+    names
+        .into_iter()
+        .map(|n| {
+            Triple::new(
+                me.clone(),
+                dkros::RESERVES_NAME,
+                Literal::new_simple_literal(n),
+            )
+        })
+        .collect()
+}
+
 /// The triples of the statistics part: each learned estimate on the transformation's cost
 /// model (`dkros:historicalAverage*`, `dkros:observationCount`), with a cost model minted for
 /// a spec that gave none.
