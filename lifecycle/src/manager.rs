@@ -188,6 +188,24 @@ impl std::fmt::Debug for Manager {
     }
 }
 
+/// The parts of a write that prunes change sets `pruned` from the history: their records
+/// removed, and the history part reserving the highest names `ids` handed out (above every name
+/// the pruned change sets used).
+fn pruning(
+    pruned: &[dyknow_engine::ChangeSetId],
+    ids: &Ids,
+) -> Vec<(EnvironmentPart, Vec<dyknow_store::oxigraph::model::Triple>)> {
+    let mut parts: Vec<_> = pruned
+        .iter()
+        .map(|id| (EnvironmentPart::ChangeSet(id.clone()), Vec::new()))
+        .collect();
+    parts.push((
+        EnvironmentPart::History,
+        model::history_triples(ids.highest_minted().iter().map(String::as_str)),
+    ));
+    parts
+}
+
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
     // A panic while holding a lock leaves no half-done write behind (the knowledge base
     // writes atomically), so poisoning carries no information.
@@ -224,16 +242,7 @@ impl Manager {
         // A history longer than the limit (the limit was lowered): pruned now.
         let excess = history.len().saturating_sub(settings.history_limit);
         if settings.history_limit > 0 && excess > 0 {
-            let mut parts: Vec<(EnvironmentPart, Vec<_>)> = history
-                .beyond(settings.history_limit + 1)
-                .into_iter()
-                .map(|id| (EnvironmentPart::ChangeSet(id), Vec::new()))
-                .collect();
-            parts.push((
-                EnvironmentPart::History,
-                model::history_triples(ids.highest_minted().iter().map(String::as_str)),
-            ));
-            kb.set_environment(&parts)?;
+            kb.set_environment(&pruning(&history.beyond(settings.history_limit + 1), &ids))?;
             history.prune(excess);
             tracing::info!(
                 "pruned the {excess} oldest change sets (--history-limit {})",
@@ -726,21 +735,7 @@ impl Manager {
             .unwrap_or_else(PoisonError::into_inner)
             .beyond(self.settings.history_limit);
         if !pruned.is_empty() {
-            parts.extend(
-                pruned
-                    .iter()
-                    .map(|id| (EnvironmentPart::ChangeSet(id.clone()), Vec::new())),
-            );
-            parts.push((
-                EnvironmentPart::History,
-                model::history_triples(
-                    configuration
-                        .ids
-                        .highest_minted()
-                        .iter()
-                        .map(String::as_str),
-                ),
-            ));
+            parts.extend(pruning(&pruned, &configuration.ids));
         }
         // A spawn that failed cost labour and gave nothing: its transformation's labour
         // estimate doubles (as an observation), so a transformation that keeps failing to

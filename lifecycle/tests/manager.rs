@@ -601,6 +601,15 @@ fn what_executors_send_is_handled_without_trusting_it() {
     }
 }
 
+/// The ids of the change sets the history keeps, oldest first.
+fn history_ids(manager: &Manager) -> Vec<String> {
+    manager
+        .change_sets(None)
+        .iter()
+        .map(|c| c.id.to_string())
+        .collect()
+}
+
 /// The change-set graphs in the store.
 fn recorded_graphs(kb: &KnowledgeBase) -> usize {
     kb.store()
@@ -634,11 +643,7 @@ fn the_history_keeps_the_last_change_sets_and_the_names_they_used_stay_reserved(
         ..Settings::default()
     };
     let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), limited).unwrap();
-    let ids: Vec<String> = manager
-        .change_sets(None)
-        .iter()
-        .map(|c| c.id.to_string())
-        .collect();
+    let ids = history_ids(&manager);
     assert_eq!(ids, ["cs-3"]);
     assert_eq!(recorded_graphs(&kb), 1);
     assert_eq!(
@@ -654,11 +659,7 @@ fn the_history_keeps_the_last_change_sets_and_the_names_they_used_stay_reserved(
     );
     // Recording prunes in the same write: still one record, numbers go on.
     manager.destroy(&second.cid).unwrap();
-    let ids: Vec<String> = manager
-        .change_sets(None)
-        .iter()
-        .map(|c| c.id.to_string())
-        .collect();
+    let ids = history_ids(&manager);
     assert_eq!(ids, ["cs-5"]);
     assert_eq!(recorded_graphs(&kb), 1);
     // `since` an id pruned meanwhile gives what is kept.

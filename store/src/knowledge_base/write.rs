@@ -25,10 +25,18 @@ const BULK_LOAD_THRESHOLD: usize = 50_000;
 /// storm hundreds a minute) would otherwise grow its resident memory by hundreds of megabytes
 /// before RocksDB flushes by itself, and replay as much write-ahead log at every restart.
 /// A quad costs about 0.6 kB of memtable over its six indexes: this keeps them near 10 MB.
+#[cfg_attr(
+    not(feature = "rocksdb"),
+    expect(dead_code, reason = "only on-disk stores flush")
+)]
 pub(super) const FLUSH_AFTER_QUADS: usize = 16_384;
 
 /// Background flushes of the store's memtables (on-disk stores only).
 #[derive(Debug, Default)]
+#[cfg_attr(
+    not(feature = "rocksdb"),
+    expect(dead_code, reason = "only on-disk stores flush")
+)]
 pub(super) struct Flusher {
     /// Quads written or removed through memtables since the last flush began.
     unflushed: std::sync::atomic::AtomicUsize,
