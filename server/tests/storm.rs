@@ -280,9 +280,8 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
     // Flat memory is not fully met (docs/reliability.md, guarantee 3): the history, the terms
     // and the memtables are bounded, but the resident memory still creeps (~60-150 kB per
     // review measured: the history filling up, allocator retention, and live heap growth not
-    // yet attributed). This bound guards
-    // against a leak of what it holds coming back (~250 kB per review before) over a minute
-    // or more; a short storm is mostly warm-up.
+    // yet attributed). This bound guards against a leak of what it holds coming back (~250 kB
+    // per review before) over a minute or more; a short storm is mostly warm-up.
     let manager_first = rss[0].1;
     let manager_last = rss.last().unwrap().1;
     let per_review = manager_last.saturating_sub(manager_first) / reviews.max(1);
