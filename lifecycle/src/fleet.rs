@@ -76,13 +76,28 @@ struct Known {
     checks: BTreeMap<String, Result<(), String>>,
 }
 
+/// An executor's liveliness token, as last seen.
+#[derive(Debug, Default, Clone, Copy)]
+struct Token {
+    up: bool,
+    epoch: u64,
+}
+
+impl Token {
+    fn set(&mut self, up: bool) {
+        self.up = up;
+        self.epoch += 1;
+    }
+}
+
 struct Inner {
     session: zenoh::Session,
     namespace: Namespace,
     executors: Mutex<BTreeMap<String, Known>>,
     placement: Mutex<BTreeMap<Cid, String>>,
-    /// The executors whose token is up now (as the liveliness subscriber last said).
-    tokens: Mutex<BTreeSet<String>>,
+    /// Each executor's token as the liveliness subscriber last said: whether it is up, and
+    /// its epoch (how many times it went up or down), which dates an executor's answers.
+    tokens: Mutex<BTreeMap<String, Token>>,
     /// The executors being asked for their `info` by a membership thread.
     probing: Mutex<BTreeSet<String>>,
     events: mpsc::UnboundedSender<FleetEvent>,
@@ -157,17 +172,21 @@ impl Fleet {
                 let Some(name) = key.rsplit('/').next().map(str::to_owned) else {
                     return;
                 };
-                let up = sample.kind() == SampleKind::Put;
-                if up {
-                    lock(&watcher.tokens).insert(name.clone());
+                if sample.kind() == SampleKind::Put {
+                    lock(&watcher.tokens)
+                        .entry(name.clone())
+                        .or_default()
+                        .set(true);
+                    let inner = watcher.clone();
+                    // Never block a Zenoh callback: the info query runs on its own thread.
+                    let _ = std::thread::Builder::new()
+                        .name("fleet-membership".into())
+                        .spawn(move || inner.appeared(&name));
                 } else {
-                    lock(&watcher.tokens).remove(&name);
+                    // Taken here, in the order Zenoh tells it: a vanishing handled on a
+                    // thread could otherwise land after the executor's next appearance.
+                    watcher.vanished(&name);
                 }
-                let inner = watcher.clone();
-                // Never block a Zenoh callback: the info query runs on its own thread.
-                let _ = std::thread::Builder::new()
-                    .name("fleet-membership".into())
-                    .spawn(move || inner.membership(&name, up));
             })
             .wait()?;
         let reporter = inner.clone();
@@ -242,16 +261,55 @@ impl Fleet {
 }
 
 impl Inner {
-    fn membership(&self, name: &str, up: bool) {
-        if up {
-            if !lock(&self.probing).insert(name.to_owned()) {
+    /// Executor `name`'s token is up: asks it for its `info`, again every 200 ms while it
+    /// does not answer and the token stays up, then records it present and reports its CUs
+    /// for reconciliation. (Right after a link is cut, Zenoh may announce the token of the
+    /// executor behind it again although it cannot be reached; when the link heals, no new
+    /// announcement comes, so the answer is what tells.) One thread asks per executor. An
+    /// answer counts only if the token did not change while it was asked for (its epoch,
+    /// checked under the token lock that [`Inner::vanished`] holds too): an executor that
+    /// went down and up meanwhile (a flapping link, a restart under the same name) is asked
+    /// again, so a stale list of CUs is never reconciled, and no answer is recorded after the
+    /// token went down.
+    fn appeared(&self, name: &str) {
+        if !lock(&self.probing).insert(name.to_owned()) {
+            // The thread asking already will see the new epoch.
+            return;
+        }
+        let mut warned = false;
+        loop {
+            let asked = {
+                let tokens = lock(&self.tokens);
+                match tokens.get(name) {
+                    Some(token) if token.up => token.epoch,
+                    _ => {
+                        lock(&self.probing).remove(name);
+                        return;
+                    }
+                }
+            };
+            let info: Option<ExecutorInfo> = self.query(name, "info", Vec::new());
+            let tokens = lock(&self.tokens);
+            let token = tokens.get(name).copied().unwrap_or_default();
+            if !token.up {
+                lock(&self.probing).remove(name);
                 return;
             }
-            let info = self.describe_itself(name);
-            lock(&self.probing).remove(name);
+            if token.epoch != asked {
+                continue;
+            }
             let Some(info) = info else {
-                return;
+                drop(tokens);
+                if !warned {
+                    tracing::warn!(
+                        "executor {name} appeared but does not describe itself; asking again until it does or leaves"
+                    );
+                    warned = true;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+                continue;
             };
+            lock(&self.probing).remove(name);
             tracing::info!(
                 "executor {name} is present ({} builtins)",
                 info.builtins.len()
@@ -266,54 +324,39 @@ impl Inner {
                 },
             );
             let _ = self.events.send(appeared(name, info));
-        } else {
-            tracing::warn!("executor {name} vanished");
-            if let Some(known) = lock(&self.executors).get_mut(name) {
-                known.present = false;
-            }
-            let lost: Vec<Cid> = {
-                let mut placement = lock(&self.placement);
-                let lost: Vec<Cid> = placement
-                    .iter()
-                    .filter(|(_, e)| *e == name)
-                    .map(|(c, _)| c.clone())
-                    .collect();
-                for cu in &lost {
-                    placement.remove(cu);
-                }
-                lost
-            };
-            for cu in lost {
-                let _ = self.events.send(FleetEvent::Crashed {
-                    cu,
-                    reason: format!("its executor {name} vanished"),
-                });
-            }
+            let _ = self.events.send(FleetEvent::ExecutorsChanged);
+            return;
         }
-        let _ = self.events.send(FleetEvent::ExecutorsChanged);
     }
 
-    /// Asks an executor whose token appeared for its `info`, again every 200 ms while
-    /// it does not answer and its token stays up. (Right after a link is cut, Zenoh may
-    /// announce the token of the executor behind it again although it cannot be reached;
-    /// when the link heals, no new announcement comes, so the answer is what tells.)
-    fn describe_itself(&self, name: &str) -> Option<ExecutorInfo> {
-        let mut warned = false;
-        loop {
-            if let Some(info) = self.query(name, "info", Vec::new()) {
-                return Some(info);
-            }
-            if !lock(&self.tokens).contains(name) {
-                return None;
-            }
-            if !warned {
-                tracing::warn!(
-                    "executor {name} appeared but does not describe itself; asking again until it does or leaves"
-                );
-                warned = true;
-            }
-            std::thread::sleep(Duration::from_millis(200));
+    /// Executor `name`'s token went down: it is absent, and the CUs placed on it crashed.
+    fn vanished(&self, name: &str) {
+        let mut tokens = lock(&self.tokens);
+        tokens.entry(name.to_owned()).or_default().set(false);
+        tracing::warn!("executor {name} vanished");
+        if let Some(known) = lock(&self.executors).get_mut(name) {
+            known.present = false;
         }
+        let lost: Vec<Cid> = {
+            let mut placement = lock(&self.placement);
+            let lost: Vec<Cid> = placement
+                .iter()
+                .filter(|(_, e)| *e == name)
+                .map(|(c, _)| c.clone())
+                .collect();
+            for cu in &lost {
+                placement.remove(cu);
+            }
+            lost
+        };
+        for cu in lost {
+            let _ = self.events.send(FleetEvent::Crashed {
+                cu,
+                reason: format!("its executor {name} vanished"),
+            });
+        }
+        let _ = self.events.send(FleetEvent::ExecutorsChanged);
+        drop(tokens);
     }
 
     fn event(&self, executor: &str, event: Event) {
