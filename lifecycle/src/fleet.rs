@@ -81,6 +81,8 @@ struct Known {
 struct Token {
     up: bool,
     epoch: u64,
+    /// A membership thread is asking the executor for its `info`.
+    probing: bool,
 }
 
 impl Token {
@@ -98,8 +100,6 @@ struct Inner {
     /// Each executor's token as the liveliness subscriber last said: whether it is up, and
     /// its epoch (how many times it went up or down), which dates an executor's answers.
     tokens: Mutex<BTreeMap<String, Token>>,
-    /// The executors being asked for their `info` by a membership thread.
-    probing: Mutex<BTreeSet<String>>,
     events: mpsc::UnboundedSender<FleetEvent>,
 }
 
@@ -159,7 +159,6 @@ impl Fleet {
             executors: Mutex::default(),
             placement: Mutex::default(),
             tokens: Mutex::default(),
-            probing: Mutex::default(),
             events: tx,
         });
         let watcher = inner.clone();
@@ -173,15 +172,20 @@ impl Fleet {
                     return;
                 };
                 if sample.kind() == SampleKind::Put {
-                    lock(&watcher.tokens)
-                        .entry(name.clone())
-                        .or_default()
-                        .set(true);
-                    let inner = watcher.clone();
-                    // Never block a Zenoh callback: the info query runs on its own thread.
-                    let _ = std::thread::Builder::new()
-                        .name("fleet-membership".into())
-                        .spawn(move || inner.appeared(&name));
+                    let start = {
+                        let mut tokens = lock(&watcher.tokens);
+                        let token = tokens.entry(name.clone()).or_default();
+                        token.set(true);
+                        // One thread asks per executor; one asking already sees the new epoch.
+                        !std::mem::replace(&mut token.probing, true)
+                    };
+                    if start {
+                        let inner = watcher.clone();
+                        // Never block a Zenoh callback: the info query runs on its own thread.
+                        let _ = std::thread::Builder::new()
+                            .name("fleet-membership".into())
+                            .spawn(move || inner.appeared(&name));
+                    }
                 } else {
                     // Taken here, in the order Zenoh tells it: a vanishing handled on a
                     // thread could otherwise land after the executor's next appearance.
@@ -263,36 +267,24 @@ impl Fleet {
 impl Inner {
     /// Executor `name`'s token is up: asks it for its `info`, again every 200 ms while it
     /// does not answer and the token stays up, then records it present and reports its CUs
-    /// for reconciliation. (Right after a link is cut, Zenoh may announce the token of the
+    /// for reconciliation; a token that went down ends the asking. (Right after a link is cut, Zenoh may announce the token of the
     /// executor behind it again although it cannot be reached; when the link heals, no new
     /// announcement comes, so the answer is what tells.) One thread asks per executor. An
     /// answer counts only if the token did not change while it was asked for (its epoch,
-    /// checked under the token lock that [`Inner::vanished`] holds too): an executor that
+    /// checked under the token lock that [`Inner::vanished`] holds too, as does the callback
+    /// that starts this thread unless one is asking already): an executor that
     /// went down and up meanwhile (a flapping link, a restart under the same name) is asked
     /// again, so a stale list of CUs is never reconciled, and no answer is recorded after the
     /// token went down.
     fn appeared(&self, name: &str) {
-        if !lock(&self.probing).insert(name.to_owned()) {
-            // The thread asking already will see the new epoch.
-            return;
-        }
         let mut warned = false;
         loop {
-            let asked = {
-                let tokens = lock(&self.tokens);
-                match tokens.get(name) {
-                    Some(token) if token.up => token.epoch,
-                    _ => {
-                        lock(&self.probing).remove(name);
-                        return;
-                    }
-                }
-            };
+            let asked = lock(&self.tokens).get(name).map_or(0, |t| t.epoch);
             let info: Option<ExecutorInfo> = self.query(name, "info", Vec::new());
-            let tokens = lock(&self.tokens);
-            let token = tokens.get(name).copied().unwrap_or_default();
+            let mut tokens = lock(&self.tokens);
+            let token = tokens.entry(name.to_owned()).or_default();
             if !token.up {
-                lock(&self.probing).remove(name);
+                token.probing = false;
                 return;
             }
             if token.epoch != asked {
@@ -309,7 +301,7 @@ impl Inner {
                 std::thread::sleep(Duration::from_millis(200));
                 continue;
             };
-            lock(&self.probing).remove(name);
+            token.probing = false;
             tracing::info!(
                 "executor {name} is present ({} builtins)",
                 info.builtins.len()

@@ -24,32 +24,20 @@ fn free_port() -> u16 {
         .expect("a free port")
 }
 
-fn config(mode: &str) -> zenoh::Config {
-    let mut config = zenoh::Config::default();
-    config
-        .insert_json5("mode", &format!("{mode:?}"))
-        .expect("mode");
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    config
-        .insert_json5("scouting/gossip/enabled", "false")
-        .expect("gossip");
-    config
-}
-
 /// The manager's router session and an executor's client session connected to it.
 fn sessions() -> (zenoh::Session, zenoh::Session) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut router = config("router");
-    router
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .expect("listen");
+    let mut router = zenoh::Config::default();
+    for (key, value) in [
+        ("mode", "\"router\"".to_owned()),
+        ("listen/endpoints", format!("[\"{endpoint}\"]")),
+        ("scouting/multicast/enabled", "false".to_owned()),
+        ("scouting/gossip/enabled", "false".to_owned()),
+    ] {
+        router.insert_json5(key, &value).expect("a router config");
+    }
     let router = zenoh::open(router).wait().expect("a router");
-    let mut client = config("client");
-    client
-        .insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
-        .expect("connect");
+    let client = dyknow_cu::client_config(&[endpoint]).expect("a client config");
     let client = zenoh::open(client).wait().expect("a client");
     (router, client)
 }
