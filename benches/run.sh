@@ -10,6 +10,7 @@
 #   benches/run.sh ui          the web view with 500 running CUs in headless chromium (issue 16)
 #   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
 #   benches/run.sh load        64 HTTP clients for 10 minutes with Chapter 6 running; SPARQL against `oxigraph serve`
+#   benches/run.sh scale       libraries of 100 to 10,000 transformations, 1 and 50 targets: spec change to change set, GET /cus, start-up (issue 18)
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -66,4 +67,7 @@ if [ "$which" = all ] || [ "$which" = dataplane ]; then
 fi
 if [ "$which" = all ] || [ "$which" = load ]; then
   cargo bench --locked --workspace --bench load -- --secs 600 --clients 64
+fi
+if [ "$which" = all ] || [ "$which" = scale ]; then
+  cargo bench --locked --workspace --bench scale
 fi

@@ -44,6 +44,39 @@ impl Candidates {
         }
     }
 
+    /// Sets the providers of in port `input` of `tid` (sorted and deduplicated here); none
+    /// removes the entry, as if it had never been added to.
+    pub fn set_input(&mut self, tid: &str, input: usize, mut providers: Vec<Provider>) {
+        providers.sort();
+        providers.dedup();
+        if providers.is_empty() {
+            self.inputs.remove(&(Tid::from(tid), input));
+        } else {
+            self.inputs.insert((Tid::from(tid), input), providers);
+        }
+    }
+
+    /// Sets the providers of target `qid`, as [`Candidates::set_input`] does.
+    pub fn set_target(&mut self, qid: &str, mut providers: Vec<Provider>) {
+        providers.sort();
+        providers.dedup();
+        if providers.is_empty() {
+            self.targets.remove(&Qid::from(qid));
+        } else {
+            self.targets.insert(Qid::from(qid), providers);
+        }
+    }
+
+    /// How many in ports and targets have at least one provider.
+    pub fn len(&self) -> usize {
+        self.inputs.len() + self.targets.len()
+    }
+
+    /// Whether no in port or target has a provider.
+    pub fn is_empty(&self) -> bool {
+        self.inputs.is_empty() && self.targets.is_empty()
+    }
+
     /// The providers of in port `input` of `tid`, sorted.
     pub fn for_input(&self, tid: &str, input: usize) -> &[Provider] {
         self.inputs

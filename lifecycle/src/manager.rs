@@ -292,6 +292,20 @@ impl Manager {
         Ok(loaded)
     }
 
+    /// The CUs now, with only the transformations they instantiate in the library (learned
+    /// estimates applied; those the executors cannot run left out, as [`Manager::load`] does)
+    /// and no targets: what reads of the CUs need, without copying the library or the
+    /// candidate table. An environment nothing wrote to since the last read costs a copy of
+    /// its CUs.
+    pub fn cus(&self) -> Result<Environment, LifecycleError> {
+        let mut env = self.specs.cus(&self.kb, &self.learned())?;
+        let specs = self.specs.spec_part_specs(&self.kb)?;
+        let executor = &self.executor;
+        env.library
+            .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
+        Ok(env)
+    }
+
     /// Whether the executors can run a transformation, and why not.
     pub fn runnable(&self, spec: &TransformationSpec) -> Result<(), String> {
         self.executor.runnable(spec)
@@ -311,7 +325,7 @@ impl Manager {
     /// runnable are a registration, those that no longer are a deregistration (seed Def. 36),
     /// so a review replans when the environment is no longer valid.
     pub fn executors_changed(&self) -> Result<(), LifecycleError> {
-        let loaded = self.specs.load(&self.kb, None)?;
+        let loaded = self.specs.spec_part(&self.kb)?;
         let now: BTreeSet<Tid> = loaded
             .specs
             .iter()
@@ -808,7 +822,7 @@ impl Manager {
 
     /// Whether every CU of the model runs on some executor (start-up need wait no longer).
     pub fn all_placed(&self) -> Result<bool, LifecycleError> {
-        let loaded = self.specs.load(&self.kb, None)?;
+        let loaded = self.specs.load(&self.kb, Some(&self.learned()))?;
         Ok(loaded
             .env
             .cus

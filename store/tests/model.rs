@@ -230,3 +230,47 @@ fn change_set_records_read_back_as_written() {
         matches!(&rows[0][0], Some(dyknow_store::oxigraph::model::Term::Literal(l)) if l.value() == "spawn")
     );
 }
+
+/// A `SpecCache` kept across writes (as the manager keeps it) reads what a fresh read gives
+/// after every kind of write: CUs written and removed, a spec removed (a CU of it keeps the
+/// transformation's IRI as tid), a spec posted back; and its direct read of the CUs gives what
+/// the SPARQL query `queries::CUS` does.
+#[test]
+fn a_kept_cache_follows_every_write() {
+    let kb = example_12();
+    let cache = model::SpecCache::default();
+    let fresh = || model::load(&kb).unwrap();
+    let same = |cached: &Loaded, fresh: &Loaded| {
+        assert_eq!(cached.env, fresh.env);
+        // The direct read of the CUs answers what the SPARQL query does.
+        assert_eq!(
+            cached.env.cus,
+            model::cus_by_query(&kb, &cached.env.library).unwrap()
+        );
+        assert_eq!(*cached.candidates, *fresh.candidates);
+        assert_eq!(cached.iris, fresh.iris);
+    };
+    let loaded = cache.load(&kb, None).unwrap();
+    same(&loaded, &fresh());
+    let options = ExploreOptions::default();
+    let mut ids = Ids::default();
+    review(&kb, &loaded, &options, &mut ids);
+    let after_review = cache.load(&kb, None).unwrap();
+    assert_eq!(after_review.env.cus.len(), 3, "the review's CUs are read");
+    same(&after_review, &fresh());
+    let cu = after_review.env.cus.keys().next().unwrap().clone();
+    kb.set_environment(&[(EnvironmentPart::Cu(cu.clone()), Vec::new())])
+        .unwrap();
+    let now = cache.load(&kb, None).unwrap();
+    assert!(!now.env.cus.contains_key(&cu));
+    same(&now, &fresh());
+    kb.remove_spec(dyknow_store::spec::SpecKind::Transformation, "tid4")
+        .unwrap();
+    let now = cache.load(&kb, None).unwrap();
+    assert!(!now.env.library.contains_key("tid4"));
+    same(&now, &fresh());
+    load_specs(&kb, &["example-12.ttl"]);
+    let now = cache.load(&kb, None).unwrap();
+    assert!(now.env.library.contains_key("tid4"));
+    same(&now, &fresh());
+}

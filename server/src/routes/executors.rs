@@ -101,12 +101,8 @@ pub async fn set_config(
             &channels(body.inputs),
             &channels(body.outputs),
         )?;
-        let loaded = s.lifecycle.load()?;
-        Ok(Json(crate::routes::reconfig::one_cu_json(
-            &s,
-            &cu,
-            &loaded.env,
-        )))
+        let env = s.lifecycle.cus()?;
+        Ok(Json(crate::routes::reconfig::one_cu_json(&s, &cu, &env)))
     })
     .await
 }
@@ -135,14 +131,14 @@ pub async fn get_cu(
 ) -> Result<Json<CuDetailJson>, ApiError> {
     let s = state.clone();
     blocking(move || {
-        let loaded = s.lifecycle.load()?;
-        let Some(cu) = loaded.env.cus.get(&Cid::from(name.as_str())) else {
+        let env = s.lifecycle.cus()?;
+        let Some(cu) = env.cus.get(&Cid::from(name.as_str())) else {
             return Err(ApiError::not_found(format!(
                 "no computation unit named {name:?}"
             )));
         };
         let view = s.lifecycle.describe(&cu.cid);
-        Ok(Json(cu_detail(cu, &loaded.env, view.as_ref())))
+        Ok(Json(cu_detail(cu, &env, view.as_ref())))
     })
     .await
 }

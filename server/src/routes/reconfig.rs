@@ -104,8 +104,7 @@ pub(crate) fn one_cu_json(
 
 /// The computation units, sorted by name (`GET /cus`).
 pub(crate) fn cus(state: &AppState) -> Result<Vec<CuJson>, ApiError> {
-    let loaded = state.lifecycle.load()?;
-    Ok(cus_json(state, &loaded.env))
+    Ok(cus_json(state, &state.lifecycle.cus()?))
 }
 
 /// `GET /cus`'s query.
@@ -132,14 +131,13 @@ pub async fn list_cus(
         return Ok(Json(blocking(move || cus(&s)).await?).into_response());
     }
     let detailed = blocking(move || {
-        let loaded = s.lifecycle.load()?;
-        let names: Vec<Cid> = loaded.env.cus.keys().cloned().collect();
+        let env = s.lifecycle.cus()?;
+        let names: Vec<Cid> = env.cus.keys().cloned().collect();
         let views = s.lifecycle.describe_all(&names);
-        Ok(loaded
-            .env
+        Ok(env
             .cus
             .values()
-            .map(|cu| crate::routes::executors::cu_detail(cu, &loaded.env, views.get(&cu.cid)))
+            .map(|cu| crate::routes::executors::cu_detail(cu, &env, views.get(&cu.cid)))
             .collect::<Vec<_>>())
     })
     .await?;
@@ -175,7 +173,7 @@ pub async fn spawn_cu(
             name: body.name.map(Into::into),
             protected: body.protected,
         })?;
-        Ok(one_cu_json(&s, &cu, &s.lifecycle.load()?.env))
+        Ok(one_cu_json(&s, &cu, &s.lifecycle.cus()?))
     })
     .await?;
     Ok((StatusCode::CREATED, Json(cu)).into_response())

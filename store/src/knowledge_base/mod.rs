@@ -47,6 +47,12 @@ pub struct KnowledgeBase {
     /// Bumped by every write that touches a graph other than the environment's (specs,
     /// extensions): lets readers cache what they derive from specs.
     spec_generation: std::sync::atomic::AtomicU64,
+    /// Which graphs each recent bump of `spec_generation` was for: lets readers patch what
+    /// they derive from specs instead of deriving it again ([`KnowledgeBase::spec_changes_since`]).
+    spec_log: Mutex<write::SpecLog>,
+    /// Bumped by every write that touches an environment graph (CUs, change sets,
+    /// statistics): lets readers cache what they derive from the environment.
+    environment_generation: std::sync::atomic::AtomicU64,
     /// RocksDB's memtables, bounded: see [`KnowledgeBase::flush_if_due`].
     flusher: write::Flusher,
 }
@@ -87,6 +93,8 @@ impl KnowledgeBase {
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
             spec_generation: std::sync::atomic::AtomicU64::new(0),
+            spec_log: Mutex::default(),
+            environment_generation: std::sync::atomic::AtomicU64::new(0),
             flusher: write::Flusher::default(),
         };
         kb.refresh_classes()?;
@@ -110,6 +118,8 @@ impl KnowledgeBase {
             write_lock: Mutex::new(Reasoner::new(TBox::default())),
             classes: RwLock::new(SpecClasses::default()),
             spec_generation: std::sync::atomic::AtomicU64::new(0),
+            spec_log: Mutex::default(),
+            environment_generation: std::sync::atomic::AtomicU64::new(0),
             flusher: write::Flusher::default(),
         };
         kb.install_builtin_ontologies()?;

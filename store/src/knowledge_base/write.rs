@@ -2,6 +2,8 @@
 //! when an ontology extension changes the schema) and applied as one atomic Oxigraph write
 //! under the write lock, which owns the reasoner.
 
+use std::collections::BTreeSet;
+
 use dyknow_ontology::BUILTIN_ONTOLOGIES;
 use dyknow_reasoner::{Reasoner, TBox};
 use oxigraph::model::{NamedNode, NamedNodeRef, Term, Triple};
@@ -81,14 +83,32 @@ impl KnowledgeBase {
         // A write that may change a spec or the schema invalidates what readers derived from
         // them. Bumped after the write: a reader that read the old number may cache new data
         // under it (and reload needlessly once), but never old data under the new number.
+        let touched: Vec<NamedNode> = writes
+            .iter()
+            .map(|(g, _)| *g)
+            .chain(removes.iter().copied())
+            .filter(|g| !is_environment_graph(g.as_str()))
+            .cloned()
+            .collect();
         if writes
             .iter()
             .map(|(g, _)| *g)
             .chain(removes.iter().copied())
-            .any(|g| !is_environment_graph(g.as_str()))
+            .any(|g| is_environment_graph(g.as_str()))
         {
-            self.spec_generation
+            self.environment_generation
                 .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        }
+        if !touched.is_empty() {
+            let mut log = self
+                .spec_log
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let generation = self
+                .spec_generation
+                .fetch_add(1, std::sync::atomic::Ordering::SeqCst)
+                + 1;
+            log.record(generation, touched);
         }
         result
     }
@@ -352,11 +372,32 @@ impl KnowledgeBase {
         })
     }
 
+    /// The generation now and the graphs (specs, extensions, ontologies) written or removed
+    /// since generation `since`, or `None` when the log no longer reaches back that far (then
+    /// everything derived from specs must be derived again). A graph listed may have been
+    /// written back unchanged; its content must be read after this call.
+    pub fn spec_changes_since(&self, since: u64) -> (u64, Option<BTreeSet<NamedNode>>) {
+        let log = self
+            .spec_log
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let now = self.spec_generation();
+        (now, log.since(since))
+    }
+
     /// A number that changes whenever a spec, an extension or an ontology graph is written or
     /// removed (not for environment graphs): what is derived from specs alone may be cached
     /// against it.
     pub fn spec_generation(&self) -> u64 {
         self.spec_generation
+            .load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// A number that changes whenever an environment graph (a CU, a change-set record, the
+    /// statistics) is written or removed: what is derived from the environment (with the
+    /// specs, [`KnowledgeBase::spec_generation`]) may be cached against it.
+    pub fn environment_generation(&self) -> u64 {
+        self.environment_generation
             .load(std::sync::atomic::Ordering::SeqCst)
     }
 
@@ -437,4 +478,66 @@ fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
             })
             .collect(),
     ))
+}
+
+/// How many graph names the spec log keeps at most (readers further behind derive anew).
+const SPEC_LOG_NAMES: usize = 1 << 16;
+
+/// The recent bumps of the spec generation and the graphs each was for.
+#[derive(Debug, Default)]
+pub(super) struct SpecLog {
+    entries: std::collections::VecDeque<(u64, Vec<NamedNode>)>,
+    names: usize,
+    /// Generations up to this one are no longer in `entries`.
+    floor: u64,
+}
+
+impl SpecLog {
+    pub(super) fn record(&mut self, generation: u64, graphs: Vec<NamedNode>) {
+        self.names += graphs.len();
+        self.entries.push_back((generation, graphs));
+        while self.names > SPEC_LOG_NAMES {
+            let Some((dropped, graphs)) = self.entries.pop_front() else {
+                break;
+            };
+            self.names -= graphs.len();
+            self.floor = dropped;
+        }
+    }
+
+    pub(super) fn since(&self, since: u64) -> Option<BTreeSet<NamedNode>> {
+        (since >= self.floor).then(|| {
+            self.entries
+                .iter()
+                .filter(|(g, _)| *g > since)
+                .flat_map(|(_, graphs)| graphs.iter().cloned())
+                .collect()
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn graph(i: usize) -> NamedNode {
+        NamedNode::new_unchecked(format!("urn:test:g{i}"))
+    }
+
+    #[test]
+    fn the_spec_log_answers_since_a_generation_until_it_no_longer_reaches_back() {
+        let mut log = SpecLog::default();
+        log.record(1, vec![graph(1)]);
+        log.record(2, vec![graph(2), graph(1)]);
+        assert_eq!(log.since(0), Some(BTreeSet::from([graph(1), graph(2)])));
+        assert_eq!(log.since(1), Some(BTreeSet::from([graph(1), graph(2)])));
+        assert_eq!(log.since(2), Some(BTreeSet::new()));
+        // A write of more names than the log keeps pushes the older entries out.
+        log.record(3, (0..SPEC_LOG_NAMES).map(graph).collect());
+        assert_eq!(log.since(0), None);
+        assert_eq!(log.since(2), Some((0..SPEC_LOG_NAMES).map(graph).collect()));
+        log.record(4, vec![graph(7)]);
+        assert_eq!(log.since(2), None, "generation 3 was pushed out too");
+        assert_eq!(log.since(3), Some(BTreeSet::from([graph(7)])));
+    }
 }

@@ -5,13 +5,14 @@
 //! estimates ([`statistics_triples`], [`learned`]). Every SPARQL query of the domain is in
 //! [`queries`].
 
+mod candidates;
 pub(crate) mod queries;
 mod read;
 mod triples;
 
 pub use read::{
-    ChangeSetRecords, Iris, Loaded, SpecCache, UnreadableRecord, candidates, change_sets, learned,
-    load, reserved_names,
+    ChangeSetRecords, Iris, Loaded, SpecCache, UnreadableRecord, candidates, change_sets,
+    cus_by_query, learned, load, reserved_names,
 };
 pub use triples::{
     Delta, HISTORY_RESOURCE, change_set_triples, cu_triples, delta, history_triples,

@@ -46,6 +46,26 @@ pub static CANDIDATES: LazyLock<String> = LazyLock::new(|| {
     ))
 });
 
+/// For each out description of `descriptions` (IRIs; others are left out), the descriptions
+/// it satisfies under [`CANDIDATES`]' relation besides itself: its super-concepts after
+/// reasoning and those `dyknow:similarTo` it either way. `None` when no description is an
+/// IRI. Columns: e, d.
+pub fn description_matches(descriptions: &[String]) -> Option<String> {
+    let values: Vec<String> = descriptions
+        .iter()
+        .filter_map(|d| oxigraph::model::NamedNode::new(d.as_str()).ok())
+        .map(|d| d.to_string())
+        .collect();
+    if values.is_empty() {
+        return None;
+    }
+    Some(prefixed(&format!(
+        "SELECT DISTINCT ?e ?d WHERE {{ VALUES ?e {{ {} }} \
+         {{ ?e rdfs:subClassOf+ ?d }} UNION {{ ?e dyknow:similarTo ?d }} UNION {{ ?d dyknow:similarTo ?e }} }}",
+        values.join(" ")
+    )))
+}
+
 /// The CUs of the environment graphs, one row per port binding. A CU whose transformation was
 /// deregistered keeps the transformation's IRI as its tid (not in the library: invalid, so the
 /// next review destroys it unless it is protected). Columns: name, tid, protected, dir
@@ -74,20 +94,6 @@ pub static CUS: LazyLock<String> = LazyLock::new(|| {
     }}
     ?p dyknow:hasName ?port .
   }}
-}}"#
-    ))
-});
-
-/// The ports of the transformation specs. Columns: tid, dir (`"in"`/`"out"`), name, port IRI.
-pub static PORTS: LazyLock<String> = LazyLock::new(|| {
-    prefixed(&format!(
-        r#"SELECT ?tid ?dir ?name ?port WHERE {{
-  GRAPH ?g {{
-    ?tf rdfs:label ?tid .
-    {{ ?tf dyknow:hasInPort ?port BIND("in" AS ?dir) }} UNION {{ ?tf dyknow:hasOutPort ?port BIND("out" AS ?dir) }}
-    ?port dyknow:hasName ?name .
-  }}
-  FILTER(STRSTARTS(STR(?g), "{TRANSFORMATION_GRAPH_PREFIX}"))
 }}"#
     ))
 });
