@@ -248,6 +248,19 @@ fn used(agent: &ureq::Agent, base: &str, r: usize) -> (usize, char) {
     (label[1..label.len() - 1].parse().unwrap(), variant)
 }
 
+/// Posts producer `p{k}{v}` back after its deregistration and reviews, so the next change
+/// starts from an optimal configuration again.
+fn post_back(agent: &ureq::Agent, base: &str, k: usize, v: char) {
+    let (status, _) = send(
+        agent,
+        "POST",
+        &format!("{base}/transformations"),
+        Some(format!("{PREFIXES}{}", transformation(k, v))),
+    );
+    assert_eq!(status, Some(201));
+    review(agent, base);
+}
+
 fn cus_latency(agent: &ureq::Agent, base: &str) -> Duration {
     let started = Instant::now();
     let (status, _) = get(agent, &format!("{base}/cus"));
@@ -337,14 +350,7 @@ fn measure(size: usize, targets: usize, repeat: usize) -> Row {
     );
     let mut optimal = vec![first["optimal"].as_bool().unwrap_or(false)];
     let cus_after_change = cus_latency(&agent, base);
-    let (status, _) = send(
-        &agent,
-        "POST",
-        &format!("{base}/transformations"),
-        Some(format!("{PREFIXES}{}", transformation(k, v))),
-    );
-    assert_eq!(status, Some(201));
-    review(&agent, base);
+    post_back(&agent, base, k, v);
     // Warm: deregistrations of transformations in use and target posts, alternately.
     let mut warm = Vec::new();
     let mut after_change = vec![cus_after_change];
@@ -359,14 +365,7 @@ fn measure(size: usize, targets: usize, repeat: usize) -> Row {
                 None,
             );
             after_change.push(cus_latency(&agent, base));
-            let (status, _) = send(
-                &agent,
-                "POST",
-                &format!("{base}/transformations"),
-                Some(format!("{PREFIXES}{}", transformation(k, v))),
-            );
-            assert_eq!(status, Some(201));
-            review(&agent, base);
+            post_back(&agent, base, k, v);
             out
         } else {
             let j = targets + r;

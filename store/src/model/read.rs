@@ -106,14 +106,7 @@ impl SpecCache {
             Some(l) => l.apply(&mut loaded.env),
             None => self::learned(kb)?.apply(&mut loaded.env),
         }
-        let mut cus = self.cus.lock().unwrap_or_else(PoisonError::into_inner);
-        match cus.as_ref() {
-            Some((k, cached)) if *k == key => loaded.env.cus = cached.clone(),
-            _ => {
-                load_cus(kb, &mut loaded)?;
-                *cus = Some((key, loaded.env.cus.clone()));
-            }
-        }
+        loaded.env.cus = self.cached_cus(kb, key, &loaded.env.library)?;
         Ok(loaded)
     }
 
@@ -135,16 +128,7 @@ impl SpecCache {
         let guard = self.refreshed(kb)?;
         let empty = BTreeMap::new();
         let library = guard.as_ref().map_or(&empty, |s| &s.base.env.library);
-        let mut cached = self.cus.lock().unwrap_or_else(PoisonError::into_inner);
-        let cus = match cached.as_ref() {
-            Some((k, cus)) if *k == key => cus.clone(),
-            _ => {
-                let cus = cus_of(cu_rows(kb)?, library);
-                *cached = Some((key, cus.clone()));
-                cus
-            }
-        };
-        drop(cached);
+        let cus = self.cached_cus(kb, key, library)?;
         let mut env = Environment::default();
         for cu in cus.values() {
             if let Some(t) = library.get(&cu.tid) {
@@ -167,6 +151,25 @@ impl SpecCache {
             .as_ref()
             .map(|s| Arc::clone(&s.base.specs))
             .unwrap_or_default())
+    }
+
+    /// The CUs cached at `key` (spec generation, environment generation), read again (their
+    /// unbound ports from `library`) when the key changed.
+    fn cached_cus(
+        &self,
+        kb: &KnowledgeBase,
+        key: (u64, u64),
+        library: &BTreeMap<Tid, Transformation>,
+    ) -> Result<BTreeMap<Cid, ComputationUnit>, ModelReadError> {
+        let mut cached = self.cus.lock().unwrap_or_else(PoisonError::into_inner);
+        match cached.as_ref() {
+            Some((k, cus)) if *k == key => Ok(cus.clone()),
+            _ => {
+                let cus = cus_of(cu_rows(kb)?, library);
+                *cached = Some((key, cus.clone()));
+                Ok(cus)
+            }
+        }
     }
 
     /// The cache brought up to date (patched, or derived anew), locked.
@@ -552,12 +555,6 @@ fn cus_of(
         }
     }
     cus
-}
-
-/// Reads the CUs into `loaded`.
-fn load_cus(kb: &KnowledgeBase, loaded: &mut Loaded) -> Result<(), ModelReadError> {
-    loaded.env.cus = cus_of(cu_rows(kb)?, &loaded.env.library);
-    Ok(())
 }
 
 /// The CUs as [`queries::CUS`] reads them: the reference the service's direct read is tested
