@@ -3,7 +3,7 @@
 #   benches/run.sh             every benchmark
 #   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
-#   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments)
+#   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments against CP-SAT)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
 #   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
 #   benches/run.sh groups      a formula group of 1,000 formulas over 100 live channels at 100 Hz (issue 15)
@@ -16,9 +16,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/dyknow/target}"
 venv=benches/.venv
-if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python" -c 'import owlrl, reasonable, reelay, mstlo_python' 2>/dev/null; then
+if [ ! -x "$venv/bin/oxigraph" ] || [ ! -d "$venv/lib" ] || ! "$venv/bin/python" -c 'import owlrl, reasonable, reelay, mstlo_python, ortools' 2>/dev/null; then
   [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-  "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4 reelay==25.0.0 mstlo-python==0.2.2
+  "$venv/bin/pip" install -q oxigraph==0.5.13 owlrl==7.6.2 reasonable==0.4.4 reelay==25.0.0 mstlo-python==0.2.2 ortools==9.15.6755
 fi
 # PyRCC8 1.2.2 is on PyPI only as a Python 2 source archive: benches/peers/install_pyrcc8.py
 # fetches it (pinned sha256), ports it with lib2to3 and installs it (nothing if present).

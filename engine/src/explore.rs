@@ -14,9 +14,14 @@
 //!   exists, and the result says whether optimality was proven;
 //! - the pragmatic relaxation (Def. 33): when enabled, a target may be left unsatisfied, at a
 //!   cost that exceeds every real cost (lexicographically), so all targets are satisfied
-//!   whenever that is possible, and as many as possible otherwise.
+//!   whenever that is possible, and as many as possible otherwise;
+//! - line 10's test `cost < bestCost` is strengthened with an admissible lower bound on what the
+//!   open jobs still cost ([`Search::lower_bound`]): a partial graph is abandoned as soon as its
+//!   cost *plus the bound* reaches the best cost. The bound never exceeds the cheapest
+//!   completion, so the optimum is never pruned (the brute-force property test checks both).
 
 use std::cmp::Ordering;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use rustc_hash::FxHashMap;
@@ -160,6 +165,9 @@ pub struct Exploration {
     pub cost: Cost,
     /// Whether the search was exhaustive (the any-time extension may stop it early).
     pub proven_optimal: bool,
+    /// A proven lower bound on the optimum: the cost itself when optimality was proven,
+    /// otherwise the admissible bound at the root (so `cost - bound` bounds the any-time gap).
+    pub bound: Cost,
     /// Successful expansions (EXPAND calls that returned true).
     pub expansions: u64,
     /// Time spent.
@@ -226,6 +234,205 @@ struct Search<'a> {
     current_in: FxHashMap<(Cid, usize), (Cid, usize)>,
     /// What feeds each target now.
     current_target: Vec<Option<(Cid, usize)>>,
+    /// The cheapest node of each transformation (an existing CU's upkeep, or a spawn's labour
+    /// and upkeep; 0 for protected CUs).
+    own: Vec<f64>,
+    /// The distinct transformations that may feed each (tid, input), and each target.
+    /// Identical lists are one shared slice, so jobs wanting the same providers are grouped.
+    providers_input: Vec<Vec<Arc<[usize]>>>,
+    providers_target: Vec<Arc<[usize]>>,
+    /// Whether a transformation has a node in the plan (the registry as a bitmap).
+    in_plan: Vec<bool>,
+    /// Each target's channel, as an index (equal for targets on one channel).
+    channel_of: Vec<usize>,
+    /// The distinct (tid, out port) pairs that may feed each target.
+    ports_target: Vec<Vec<(usize, usize)>>,
+    /// The static subtree estimate of each transformation (an order, not a bound), and whether
+    /// it is preferred (a crashed CU's).
+    subtree: Vec<f64>,
+    preferred: Vec<bool>,
+    /// Whether a transformation may feed a target, and its number of out ports.
+    feeds_targets: Vec<bool>,
+    out_counts: Vec<usize>,
+    /// Scratch space of [`Search::lower_bound`].
+    scratch: Scratch,
+}
+
+/// Epoch-stamped scratch arrays of [`Search::lower_bound`] (no clearing between bounds).
+#[derive(Default)]
+struct Scratch {
+    epoch: u32,
+    /// Open jobs whose reach contains each transformation, valid when `counted == epoch`.
+    reach_count: Vec<u32>,
+    counted: Vec<u32>,
+    /// Consumer slots that may read from each transformation, valid when `slotted == epoch`.
+    slots: Vec<u32>,
+    slotted: Vec<u32>,
+    /// Whether a transformation is in the union of the reaches (`== epoch`).
+    in_union: Vec<u32>,
+    /// The job whose reach last visited each transformation.
+    visited_by: Vec<u32>,
+    job_epoch: u32,
+    /// The chain (0), flow (1) and chain below target providers (2) values.
+    memo: [Memo; 3],
+    stack: Vec<(usize, bool)>,
+}
+
+/// Memoised values: `valued == epoch` when done, `entered == epoch` once entered (in progress
+/// until valued).
+#[derive(Default)]
+struct Memo {
+    value: Vec<f64>,
+    valued: Vec<u32>,
+    entered: Vec<u32>,
+}
+
+impl Memo {
+    fn new(n: usize) -> Self {
+        Self {
+            value: vec![0.0; n],
+            valued: vec![0; n],
+            entered: vec![0; n],
+        }
+    }
+}
+
+impl Scratch {
+    fn new(n: usize) -> Self {
+        Self {
+            reach_count: vec![0; n],
+            counted: vec![0; n],
+            slots: vec![0; n],
+            slotted: vec![0; n],
+            in_union: vec![0; n],
+            visited_by: vec![0; n],
+            memo: [Memo::new(n), Memo::new(n), Memo::new(n)],
+            ..Self::default()
+        }
+    }
+
+    fn add_slots(&mut self, t: usize, epoch: u32, count: u32) {
+        if self.slotted[t] == epoch {
+            self.slots[t] += count;
+        } else {
+            self.slotted[t] = epoch;
+            self.slots[t] = count;
+        }
+    }
+}
+
+/// A minimum-cost assignment of rows to distinct columns, as many rows as possible first:
+/// (rows left unassigned, total cost). `rows[r]` lists the (column, cost) pairs row `r` may
+/// take. The Hungarian method (shortest augmenting paths with potentials, O(n² m)), with one
+/// dummy column per row at a cost above every real assignment.
+fn assignment(rows: &[Vec<(usize, f64)>], columns: usize) -> (usize, f64) {
+    let n = rows.len();
+    if n == 0 {
+        return (0, 0.0);
+    }
+    let real: f64 = rows.iter().flatten().map(|(_, c)| c.abs()).sum::<f64>() + 1.0;
+    let dummy = real * (n as f64 + 1.0);
+    let forbidden = dummy * (n as f64 + 1.0);
+    let m = columns + n;
+    let mut dense = vec![forbidden; n * m];
+    for (r, row) in rows.iter().enumerate() {
+        for &(c, cost) in row {
+            let cell = &mut dense[r * m + c];
+            *cell = cell.min(cost);
+        }
+        for c in columns..m {
+            dense[r * m + c] = dummy;
+        }
+    }
+    // 1-based potentials and matches (e-maxx's formulation); column 0 is the virtual start.
+    let mut u = vec![0.0f64; n + 1];
+    let mut v = vec![0.0f64; m + 1];
+    let mut owner = vec![0usize; m + 1];
+    let mut way = vec![0usize; m + 1];
+    let mut min_to = vec![0.0f64; m + 1];
+    let mut used = vec![false; m + 1];
+    for i in 1..=n {
+        owner[0] = i;
+        let mut j0 = 0;
+        min_to.fill(f64::INFINITY);
+        used.fill(false);
+        loop {
+            used[j0] = true;
+            let i0 = owner[j0];
+            let mut delta = f64::INFINITY;
+            let mut j1 = 0;
+            for j in 1..=m {
+                if !used[j] {
+                    let cur = dense[(i0 - 1) * m + (j - 1)] - u[i0] - v[j];
+                    if cur < min_to[j] {
+                        min_to[j] = cur;
+                        way[j] = j0;
+                    }
+                    if min_to[j] < delta {
+                        delta = min_to[j];
+                        j1 = j;
+                    }
+                }
+            }
+            for j in 0..=m {
+                if used[j] {
+                    u[owner[j]] += delta;
+                    v[j] -= delta;
+                } else {
+                    min_to[j] -= delta;
+                }
+            }
+            j0 = j1;
+            if owner[j0] == 0 {
+                break;
+            }
+        }
+        loop {
+            let j1 = way[j0];
+            owner[j0] = owner[j1];
+            j0 = j1;
+            if j0 == 0 {
+                break;
+            }
+        }
+    }
+    let mut unassigned = 0;
+    let mut cost = 0.0;
+    for j in 1..=m {
+        let r = owner[j];
+        if r == 0 {
+            continue;
+        }
+        if j > columns {
+            unassigned += 1;
+        } else {
+            cost += dense[(r - 1) * m + (j - 1)];
+        }
+    }
+    (unassigned, cost)
+}
+
+/// The size of a maximum matching of left nodes to right nodes (Kuhn's augmenting paths).
+fn matching(edges: &[Vec<usize>], right: usize) -> usize {
+    fn augment(u: usize, edges: &[Vec<usize>], seen: &mut [bool], owner: &mut [usize]) -> bool {
+        for &v in &edges[u] {
+            if !std::mem::replace(&mut seen[v], true)
+                && (owner[v] == usize::MAX || augment(owner[v], edges, seen, owner))
+            {
+                owner[v] = u;
+                return true;
+            }
+        }
+        false
+    }
+    let mut owner = vec![usize::MAX; right];
+    let mut seen = vec![false; right];
+    (0..edges.len())
+        .filter(|u| {
+            seen.fill(false);
+            augment(*u, edges, &mut seen, &mut owner)
+        })
+        .count()
 }
 
 /// EXPLORE(ε, δp) (Algorithm 4): the cheapest plan for the targets of `env`, reusing its CUs
@@ -238,13 +445,7 @@ pub fn explore(
     let start = Instant::now();
     let mut search = Search::new(env, candidates, options);
     // Protected CUs are paid for whatever the plan: a constant.
-    let constant = options.horizon
-        * env
-            .cus
-            .values()
-            .filter(|c| c.protected)
-            .map(|c| env.library.get(&c.tid).map_or(0.0, |t| t.upkeep))
-            .sum::<f64>();
+    let constant = protected_upkeep(env, options);
 
     // Lines 2–7: registry, open jobs, trace, best trace, best cost, root.
     let mut jobs: Vec<Job> = Vec::new();
@@ -262,11 +463,26 @@ pub fn explore(
     let mut proven_optimal = true;
     let mut steps = 0u64;
     let deadline = options.timeout.map(|t| start + t);
+    let root_bound = search.lower_bound(&jobs, Cost::INFINITE);
     // Lines 9–40.
     loop {
         // Lines 11–23: expand open jobs until one fails or none is left.
         if let Some(job) = jobs.pop() {
-            if let Some(entry) = search.expand(job, from, sum, best_cost) {
+            // Line 10, strengthened: once a best graph exists, a partial graph whose cost plus
+            // the admissible bound of its open jobs reaches the best cost cannot lead to a
+            // better one (the job fails, as when no choice stays under the best).
+            jobs.push(job);
+            let hopeless = best.is_some() && {
+                let enough = Cost {
+                    unsatisfied: best_cost.unsatisfied.saturating_sub(sum.unsatisfied),
+                    value: best_cost.value - sum.value,
+                };
+                !sum.plus(search.lower_bound(&jobs, enough)).below(best_cost)
+            };
+            jobs.pop();
+            if hopeless {
+                jobs.push(job);
+            } else if let Some(entry) = search.expand(job, from, sum, best_cost) {
                 // Lines 15–18: a new node's inputs become open jobs; candidate indices of
                 // the jobs now on top start from the first candidate again.
                 expansions += 1;
@@ -280,9 +496,10 @@ pub fn explore(
                 trace.push(entry);
                 from = 0;
                 continue;
+            } else {
+                // Lines 20–21: expansion failure.
+                jobs.push(job);
             }
-            // Lines 20–21: expansion failure.
-            jobs.push(job);
         } else if sum.below(best_cost) {
             // Lines 26–28: a complete graph, better than the best so far.
             best_cost = sum;
@@ -290,7 +507,7 @@ pub fn explore(
         }
         // Line 24, with the any-time guard of Ch. 4.3.3.
         steps += 1;
-        if steps.is_multiple_of(256)
+        if steps.is_multiple_of(16)
             && best.is_some()
             && deadline.is_some_and(|d| Instant::now() >= d)
         {
@@ -308,6 +525,7 @@ pub fn explore(
             jobs.truncate(jobs.len() - inputs);
             let tid = search.node_tids[n];
             search.registry.remove(&tid);
+            search.in_plan[tid] = false;
             search.nodes.pop();
             search.node_tids.pop();
         }
@@ -321,7 +539,17 @@ pub fn explore(
         nodes,
         targets: search.targets.clone(),
     });
+    let constant_cost = Cost {
+        unsatisfied: 0,
+        value: constant,
+    };
+    let bound = match (&plan, proven_optimal) {
+        (Some(_), true) => best_cost.plus(constant_cost),
+        (None, true) => Cost::INFINITE,
+        _ => root_bound.plus(constant_cost),
+    };
     Exploration {
+        bound,
         cost: if plan.is_some() {
             best_cost.plus(Cost {
                 unsatisfied: 0,
@@ -335,6 +563,33 @@ pub fn explore(
         expansions,
         elapsed: start.elapsed(),
     }
+}
+
+/// The admissible lower bound EXPLORE starts from (protected CUs' upkeep included): no
+/// configuration of `env`'s targets costs less. See [`Search::lower_bound`].
+pub fn lower_bound(env: &Environment, candidates: &Candidates, options: &ExploreOptions) -> Cost {
+    let mut search = Search::new(env, candidates, options);
+    let jobs: Vec<Job> = search
+        .nodes
+        .iter()
+        .enumerate()
+        .flat_map(|(n, node)| (0..node.inputs.len()).map(move |i| Job { node: n, input: i }))
+        .collect();
+    search.lower_bound(&jobs, Cost::INFINITE).plus(Cost {
+        unsatisfied: 0,
+        value: protected_upkeep(env, options),
+    })
+}
+
+/// The upkeep of protected CUs over the horizon: paid whatever the plan.
+fn protected_upkeep(env: &Environment, options: &ExploreOptions) -> f64 {
+    options.horizon
+        * env
+            .cus
+            .values()
+            .filter(|c| c.protected)
+            .map(|c| env.library.get(&c.tid).map_or(0.0, |t| t.upkeep))
+            .sum::<f64>()
 }
 
 impl<'a> Search<'a> {
@@ -456,7 +711,7 @@ impl<'a> Search<'a> {
             });
             out
         };
-        let for_input = tids
+        let for_input: Vec<Vec<Vec<Static>>> = tids
             .iter()
             .map(|t| {
                 (0..env.library[t].inputs.len())
@@ -465,7 +720,7 @@ impl<'a> Search<'a> {
             })
             .collect();
         let targets: Vec<Qid> = env.targets.keys().cloned().collect();
-        let for_target = targets
+        let for_target: Vec<Vec<Static>> = targets
             .iter()
             .map(|q| statics(candidates.for_target(q)))
             .collect();
@@ -474,6 +729,50 @@ impl<'a> Search<'a> {
             .map(|q| env.targets[q].channel.clone())
             .collect();
         let in_counts = tids.iter().map(|t| env.library[t].inputs.len()).collect();
+        let mut interned: FxHashMap<Vec<usize>, Arc<[usize]>> = FxHashMap::default();
+        let mut distinct = |statics: &[Static]| -> Arc<[usize]> {
+            let mut v: Vec<usize> = statics.iter().map(|s| s.tid).collect();
+            v.sort_unstable();
+            v.dedup();
+            interned
+                .entry(v)
+                .or_insert_with_key(|v| v.as_slice().into())
+                .clone()
+        };
+        let providers_input: Vec<Vec<Arc<[usize]>>> = for_input
+            .iter()
+            .map(|inputs: &Vec<Vec<Static>>| inputs.iter().map(|s| distinct(s)).collect())
+            .collect();
+        let providers_target: Vec<Arc<[usize]>> = for_target.iter().map(|s| distinct(s)).collect();
+        let n = tids.len();
+        let ports_target: Vec<Vec<(usize, usize)>> = for_target
+            .iter()
+            .map(|statics| {
+                let mut v: Vec<(usize, usize)> = statics.iter().map(|s| (s.tid, s.port)).collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            })
+            .collect();
+        let preferred: Vec<bool> = tids
+            .iter()
+            .map(|t| options.prefer.iter().any(|p| p == t))
+            .collect();
+        let mut feeds_targets = vec![false; n];
+        for (t, _) in ports_target.iter().flatten() {
+            feeds_targets[*t] = true;
+        }
+        let out_counts: Vec<usize> = tids.iter().map(|t| env.library[t].outputs.len()).collect();
+        let channel_of: Vec<usize> = targets
+            .iter()
+            .map(|q| {
+                let c = &env.targets[q].channel;
+                targets
+                    .iter()
+                    .position(|o| env.targets[o].channel == *c)
+                    .unwrap_or(0)
+            })
+            .collect();
         // The current wiring, tried first so that a review keeps what works at equal cost.
         let publishers = env.publishers();
         let provider_of = |channel: Option<&str>| -> Option<(Cid, usize)> {
@@ -510,6 +809,17 @@ impl<'a> Search<'a> {
             registry: FxHashMap::default(),
             current_in,
             current_target,
+            own,
+            providers_input,
+            providers_target,
+            in_plan: vec![false; n],
+            channel_of,
+            subtree,
+            preferred,
+            feeds_targets,
+            out_counts,
+            ports_target,
+            scratch: Scratch::new(n),
         };
         // Line 7: the root; then protected CUs, which stay whatever the plan.
         search.nodes.push(PlanNode {
@@ -527,6 +837,7 @@ impl<'a> Search<'a> {
                 continue;
             };
             search.registry.entry(t).or_insert(search.nodes.len());
+            search.in_plan[t] = true;
             search.nodes.push(PlanNode {
                 tid: cu.tid.clone(),
                 kind: NodeKind::Existing(cid.clone()),
@@ -535,6 +846,424 @@ impl<'a> Search<'a> {
             search.node_tids.push(t);
         }
         search
+    }
+
+    /// The transformations that may feed `job`, and whether one of them is in the plan (then
+    /// the job may be closed for free by a virtual connection).
+    fn job_providers(&self, job: Job) -> (&[usize], bool) {
+        let providers: &[usize] = if job.node == 0 {
+            &self.providers_target[job.input]
+        } else {
+            &self.providers_input[self.node_tids[job.node]][job.input]
+        };
+        (providers, providers.iter().any(|t| self.in_plan[*t]))
+    }
+
+    /// The providers of `job`, shared.
+    fn job_arc(&self, job: Job) -> Arc<[usize]> {
+        if job.node == 0 {
+            self.providers_target[job.input].clone()
+        } else {
+            self.providers_input[self.node_tids[job.node]][job.input].clone()
+        }
+    }
+
+    /// Whether input `inputs` (its providers) may be fed by a plan node, for free.
+    fn free(&self, inputs: &[usize]) -> bool {
+        inputs.iter().any(|p| self.in_plan[*p])
+    }
+
+    /// An admissible lower bound on what completing the open `jobs` costs: never more than
+    /// the cheapest completion (new nodes feeding every open job and every new node's inputs).
+    ///
+    /// A completion can be rewired, at no cost, so that every input a plan node may feed reads
+    /// from it (a free virtual connection); what remains of it lies in the open jobs' *reach*:
+    /// the transformations not in the plan that may feed a job, and recursively those that may
+    /// feed their inputs, stopping at inputs a plan node may feed. Three bounds on that graph,
+    /// each admissible, so the largest is (the later ones only when the earlier do not already
+    /// reach `enough`, the best cost less the partial graph's; flow only for a bound to report,
+    /// when `enough` is infinite):
+    ///
+    /// - **chains**: each transformation's cost is shared among the `r` open jobs whose reach
+    ///   contains it; a job costs at least its cheapest chain, `chain(t) = own(t)/r(t) + max
+    ///   over t's inputs of the cheapest provider's chain`. A job's feeding graph contains such
+    ///   a path, and a node is charged `own/r` by at most the `r` jobs that can reach it;
+    /// - **flow**: a completion's cost flows up its (acyclic) wiring, each node passing its own
+    ///   cost plus what its inputs bring, split equally among its `k` consumers; the jobs
+    ///   receive the whole cost. With `K(t) ≥ k` the consumer slots that may read from `t` (open
+    ///   jobs, inputs of transformations in the reach), `flow(t) = (own(t) + Σ over inputs of
+    ///   the cheapest provider's flow) / K(t)` never exceeds what `t` passes up.
+    ///
+    /// - **assignment**: targets on distinct channels need distinct out ports, so the open
+    ///   target channels are assigned out ports at least cost (a minimum-cost assignment,
+    ///   as many channels as possible first): a port costs its transformation's own cost
+    ///   (divided among its out ports) plus the cheapest chain below it, the other jobs their
+    ///   cheapest chain; in these chains transformations that may feed a target cost nothing
+    ///   (they are paid by the assignment), so no node is charged more than its cost.
+    ///
+    /// Targets: with the relaxation, a target may be left unsatisfied. Those that no chain can
+    /// feed, and the channels that cannot all get distinct out ports (a maximum matching of
+    /// open target channels to the out ports no other channel uses; one out port feeds one
+    /// channel), must be: they count in `unsatisfied`, and the value drops the largest target
+    /// values accordingly. Any completion leaving more targets unsatisfied costs more
+    /// (lexicographically) than the bound. Cycles count as 0; an open input no chain can feed
+    /// makes the partial graph infeasible ([`Cost::INFINITE`]).
+    fn lower_bound(&mut self, jobs: &[Job], enough: Cost) -> Cost {
+        let epoch = self.reach(jobs);
+        let mut bound = self.measure_bound(jobs, epoch, 0);
+        if bound.below(enough) && jobs.iter().any(|j| j.node == 0) {
+            let assigned = self.assignment_bound(jobs, epoch);
+            if bound.below(assigned) {
+                bound = assigned;
+            }
+        }
+        // The flow bound only for a bound to report (no `enough`): in the search it pruned
+        // nothing the other two did not on the benchmark's instances, and cost a fifth of the
+        // time (docs/engine.md).
+        if enough == Cost::INFINITE {
+            let flow = self.measure_bound(jobs, epoch, 1);
+            if bound.below(flow) {
+                bound = flow;
+            }
+        }
+        bound
+    }
+
+    /// A new epoch, and the reaches of the open `jobs` (see [`Search::lower_bound`]): per
+    /// transformation, the jobs reaching it and the consumer slots that may read from it.
+    fn reach(&mut self, jobs: &[Job]) -> u32 {
+        let sc = &mut self.scratch;
+        sc.epoch = sc.epoch.wrapping_add(1);
+        if sc.epoch == 0 {
+            // Wrapped: every stamp may collide, start over.
+            sc.counted.fill(0);
+            sc.slotted.fill(0);
+            sc.in_union.fill(0);
+            for m in &mut sc.memo {
+                m.valued.fill(0);
+                m.entered.fill(0);
+            }
+            sc.epoch = 1;
+        }
+        let epoch = self.scratch.epoch;
+        // The reach of each open job: per transformation, the jobs reaching it and the
+        // consumer slots that may read from it.
+        // Jobs wanting the same providers have the same reach: walk it once, count it for each.
+        let mut groups: Vec<(Arc<[usize]>, u32)> = Vec::new();
+        for &job in jobs {
+            let providers = self.job_arc(job);
+            // A free target still counts: the assignment bound may give it another port.
+            if job.node != 0 && self.free(&providers) {
+                continue;
+            }
+            match groups.iter_mut().find(|(g, _)| Arc::ptr_eq(g, &providers)) {
+                Some((_, count)) => *count += 1,
+                None => groups.push((providers, 1)),
+            }
+        }
+        let mut stack: Vec<usize> = Vec::new();
+        for (providers, count) in &groups {
+            let count = *count;
+            stack.extend(providers.iter().filter(|t| !self.in_plan[**t]));
+            let Self {
+                providers_input,
+                in_plan,
+                scratch: sc,
+                ..
+            } = self;
+            for &p in &stack {
+                sc.add_slots(p, epoch, count);
+            }
+            sc.job_epoch = sc.job_epoch.wrapping_add(1);
+            if sc.job_epoch == 0 {
+                sc.visited_by.fill(0);
+                sc.job_epoch = 1;
+            }
+            let mark = sc.job_epoch;
+            while let Some(t) = stack.pop() {
+                if sc.visited_by[t] == mark {
+                    continue;
+                }
+                sc.visited_by[t] = mark;
+                if sc.counted[t] == epoch {
+                    sc.reach_count[t] += count;
+                } else {
+                    sc.counted[t] = epoch;
+                    sc.reach_count[t] = count;
+                }
+                let first = sc.in_union[t] != epoch;
+                sc.in_union[t] = epoch;
+                for inputs in &providers_input[t] {
+                    if !inputs.iter().any(|p| in_plan[*p]) {
+                        stack.extend_from_slice(inputs);
+                        if first {
+                            for &p in inputs.iter() {
+                                sc.add_slots(p, epoch, 1);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        epoch
+    }
+
+    /// The chain (`measure` 0) or flow (1) bound of [`Search::lower_bound`], with the reaches
+    /// of [`Search::reach`] (`epoch`).
+    fn measure_bound(&mut self, jobs: &[Job], epoch: u32, measure: usize) -> Cost {
+        let mut other = 0.0f64;
+        let mut targets: Vec<f64> = Vec::new();
+        let mut unfeedable = 0u32;
+        for &job in jobs {
+            let (providers, free) = self.job_providers(job);
+            let value = if free {
+                0.0
+            } else {
+                let providers = providers.to_vec();
+                providers
+                    .iter()
+                    .map(|t| self.value(*t, epoch, measure))
+                    .fold(f64::INFINITY, f64::min)
+            };
+            if job.node == 0 {
+                if value.is_finite() {
+                    targets.push(value);
+                } else if self.options.relax {
+                    unfeedable += 1;
+                } else {
+                    return Cost::INFINITE;
+                }
+            } else if value.is_finite() {
+                other += value;
+            } else {
+                return Cost::INFINITE;
+            }
+        }
+        // Targets that must be left unsatisfied (the relaxation), beyond the unfeedable ones:
+        // drop as many of the largest target values.
+        let mut unsatisfied = unfeedable;
+        let mut extra = 0;
+        if self.options.relax {
+            let unmatched = self.unmatched_channels(jobs);
+            if unmatched > unfeedable {
+                extra = (unmatched - unfeedable) as usize;
+                unsatisfied = unmatched;
+                targets.sort_by(|a, b| b.total_cmp(a));
+            }
+        }
+        Cost {
+            unsatisfied,
+            value: other + targets.iter().skip(extra).sum::<f64>(),
+        }
+    }
+
+    /// The assignment bound of [`Search::lower_bound`] (see there), with the reaches of
+    /// [`Search::reach`] (`epoch`).
+    fn assignment_bound(&mut self, jobs: &[Job], epoch: u32) -> Cost {
+        let mut value = 0.0;
+        for &job in jobs.iter().filter(|j| j.node != 0) {
+            let (providers, free) = self.job_providers(job);
+            if free {
+                continue;
+            }
+            let providers = providers.to_vec();
+            let cheapest = providers
+                .iter()
+                .map(|t| self.value(*t, epoch, 2))
+                .fold(f64::INFINITY, f64::min);
+            if !cheapest.is_finite() {
+                return Cost::INFINITE;
+            }
+            value += cheapest;
+        }
+        let (channels, taken) = self.open_channels(jobs);
+        if channels.is_empty() {
+            return Cost {
+                unsatisfied: 0,
+                value,
+            };
+        }
+        let mut columns: Vec<(usize, usize)> = Vec::new();
+        let mut rows: Vec<Vec<(usize, f64)>> = Vec::with_capacity(channels.len());
+        for c in &channels {
+            let mut ports: Vec<(usize, usize)> = jobs
+                .iter()
+                .filter(|j| j.node == 0 && self.channel_of[j.input] == *c)
+                .flat_map(|j| self.ports_target[j.input].iter().copied())
+                .filter(|p| !taken.contains(p))
+                .collect();
+            ports.sort_unstable();
+            ports.dedup();
+            let mut row = Vec::with_capacity(ports.len());
+            for (t, port) in ports {
+                let weight = if self.in_plan[t] {
+                    0.0
+                } else {
+                    let mut below = 0.0f64;
+                    for i in 0..self.providers_input[t].len() {
+                        if self.free(&self.providers_input[t][i]) {
+                            continue;
+                        }
+                        let inputs = self.providers_input[t][i].clone();
+                        let cheapest = inputs
+                            .iter()
+                            .map(|p| self.value(*p, epoch, 2))
+                            .fold(f64::INFINITY, f64::min);
+                        below = below.max(cheapest);
+                    }
+                    self.own[t] / self.out_counts[t].max(1) as f64 + below
+                };
+                if !weight.is_finite() {
+                    continue;
+                }
+                let col = match columns.iter().position(|k| *k == (t, port)) {
+                    Some(k) => k,
+                    None => {
+                        columns.push((t, port));
+                        columns.len() - 1
+                    }
+                };
+                row.push((col, weight));
+            }
+            rows.push(row);
+        }
+        let (unassigned, cost) = assignment(&rows, columns.len());
+        if unassigned > 0 && !self.options.relax {
+            return Cost::INFINITE;
+        }
+        Cost {
+            unsatisfied: unassigned as u32,
+            value: value + cost,
+        }
+    }
+
+    /// The channels of open targets with no target fed yet, and the out ports already feeding
+    /// a target, as (tid, port).
+    fn open_channels(&self, jobs: &[Job]) -> (Vec<usize>, Vec<(usize, usize)>) {
+        let fed: Vec<(usize, Link)> = self.nodes[0]
+            .inputs
+            .iter()
+            .enumerate()
+            .filter_map(|(q, l)| l.map(|l| (q, l)))
+            .collect();
+        let mut channels: Vec<usize> = jobs
+            .iter()
+            .filter(|j| j.node == 0)
+            .map(|j| self.channel_of[j.input])
+            .filter(|c| !fed.iter().any(|(q, _)| self.channel_of[*q] == *c))
+            .collect();
+        channels.sort_unstable();
+        channels.dedup();
+        let taken = fed
+            .iter()
+            .map(|(_, l)| (self.node_tids[l.node], l.port))
+            .collect();
+        (channels, taken)
+    }
+
+    /// How many channels of open targets cannot get an out port of their own: the number of
+    /// such channels (with no target fed yet) minus a maximum matching of them to the out
+    /// ports that may feed one of their targets and feed no other channel's target.
+    fn unmatched_channels(&self, jobs: &[Job]) -> u32 {
+        let (channels, taken) = self.open_channels(jobs);
+        if channels.len() < 2 {
+            return 0;
+        }
+        let mut ports: FxHashMap<(usize, usize), usize> = FxHashMap::default();
+        let edges: Vec<Vec<usize>> = channels
+            .iter()
+            .map(|c| {
+                let mut out: Vec<usize> = jobs
+                    .iter()
+                    .filter(|j| j.node == 0 && self.channel_of[j.input] == *c)
+                    .flat_map(|j| self.ports_target[j.input].iter().copied())
+                    .filter(|p| !taken.contains(p))
+                    .map(|p| {
+                        let next = ports.len();
+                        *ports.entry(p).or_insert(next)
+                    })
+                    .collect();
+                out.sort_unstable();
+                out.dedup();
+                out
+            })
+            .collect();
+        let matched = matching(&edges, ports.len());
+        (channels.len() - matched) as u32
+    }
+
+    /// `chain(t)` (`measure` 0), `flow(t)` (1) or `chain'(t)` (2) of [`Search::lower_bound`],
+    /// memoised for this `epoch`; iterative (libraries may be deep). A provider still being
+    /// valued (a cycle) counts as 0.
+    fn value(&mut self, root: usize, epoch: u32, measure: usize) -> f64 {
+        let mut stack = std::mem::take(&mut self.scratch.stack);
+        stack.push((root, false));
+        while let Some((t, done)) = stack.pop() {
+            let memo = &mut self.scratch.memo[measure];
+            if memo.valued[t] == epoch {
+                continue;
+            }
+            if !done {
+                if memo.entered[t] == epoch {
+                    continue;
+                }
+                memo.entered[t] = epoch;
+                stack.push((t, true));
+                for inputs in &self.providers_input[t] {
+                    if !self.free(inputs) {
+                        let memo = &self.scratch.memo[measure];
+                        stack.extend(
+                            inputs
+                                .iter()
+                                .filter(|p| memo.entered[**p] != epoch)
+                                .map(|p| (*p, false)),
+                        );
+                    }
+                }
+                continue;
+            }
+            let mut below = 0.0f64;
+            for inputs in &self.providers_input[t] {
+                if self.free(inputs) {
+                    continue;
+                }
+                let memo = &self.scratch.memo[measure];
+                let cheapest = inputs
+                    .iter()
+                    .map(|p| {
+                        if memo.valued[*p] == epoch {
+                            memo.value[*p]
+                        } else {
+                            0.0 // On the path being valued: a cycle.
+                        }
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                below = if measure == 1 {
+                    below + cheapest
+                } else {
+                    below.max(cheapest)
+                };
+            }
+            let sc = &mut self.scratch;
+            let value = match measure {
+                0 => self.own[t] / f64::from(sc.reach_count[t].max(1)) + below,
+                1 => {
+                    let slots = if sc.slotted[t] == epoch {
+                        sc.slots[t]
+                    } else {
+                        1
+                    };
+                    (self.own[t] + below) / f64::from(slots.max(1))
+                }
+                _ if self.feeds_targets[t] => below,
+                _ => self.own[t] / f64::from(sc.reach_count[t].max(1)) + below,
+            };
+            let memo = &mut sc.memo[measure];
+            memo.value[t] = value;
+            memo.valued[t] = epoch;
+        }
+        self.scratch.stack = stack;
+        self.scratch.memo[measure].value[root]
     }
 
     /// The choices of a job, in order (the seed's getCandidate, Alg. 5 line 6).
@@ -558,6 +1287,10 @@ impl<'a> Search<'a> {
                 }));
             }
         }
+        // New nodes: preferred ones first, then by their estimated subtree *given the plan*:
+        // their cost plus, per input, nothing when a plan node may feed it, else the cheapest
+        // provider's static subtree estimate (so sharing with the plan counts).
+        let reused = out.len();
         for s in statics {
             if !self.registry.contains_key(&s.tid) {
                 out.push(Choice::New {
@@ -568,6 +1301,35 @@ impl<'a> Search<'a> {
                 });
             }
         }
+        let estimate = |c: &Choice| -> (bool, f64) {
+            let Choice::New {
+                tid,
+                existing,
+                cost,
+                ..
+            } = *c
+            else {
+                return (false, 0.0);
+            };
+            let below: f64 = self.providers_input[tid]
+                .iter()
+                .map(|ps| {
+                    if self.free(ps) {
+                        0.0
+                    } else {
+                        ps.iter()
+                            .map(|p| self.subtree[*p])
+                            .fold(f64::INFINITY, f64::min)
+                    }
+                })
+                .sum();
+            (existing.is_none() && self.preferred[tid], cost + below)
+        };
+        out[reused..].sort_by(|a, b| {
+            let (pa, ea) = estimate(a);
+            let (pb, eb) = estimate(b);
+            pb.cmp(&pa).then(ea.total_cmp(&eb))
+        });
         // The current provider first.
         let current = match &self.nodes[job.node].kind {
             NodeKind::Root => self.current_target[job.input].as_ref(),
@@ -683,6 +1445,7 @@ impl<'a> Search<'a> {
                     });
                     self.node_tids.push(tid);
                     self.registry.insert(tid, n);
+                    self.in_plan[tid] = true;
                     self.nodes[job.node].inputs[job.input] = Some(Link { node: n, port });
                     return Some(Entry {
                         job,
@@ -711,5 +1474,56 @@ impl<'a> Search<'a> {
             }
         }
         None // Line 27.
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{assignment, matching};
+    use proptest::prelude::*;
+
+    /// Every way of giving rows distinct columns or none: (most rows assigned, least cost).
+    fn brute(rows: &[Vec<(usize, f64)>], taken: &mut Vec<bool>, r: usize) -> (usize, f64) {
+        if r == rows.len() {
+            return (0, 0.0);
+        }
+        let (mut best_n, mut best_c) = brute(rows, taken, r + 1);
+        for &(c, cost) in &rows[r] {
+            if !taken[c] {
+                taken[c] = true;
+                let (n, sub) = brute(rows, taken, r + 1);
+                taken[c] = false;
+                if n + 1 > best_n || (n + 1 == best_n && sub + cost < best_c) {
+                    (best_n, best_c) = (n + 1, sub + cost);
+                }
+            }
+        }
+        (best_n, best_c)
+    }
+
+    fn rows() -> impl Strategy<Value = (Vec<Vec<(usize, f64)>>, usize)> {
+        (1usize..6).prop_flat_map(|columns| {
+            (
+                prop::collection::vec(
+                    prop::collection::btree_map(0..columns, 0u8..20, 0..=columns)
+                        .prop_map(|m| m.into_iter().map(|(c, w)| (c, f64::from(w))).collect()),
+                    0..6,
+                ),
+                Just(columns),
+            )
+        })
+    }
+
+    proptest! {
+        #[test]
+        fn the_assignment_is_a_maximum_matching_of_least_cost((rows, columns) in rows()) {
+            let (unassigned, cost) = assignment(&rows, columns);
+            let (assigned, best) = brute(&rows, &mut vec![false; columns], 0);
+            prop_assert_eq!(rows.len() - unassigned, assigned);
+            prop_assert!((cost - best).abs() < 1e-9, "hungarian {} brute force {}", cost, best);
+            let edges: Vec<Vec<usize>> =
+                rows.iter().map(|r| r.iter().map(|(c, _)| *c).collect()).collect();
+            prop_assert_eq!(matching(&edges, columns), assigned);
+        }
     }
 }

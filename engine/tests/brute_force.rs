@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use dyknow_engine::{
     Candidates, Cid, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, Target, Tid,
-    Transformation, compile, explore,
+    Transformation, compile, explore, lower_bound,
 };
 use proptest::prelude::*;
 
@@ -226,6 +226,16 @@ proptest! {
         let exploration = explore(&env, &candidates, &options);
         let expected = brute_force(&tfs, &targets);
         prop_assert!(exploration.proven_optimal);
+        // The bound EXPLORE prunes with is admissible: never above the optimum.
+        let bound = lower_bound(&env, &candidates, &options);
+        if let Some((unsatisfied, cost)) = expected {
+            prop_assert!(
+                bound.unsatisfied < unsatisfied
+                    || (bound.unsatisfied == unsatisfied && bound.value <= cost + 1e-9),
+                "bound {:?} above the optimum ({}, {})", bound, unsatisfied, cost
+            );
+            prop_assert!((exploration.bound.value - cost).abs() < 1e-9);
+        }
         match expected {
             None => prop_assert!(exploration.plan.is_none()),
             Some((unsatisfied, cost)) => {

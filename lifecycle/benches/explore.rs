@@ -195,9 +195,281 @@ fn generated(transformations: usize, targets: usize, seed: u64) -> (Environment,
     (env, candidates)
 }
 
+/// The scale bench's library (`server/benches/scale.rs`), in memory: streams `s0 … s{N/2-1}`
+/// in a tree (stream k ≥ 1 computed from stream (k-1)/4), each with two producers, `p{k}a`
+/// (upkeep 1) and `p{k}b` (upkeep 2), labour 1; target j wants stream
+/// `N/2 - 1 - (7919 j mod N/2)` on a channel of its own.
+fn tree(transformations: usize, targets: usize) -> (Environment, Candidates) {
+    let streams = (transformations / 2).max(1);
+    let mut env = Environment::default();
+    let mut input_of = std::collections::HashMap::new();
+    let mut output_of = std::collections::HashMap::new();
+    for k in 0..streams {
+        for (v, upkeep) in [('a', 1.0), ('b', 2.0)] {
+            let tid = format!("p{k}{v}");
+            let inputs = if k == 0 {
+                Vec::new()
+            } else {
+                vec![format!("s{}", (k - 1) / 4)]
+            };
+            env.library.insert(
+                tid.as_str().into(),
+                Transformation {
+                    tid: tid.as_str().into(),
+                    inputs: (0..inputs.len()).map(|i| format!("in{i}")).collect(),
+                    outputs: vec!["out".into()],
+                    labour: 1.0,
+                    upkeep,
+                },
+            );
+            input_of.insert(tid.clone(), inputs);
+            output_of.insert(tid, format!("s{k}"));
+        }
+    }
+    let mut wants = std::collections::HashMap::new();
+    for j in 0..targets {
+        let qid = format!("q{j}");
+        env.targets.insert(
+            qid.as_str().into(),
+            Target {
+                qid: qid.as_str().into(),
+                channel: format!("out{j}").into(),
+            },
+        );
+        wants.insert(qid, format!("s{}", streams - 1 - (j * 7919) % streams));
+    }
+    let candidates = Candidates::from_tags(
+        &env,
+        |tid, i| vec![input_of[tid][i].clone()],
+        |tid, _| vec![output_of[tid].clone()],
+        |qid| vec![wants[qid].clone()],
+        |a: &String, b: &String| a == b,
+    );
+    (env, candidates)
+}
+
+/// The configuration problem of `env` as the CP-SAT reference reads it
+/// (`benches/peers/cpsat_explore.py`), derived from the environment and the candidate table
+/// alone: per transformation its node cost (an existing CU's upkeep over the horizon, else a
+/// spawn's labour and upkeep), whether a protected CU runs it, and its inputs' providers; per
+/// target its providers and channel.
+fn instance(env: &Environment, candidates: &Candidates, options: &ExploreOptions) -> String {
+    let h = options.horizon;
+    let tids: Vec<&dyknow_engine::Tid> = env.library.keys().collect();
+    let index: std::collections::HashMap<&str, usize> = tids
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (t.as_str(), i))
+        .collect();
+    let providers = |list: &[dyknow_engine::Provider]| -> Vec<(usize, usize)> {
+        list.iter()
+            .filter_map(|p| {
+                let t = *index.get(p.tid.as_str())?;
+                (p.port < env.library[&p.tid].outputs.len()).then_some((t, p.port))
+            })
+            .collect()
+    };
+    let transformations: Vec<serde_json::Value> = tids
+        .iter()
+        .map(|tid| {
+            let tf = &env.library[*tid];
+            let existing: Vec<_> = env.cus.values().filter(|c| c.tid == **tid).collect();
+            let cost = if existing.is_empty() {
+                tf.labour + h * tf.upkeep
+            } else {
+                h * tf.upkeep
+            };
+            serde_json::json!({
+                "tid": tid.as_str(),
+                "cost": cost,
+                "protected": existing.iter().any(|c| c.protected),
+                "inputs": (0..tf.inputs.len())
+                    .map(|i| providers(candidates.for_input(tid, i)))
+                    .collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let targets: Vec<serde_json::Value> = env
+        .targets
+        .values()
+        .map(|q| {
+            serde_json::json!({
+                "qid": q.qid.as_str(),
+                "channel": q.channel.as_str(),
+                "providers": providers(candidates.for_target(&q.qid)),
+            })
+        })
+        .collect();
+    let constant: f64 = env
+        .cus
+        .values()
+        .filter(|c| c.protected)
+        .map(|c| h * env.library.get(&c.tid).map_or(0.0, |t| t.upkeep))
+        .sum();
+    serde_json::json!({
+        "transformations": transformations,
+        "targets": targets,
+        "relax": options.relax,
+        "constant": constant,
+    })
+    .to_string()
+}
+
+/// CP-SAT's answer: (cost, unsatisfied, bound, status, seconds), or why there is none.
+struct Reference {
+    cost: f64,
+    unsatisfied: u32,
+    bound: Option<f64>,
+    status: String,
+    seconds: f64,
+}
+
+/// Solves `instance` with the CP-SAT reference (`PEER_PYTHON`, set by `benches/run.sh`, with
+/// OR-Tools installed), within `seconds`.
+fn cpsat(instance: &str, seconds: u64) -> Result<Reference, String> {
+    use std::process::{Command, Stdio};
+    let python = std::env::var("PEER_PYTHON").map_err(|_| "PEER_PYTHON unset".to_owned())?;
+    let script = format!(
+        "{}/../benches/peers/cpsat_explore.py",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut child = Command::new(python)
+        .args([script, seconds.to_string(), "2".to_owned()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| e.to_string())?;
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(instance.as_bytes())
+        .map_err(|e| e.to_string())?;
+    let output = child.wait_with_output().map_err(|e| e.to_string())?;
+    if !output.status.success() {
+        return Err(String::from_utf8_lossy(&output.stderr)
+            .lines()
+            .last()
+            .unwrap_or("failed")
+            .to_owned());
+    }
+    let v: serde_json::Value = serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())?;
+    Ok(Reference {
+        cost: v["cost"].as_f64().ok_or(format!("no solution: {v}"))?,
+        unsatisfied: v["unsatisfied"].as_u64().unwrap_or(0) as u32,
+        bound: v["bound"].as_f64(),
+        status: v["status"].as_str().unwrap_or("?").to_owned(),
+        seconds: v["seconds"].as_f64().unwrap_or(f64::NAN),
+    })
+}
+
+fn fmt_cost(c: dyknow_engine::Cost) -> String {
+    if c.unsatisfied > 0 {
+        format!("{:.2} ({} unsatisfied)", c.value, c.unsatisfied)
+    } else {
+        format!("{:.2}", c.value)
+    }
+}
+
+/// One instance: EXPLORE (first solution, proof capped at `cap`, any-time at 10/100/1,000 ms,
+/// its root bound) beside CP-SAT's optimum, as a table row.
+fn row(
+    out: &mut impl Write,
+    family: &str,
+    (n, q): (usize, usize),
+    (env, candidates): (Environment, Candidates),
+    cap: Duration,
+    cpsat_seconds: u64,
+) {
+    // `EXPLORE_ONLY=layered-500x20,…` runs only these rows.
+    if let Ok(only) = std::env::var("EXPLORE_ONLY")
+        && !only.split(',').any(|o| o == format!("{family}-{n}x{q}"))
+    {
+        return;
+    }
+    let options = ExploreOptions::default();
+    let run = |timeout: Option<Duration>| {
+        explore(
+            &env,
+            &candidates,
+            &ExploreOptions {
+                timeout,
+                ..ExploreOptions::default()
+            },
+        )
+    };
+    // First solution: the smallest timeout (backtracking stops as soon as one exists).
+    let first = run(Some(Duration::ZERO));
+    let full = run(Some(cap));
+    let at: Vec<_> = [10u64, 100, 1000]
+        .iter()
+        .map(|t| run(Some(Duration::from_millis(*t))))
+        .collect();
+    let root = dyknow_engine::lower_bound(&env, &candidates, &options);
+    let json = instance(&env, &candidates, &options);
+    // `EXPLORE_INSTANCES=DIR` keeps each instance, to rerun the reference by hand.
+    if let Ok(keep) = std::env::var("EXPLORE_INSTANCES") {
+        let _ = std::fs::write(format!("{keep}/{family}-{n}x{q}.json"), &json);
+    }
+    let reference = cpsat(&json, cpsat_seconds);
+    let gap = |e: &dyknow_engine::Exploration| match (&e.plan, &reference) {
+        (Some(_), Ok(r)) if r.unsatisfied == e.cost.unsatisfied => {
+            format!(
+                "{:.2} %",
+                100.0 * (e.cost.value - r.cost) / r.cost.max(1e-12)
+            )
+        }
+        (Some(_), Ok(r)) => format!(
+            "{} unsatisfied {}",
+            e.cost.unsatisfied.abs_diff(r.unsatisfied),
+            if e.cost.unsatisfied > r.unsatisfied {
+                "more"
+            } else {
+                "fewer"
+            }
+        ),
+        (None, _) => "none".to_owned(),
+        (_, Err(_)) => "n/a".to_owned(),
+    };
+    let proven = if full.proven_optimal {
+        ms(full.elapsed)
+    } else {
+        format!("not within {} s", cap.as_secs())
+    };
+    let reference_cell = match &reference {
+        Ok(r) => format!(
+            "{} ({}, {:.2} s{})",
+            fmt_cost(dyknow_engine::Cost {
+                unsatisfied: r.unsatisfied,
+                value: r.cost
+            }),
+            r.status.to_lowercase(),
+            r.seconds,
+            match r.bound {
+                Some(b) if r.status != "OPTIMAL" => format!(", bound {b:.2}"),
+                _ => String::new(),
+            }
+        ),
+        Err(e) => format!("n/a ({e})"),
+    };
+    let _ = writeln!(
+        out,
+        "| {family} | {n} | {q} | {} | {proven} | {} | {} | {reference_cell} | {} | {} | {} |",
+        ms(first.elapsed),
+        fmt_cost(full.cost),
+        fmt_cost(root),
+        gap(&at[0]),
+        gap(&at[1]),
+        gap(&at[2]),
+    );
+    let _ = out.flush();
+}
+
 fn main() {
     let quick = std::env::var("BENCH_QUICK").is_ok();
     let cap = Duration::from_secs(if quick { 2 } else { 10 });
+    let cpsat_seconds = if quick { 10 } else { 60 };
     let dir = tempfile::tempdir().unwrap();
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "# DyKnow reconfiguration benchmark\n");
@@ -210,18 +482,18 @@ fn main() {
 
     let _ = writeln!(
         out,
-        "\n## Generated environments (horizon 10; proof capped at {} s)\n",
+        "\n## Generated environments against CP-SAT (horizon 10; EXPLORE's proof capped at {} s, CP-SAT's at {cpsat_seconds} s, 2 workers)\n",
         cap.as_secs()
     );
     let _ = writeln!(
         out,
-        "| transformations | targets | first solution | proven optimum | cost after the capped search | best known | gap at 10 ms | gap at 100 ms | gap at 1,000 ms |"
+        "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | CP-SAT (status, time) | gap to CP-SAT at 10 ms | at 100 ms | at 1,000 ms |"
     );
     let _ = writeln!(
         out,
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
     );
-    let sizes: &[(usize, usize)] = if quick {
+    let layered: &[(usize, usize)] = if quick {
         &[(10, 1), (50, 5), (200, 10)]
     } else {
         &[
@@ -233,66 +505,16 @@ fn main() {
             (2000, 50),
         ]
     };
-    for &(n, q) in sizes {
-        let (env, candidates) = generated(n, q, 0x5eed + n as u64);
-        let run = |timeout: Option<Duration>| {
-            explore(
-                &env,
-                &candidates,
-                &ExploreOptions {
-                    timeout,
-                    ..ExploreOptions::default()
-                },
-            )
-        };
-        // First solution: the smallest timeout (backtracking stops as soon as one exists).
-        let first = run(Some(Duration::ZERO));
-        let full = run(Some(cap));
-        let at: Vec<_> = [10u64, 100, 1000]
-            .iter()
-            .map(|t| run(Some(Duration::from_millis(*t))))
-            .collect();
-        let best = at
-            .iter()
-            .chain([&full, &first])
-            .filter(|e| e.plan.is_some())
-            .map(|e| e.cost)
-            .fold(None, |b: Option<dyknow_engine::Cost>, c| match b {
-                Some(b) if !c.below(b) => Some(b),
-                _ => Some(c),
-            });
-        let gap = |e: &dyknow_engine::Exploration| match (&e.plan, best) {
-            (Some(_), Some(b)) if b.unsatisfied == e.cost.unsatisfied => {
-                format!(
-                    "{:.2} %",
-                    100.0 * (e.cost.value - b.value) / b.value.max(1e-12)
-                )
-            }
-            (Some(_), Some(_)) => format!("{} unsatisfied more", e.cost.unsatisfied),
-            _ => "none".to_owned(),
-        };
-        let proven = if full.proven_optimal {
-            ms(full.elapsed)
-        } else {
-            format!("not within {} s", cap.as_secs())
-        };
-        let cost = |e: &dyknow_engine::Exploration| {
-            if e.cost.unsatisfied > 0 {
-                format!("{:.2} ({} unsatisfied)", e.cost.value, e.cost.unsatisfied)
-            } else {
-                format!("{:.2}", e.cost.value)
-            }
-        };
-        let _ = writeln!(
-            out,
-            "| {n} | {q} | {} | {proven} | {} | {} | {} | {} | {} |",
-            ms(first.elapsed),
-            cost(&full),
-            best.map_or("none".to_owned(), |b| format!("{:.2}", b.value)),
-            gap(&at[0]),
-            gap(&at[1]),
-            gap(&at[2]),
-        );
-        let _ = out.flush();
+    for &(n, q) in layered {
+        let instance = generated(n, q, 0x5eed + n as u64);
+        row(&mut out, "layered", (n, q), instance, cap, cpsat_seconds);
+    }
+    let trees: &[(usize, usize)] = if quick {
+        &[(100, 1), (200, 10)]
+    } else {
+        &[(100, 1), (200, 10), (2000, 50), (10000, 50)]
+    };
+    for &(n, q) in trees {
+        row(&mut out, "tree", (n, q), tree(n, q), cap, cpsat_seconds);
     }
 }
