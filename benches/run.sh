@@ -11,6 +11,7 @@
 #   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
 #   benches/run.sh load        64 HTTP clients for 10 minutes with Chapter 6 running; SPARQL against `oxigraph serve`
 #   benches/run.sh scale       libraries of 100 to 10,000 transformations, 1 and 50 targets: spec change to change set, GET /cus, start-up (issue 18)
+#   benches/run.sh startup     start-up on a store of 10,000 specs loaded offline (benches/startup.sh)
 # The peers come from PyPI into benches/.venv (created on first use).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -70,4 +71,7 @@ if [ "$which" = all ] || [ "$which" = load ]; then
 fi
 if [ "$which" = all ] || [ "$which" = scale ]; then
   cargo bench --locked --workspace --bench scale
+fi
+if [ "$which" = all ] || [ "$which" = startup ]; then
+  benches/startup.sh 10000 3
 fi
