@@ -182,14 +182,27 @@ fn generated(transformations: usize, targets: usize, seed: u64) -> (Environment,
         );
         target_tags.push((qid, format!("L{top_level}-{}", rng.below(per_level))));
     }
-    let ins: std::collections::HashMap<String, Vec<String>> = in_tags.into_iter().collect();
-    let outs: std::collections::HashMap<String, String> = out_tags.into_iter().collect();
-    let tq: std::collections::HashMap<String, String> = target_tags.into_iter().collect();
+    tagged(
+        env,
+        &in_tags.into_iter().collect(),
+        &out_tags.into_iter().collect(),
+        &target_tags.into_iter().collect(),
+    )
+}
+
+/// `env` with the candidate table of its tags: each transformation's input tags and (single)
+/// output tag, each target's wanted tag, matched by equality.
+fn tagged(
+    env: Environment,
+    inputs: &std::collections::HashMap<String, Vec<String>>,
+    output: &std::collections::HashMap<String, String>,
+    wants: &std::collections::HashMap<String, String>,
+) -> (Environment, Candidates) {
     let candidates = Candidates::from_tags(
         &env,
-        |tid, i| vec![ins[tid][i].clone()],
-        |tid, _| vec![outs[tid].clone()],
-        |qid| vec![tq[qid].clone()],
+        |tid, i| vec![inputs[tid][i].clone()],
+        |tid, _| vec![output[tid].clone()],
+        |qid| vec![wants[qid].clone()],
         |a: &String, b: &String| a == b,
     );
     (env, candidates)
@@ -238,14 +251,7 @@ fn tree(transformations: usize, targets: usize) -> (Environment, Candidates) {
         );
         wants.insert(qid, format!("s{}", streams - 1 - (j * 7919) % streams));
     }
-    let candidates = Candidates::from_tags(
-        &env,
-        |tid, i| vec![input_of[tid][i].clone()],
-        |tid, _| vec![output_of[tid].clone()],
-        |qid| vec![wants[qid].clone()],
-        |a: &String, b: &String| a == b,
-    );
-    (env, candidates)
+    tagged(env, &input_of, &output_of, &wants)
 }
 
 /// The configuration problem of `env` as the CP-SAT reference reads it
