@@ -99,12 +99,22 @@ pub trait Executor: Send + Sync {
             .collect()
     }
 
-    /// What the running system says of several CUs (`GET /cus`); those it says nothing of
-    /// are missing. Executors that can answer for many CUs at once override it.
+    /// What the running system says of several CUs (`GET /cus?statistics=true`); those it
+    /// says nothing of are missing. Executors that can answer for many CUs at once override
+    /// it.
     fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
         cus.iter()
             .filter_map(|cu| Some((cu.clone(), self.describe(cu)?)))
             .collect()
+    }
+
+    /// Where several CUs run and in what state, as the manager last heard it (the
+    /// acknowledgements of its change sets, the executors' events, reconciliation), without
+    /// asking anyone: `GET /cus`, which must not wait behind an executor busy applying a
+    /// change set. The views carry no statistics. By default what [`Executor::describe_all`]
+    /// says.
+    fn last_heard(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        self.describe_all(cus)
     }
 }
 

@@ -97,6 +97,10 @@ struct Inner {
     namespace: Namespace,
     executors: Mutex<BTreeMap<String, Known>>,
     placement: Mutex<BTreeMap<Cid, String>>,
+    /// The placed CUs known to run: their spawn was acknowledged, their executor said they
+    /// run, or reconciliation adopted them. A placed CU not in it is starting. Locked after
+    /// `placement` when both are.
+    running: Mutex<BTreeSet<Cid>>,
     /// Each executor's token as the liveliness subscriber last said: whether it is up, and
     /// its epoch (how many times it went up or down), which dates an executor's answers.
     tokens: Mutex<BTreeMap<String, Token>>,
@@ -158,6 +162,7 @@ impl Fleet {
             namespace: namespace.clone(),
             executors: Mutex::default(),
             placement: Mutex::default(),
+            running: Mutex::default(),
             tokens: Mutex::default(),
             events: tx,
         });
@@ -336,8 +341,10 @@ impl Inner {
                 .filter(|(_, e)| *e == name)
                 .map(|(c, _)| c.clone())
                 .collect();
+            let mut running = lock(&self.running);
             for cu in &lost {
                 placement.remove(cu);
+                running.remove(cu);
             }
             lost
         };
@@ -354,10 +361,19 @@ impl Inner {
     fn event(&self, executor: &str, event: Event) {
         let out = {
             let mut placement = lock(&self.placement);
-            let placed = placement.get(event_cu(&event)).map(String::as_str);
+            let cu = Cid::from(event_cu(&event));
+            let runs = matches!(event, Event::Running { .. });
+            let placed = placement.get(&cu).map(String::as_str);
             let out = executor_event(executor, placed, event);
-            if let Some(FleetEvent::Crashed { cu, .. }) = &out {
-                placement.remove(cu);
+            match &out {
+                Some(FleetEvent::Crashed { cu, .. }) => {
+                    placement.remove(cu);
+                    lock(&self.running).remove(cu);
+                }
+                Some(_) if runs => {
+                    lock(&self.running).insert(cu);
+                }
+                _ => {}
             }
             out
         };
@@ -579,7 +595,9 @@ impl Executor for Fleet {
         // taken, what others report is not (`executor_event`).
         {
             let mut placement = lock(&inner.placement);
+            let mut running = lock(&inner.running);
             for (cu, executor) in spawned {
+                running.remove(&cu);
                 placement.insert(cu, executor);
             }
         }
@@ -639,14 +657,27 @@ impl Executor for Fleet {
         // Only what this change set changed: a crash reported while it was applied has
         // removed its CU already, and stays removed.
         let mut placement = lock(&inner.placement);
+        let mut running = lock(&inner.running);
         for action in &change_set.actions {
             if let Action::Destroy { cu } = action {
                 placement.remove(cu);
+                running.remove(cu);
             }
         }
         for failure in &failures {
             placement.remove(&failure.cu);
+            running.remove(&failure.cu);
         }
+        // Acknowledged: a spawned CU runs once its executor answered (it waits for it).
+        for (cu, outcome) in &cus {
+            if outcome.state == CuOutcomeState::Running
+                && outcome.executor.is_some()
+                && placement.get(cu) == outcome.executor.as_ref()
+            {
+                running.insert(cu.clone());
+            }
+        }
+        drop(running);
         drop(placement);
         failures.sort_by_key(|f| f.action);
         Applied { failures, cus }
@@ -662,8 +693,10 @@ impl Executor for Fleet {
 
     fn adopt(&self, executor: &str, cus: &[Cid]) {
         let mut placement = lock(&self.inner.placement);
+        let mut running = lock(&self.inner.running);
         for cu in cus {
             placement.insert(cu.clone(), executor.to_owned());
+            running.insert(cu.clone());
         }
     }
 
@@ -691,6 +724,31 @@ impl Executor for Fleet {
                 .collect(),
             Err(why) => cus.iter().map(|cu| (cu.clone(), why.clone())).collect(),
         }
+    }
+
+    /// The placement and what the acknowledgements and events said: no query.
+    fn last_heard(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        let placement = lock(&self.inner.placement);
+        let running = lock(&self.inner.running);
+        cus.iter()
+            .map(|cu| {
+                let view = match placement.get(cu) {
+                    Some(executor) => CuView {
+                        executor: Some(executor.clone()),
+                        state: if running.contains(cu) {
+                            "running"
+                        } else {
+                            "starting"
+                        }
+                        .to_owned(),
+                        statistics: serde_json::json!({}),
+                        pid: None,
+                    },
+                    None => lost_view(None),
+                };
+                (cu.clone(), view)
+            })
+            .collect()
     }
 
     /// One `info` query per executor involved, however many CUs it hosts.

@@ -321,6 +321,12 @@ impl Manager {
         self.executor.describe_all(cus)
     }
 
+    /// Where several CUs run and in what state, as last heard, asking no executor (empty in
+    /// model-only mode): [`Executor::last_heard`].
+    pub fn last_heard(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
+        self.executor.last_heard(cus)
+    }
+
     /// The executors changed (one appeared or vanished): the transformations that became
     /// runnable are a registration, those that no longer are a deregistration (seed Def. 36),
     /// so a review replans when the environment is no longer valid.

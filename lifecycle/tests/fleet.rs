@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use dyknow_cu::Namespace;
 use dyknow_cu::protocol::{CuReport, CuState, CuStatistics, ExecutorInfo};
 use dyknow_cu::zenoh::{self, Wait};
-use dyknow_lifecycle::{Fleet, FleetEvent};
+use dyknow_lifecycle::{Executor, Fleet, FleetEvent};
 use tokio::sync::mpsc::UnboundedReceiver;
 
 fn free_port() -> u16 {
@@ -160,4 +160,178 @@ fn a_flapping_token_ends_as_zenoh_last_said() {
         assert!(Instant::now() < deadline, "x stays present without a token");
         std::thread::sleep(Duration::from_millis(5));
     }
+}
+
+/// A one-transformation spec of the builtin `dyknow/relay`.
+fn relay_spec() -> dyknow_store::spec::TransformationSpec {
+    dyknow_store::spec::TransformationSpec {
+        label: "t".into(),
+        iri: "urn:t".into(),
+        inputs: Vec::new(),
+        outputs: Vec::new(),
+        labour: 1.0,
+        upkeep: 1.0,
+        exec_type: Some("builtin".into()),
+        source: Some("dyknow/relay".into()),
+        params: Vec::new(),
+        executor: None,
+    }
+}
+
+/// A change set of `actions`, numbered `n`.
+fn change_set(n: u64, actions: Vec<dyknow_engine::Action>) -> dyknow_engine::ChangeSet {
+    dyknow_engine::ChangeSet::new(
+        dyknow_engine::ChangeSetId::numbered(n),
+        dyknow_engine::Cause::Review,
+        dyknow_engine::Compiled {
+            actions,
+            cost: dyknow_engine::CostSummary {
+                total: 0.0,
+                labour: 0.0,
+                upkeep_per_time_unit: 0.0,
+                horizon: 1.0,
+            },
+            unsatisfied_targets: Vec::new(),
+            optimal: true,
+        },
+        dyknow_engine::NTriplesDelta::default(),
+    )
+}
+
+/// Polls `fleet`'s last-heard view of `cu` until it is `(executor, state)`.
+fn until_heard(fleet: &Fleet, cu: &str, executor: Option<&str>, state: &str) {
+    let cu = dyknow_engine::Cid::from(cu);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let view = fleet
+            .last_heard(std::slice::from_ref(&cu))
+            .remove(&cu)
+            .expect("a view of every CU asked for");
+        if view.executor.as_deref() == executor && view.state == state {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{cu} stays {view:?}, not {state} on {executor:?}"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// `GET /cus` reads the fleet's last-heard view, which asks no executor: an executor busy
+/// applying a change set (here: one that never answers `info` after its appearance) does not
+/// hold the read up, and the view follows acknowledgements, events, adoption and vanishing.
+#[test]
+fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
+    use dyknow_cu::protocol::{ApplyReply, Event};
+    use dyknow_engine::{Action, Cid};
+
+    let (router, client) = sessions();
+    let namespace = Namespace::new("heard").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    // `info` answers once (the appearance), then never: the view must not need it.
+    let infos = Arc::new(AtomicU64::new(0));
+    let counted = infos.clone();
+    let _info = client
+        .declare_queryable(namespace.executor_service("x", "info"))
+        .callback(move |query| {
+            if counted.fetch_add(1, Ordering::SeqCst) > 0 {
+                return;
+            }
+            let info = ExecutorInfo {
+                name: "x".into(),
+                builtins: vec!["dyknow/relay".into()],
+                processes: false,
+                cus: Vec::new(),
+            };
+            let _ = query
+                .reply(
+                    query.key_expr().clone(),
+                    serde_json::to_vec(&info).expect("json"),
+                )
+                .wait();
+        })
+        .wait()
+        .expect("a queryable");
+    // `apply` acknowledges once the test releases it.
+    let (release, released) = std::sync::mpsc::channel::<()>();
+    let released = std::sync::Mutex::new(released);
+    let _apply = client
+        .declare_queryable(namespace.executor_service("x", "apply"))
+        .callback(move |query| {
+            let _ = released
+                .lock()
+                .expect("the apply lock")
+                .recv_timeout(Duration::from_secs(30));
+            let reply = ApplyReply {
+                failures: Vec::new(),
+            };
+            let _ = query
+                .reply(
+                    query.key_expr().clone(),
+                    serde_json::to_vec(&reply).expect("json"),
+                )
+                .wait();
+        })
+        .wait()
+        .expect("a queryable");
+    let publisher = client
+        .declare_publisher(namespace.executor_events("x"))
+        .wait()
+        .expect("a publisher");
+    let token = client
+        .liveliness()
+        .declare_token(namespace.executor_token("x"))
+        .wait()
+        .expect("a token");
+    until_appeared(&mut events, "x", 0);
+    let fleet = Arc::new(fleet);
+    let specs = BTreeMap::from([(dyknow_engine::Tid::from("t"), relay_spec())]);
+
+    // A spawn being applied is starting on its executor; acknowledged, it runs.
+    let spawn = change_set(
+        1,
+        vec![Action::Spawn {
+            cu: "c1".into(),
+            transformation: "t".into(),
+        }],
+    );
+    let applying = {
+        let (fleet, specs) = (fleet.clone(), specs.clone());
+        std::thread::spawn(move || fleet.apply(&spawn, &specs))
+    };
+    until_heard(&fleet, "c1", Some("x"), "starting");
+    release.send(()).expect("the apply queryable waits");
+    let applied = applying.join().expect("apply returns");
+    assert!(applied.failures.is_empty(), "{applied:?}");
+    until_heard(&fleet, "c1", Some("x"), "running");
+    // Asking the executor gets no answer: that view has it lost.
+    let c1 = Cid::from("c1");
+    assert_eq!(
+        fleet.describe_all(std::slice::from_ref(&c1))[&c1].state,
+        "crashed"
+    );
+
+    // Its executor says it crashed: crashed, hosted nowhere.
+    let crashed = Event::CuCrashed {
+        cu: "c1".into(),
+        transformation: "t".into(),
+        reason: "a test".into(),
+    };
+    publisher
+        .put(serde_json::to_vec(&crashed).expect("json"))
+        .wait()
+        .expect("a put");
+    until_heard(&fleet, "c1", None, "crashed");
+
+    // Reconciliation adopts what a returning executor reports: running; when the executor
+    // vanishes, crashed.
+    fleet.adopt("x", &[Cid::from("c2")]);
+    until_heard(&fleet, "c2", Some("x"), "running");
+    drop(token);
+    until_heard(&fleet, "c2", None, "crashed");
+    assert!(
+        infos.load(Ordering::SeqCst) >= 2,
+        "describe_all asked x's info"
+    );
 }

@@ -157,7 +157,7 @@ pub async fn get_model(
         let lifecycle = state.lifecycle.clone();
         let json = blocking(move || {
             model_json(&kb, &|t| lifecycle.runnable(t), &|c| {
-                lifecycle.describe_all(c)
+                lifecycle.last_heard(c)
             })
         })
         .await?;

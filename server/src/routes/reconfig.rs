@@ -82,11 +82,12 @@ pub(crate) fn cu_json(
     }
 }
 
-/// The computation units of `env`, sorted by name, with what the running system says of
-/// them (one question per executor).
+/// The computation units of `env`, sorted by name, with where and how they run as the
+/// manager last heard it (no executor is asked: a read never waits behind a change set being
+/// applied).
 pub(crate) fn cus_json(state: &AppState, env: &dyknow_engine::Environment) -> Vec<CuJson> {
     let names: Vec<Cid> = env.cus.keys().cloned().collect();
-    let views = state.lifecycle.describe_all(&names);
+    let views = state.lifecycle.last_heard(&names);
     env.cus
         .values()
         .map(|cu| cu_json(cu, env, views.get(&cu.cid)))
