@@ -297,13 +297,46 @@ impl Manager {
     /// and no targets: what reads of the CUs need, without copying the library or the
     /// candidate table. An environment nothing wrote to since the last read costs a copy of
     /// its CUs.
+    ///
+    /// It never waits for a review or a spec write under way (they may be patching the
+    /// candidate table): it gives the last published snapshot then ([`SpecCache::cus_now`]).
+    /// The life-cycle publishes after each of its environment writes, before it answers, so
+    /// every CU write that has answered (Spawn, Destroy, SetConfig, a change set applied) is
+    /// in it; a transformation spec written meanwhile (its `upkeep`, its ports) shows once a
+    /// refresh has run: the next read that finds nobody refreshing, or the review it causes.
     pub fn cus(&self) -> Result<Environment, LifecycleError> {
-        let mut env = self.specs.cus(&self.kb, &self.learned())?;
-        let specs = self.specs.spec_part_specs(&self.kb)?;
+        let snapshot = self.specs.cus_now(&self.kb)?;
         let executor = &self.executor;
-        env.library
-            .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
+        let mut env = Environment {
+            library: snapshot
+                .library
+                .iter()
+                .filter(|(tid, _)| {
+                    snapshot
+                        .specs
+                        .get(*tid)
+                        .is_some_and(|s| executor.runnable(s).is_ok())
+                })
+                .map(|(tid, t)| (tid.clone(), t.clone()))
+                .collect(),
+            ..Environment::default()
+        };
+        self.learned().apply(&mut env);
+        env.cus = snapshot.cus.clone();
         Ok(env)
+    }
+
+    /// Writes environment graphs and publishes the CUs for reads.
+    fn set_environment(
+        &self,
+        parts: &[(EnvironmentPart, Vec<dyknow_store::oxigraph::model::Triple>)],
+    ) -> Result<(), LifecycleError> {
+        self.kb.set_environment(parts)?;
+        if let Err(e) = self.specs.publish(&self.kb) {
+            // Written: a read refreshes the snapshot itself once nobody else is.
+            tracing::warn!("the CUs written could not be read back: {e}");
+        }
+        Ok(())
     }
 
     /// Whether the executors can run a transformation, and why not.
@@ -417,7 +450,7 @@ impl Manager {
         let mut after = loaded.env.clone();
         after.cus.remove(cid);
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
-        self.kb.set_environment(&delta.parts)?;
+        self.set_environment(&delta.parts)?;
         let mut schedule = lock(&self.schedule);
         schedule.prefer(cu.tid.clone());
         schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
@@ -780,12 +813,12 @@ impl Manager {
                 model::statistics_triples(&self.kb, learned, &loaded.iris)?,
             ));
         }
-        if let Err(e) = self.kb.set_environment(&parts) {
+        if let Err(e) = self.set_environment(&parts) {
             // The executor may have applied what the model now lacks: replan from the model.
             tracing::error!("{}: applied but not recorded: {e}", change_set.id);
             lock(&self.schedule).urgent();
             self.wake.notify_one();
-            return Err(e.into());
+            return Err(e);
         }
         if let Some(learned) = learned {
             *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;

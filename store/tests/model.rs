@@ -249,6 +249,16 @@ fn a_kept_cache_follows_every_write() {
         );
         assert_eq!(*cached.candidates, *fresh.candidates);
         assert_eq!(cached.iris, fresh.iris);
+        // The snapshot reads of `GET /cus` give the same CUs, and their transformations.
+        let snapshot = cache.cus_now(&kb).unwrap();
+        assert_eq!(snapshot.cus, fresh.env.cus);
+        for cu in snapshot.cus.values() {
+            assert_eq!(
+                snapshot.library.get(&cu.tid),
+                fresh.env.library.get(&cu.tid)
+            );
+        }
+        assert_eq!(*snapshot.specs, *fresh.specs);
     };
     let loaded = cache.load(&kb, None).unwrap();
     same(&loaded, &fresh());

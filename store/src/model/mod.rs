@@ -11,8 +11,8 @@ mod read;
 mod triples;
 
 pub use read::{
-    ChangeSetRecords, Iris, Loaded, SpecCache, UnreadableRecord, candidates, change_sets,
-    cus_by_query, learned, load, reserved_names,
+    ChangeSetRecords, CuSnapshot, Iris, Loaded, SpecCache, UnreadableRecord, candidates,
+    change_sets, cus_by_query, learned, load, reserved_names,
 };
 pub use triples::{
     Delta, HISTORY_RESOURCE, change_set_triples, cu_triples, delta, history_triples,

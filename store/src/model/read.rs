@@ -2,7 +2,7 @@
 //! candidate table, the learned estimates and the recorded change sets.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError, RwLock, TryLockError};
 
 use dyknow_engine::{
     Candidates, ChangeSet, ChangeSetId, Cid, ComputationUnit, CostKind, Environment, Estimate,
@@ -72,10 +72,36 @@ pub fn load(kb: &KnowledgeBase) -> Result<Loaded, ModelReadError> {
 /// The CUs are cached too, against the spec and environment generations together: reads of
 /// an environment nothing wrote to since (`GET /cus`, `/environment`) cost a copy, not a
 /// query.
+///
+/// Reads that must not wait ([`SpecCache::cus_now`], `GET /cus`) are served the last
+/// published [`CuSnapshot`]: a read that finds the snapshot behind the store and nobody
+/// refreshing brings it up to date itself; one that finds a refresh under way (a review
+/// patching the candidate table) does not wait for it. Writers of CUs publish a new snapshot
+/// before they answer ([`SpecCache::publish`]), so that their clients read their writes.
 #[derive(Debug, Default)]
 pub struct SpecCache {
     state: Mutex<Option<SpecState>>,
     cus: Mutex<Option<CachedCus>>,
+    published: RwLock<Option<Arc<CuSnapshot>>>,
+}
+
+/// The CUs at a (spec generation, environment generation), with what reads of them need of
+/// the specs.
+#[derive(Debug, Clone, Default)]
+pub struct CuSnapshot {
+    /// The spec and environment generations it was read at (or after).
+    pub key: (u64, u64),
+    /// The CUs.
+    pub cus: BTreeMap<Cid, ComputationUnit>,
+    /// The transformations the CUs instantiate, with the specs' estimates.
+    pub library: BTreeMap<Tid, Transformation>,
+    /// Every transformation spec (shared).
+    pub specs: Arc<BTreeMap<Tid, TransformationSpec>>,
+}
+
+/// Whether `a` is at least as new as `b` in both generations.
+fn at_least(a: (u64, u64), b: (u64, u64)) -> bool {
+    a.0 >= b.0 && a.1 >= b.1
 }
 
 /// The CUs read at a (spec generation, environment generation).
@@ -116,41 +142,89 @@ impl SpecCache {
         Ok(guard.as_ref().map(|s| s.base.clone()).unwrap_or_default())
     }
 
-    /// The CUs, with only the transformations they instantiate in the library (the learned
-    /// estimates applied) and no targets: what reads of the CUs need, without copying the
-    /// library or the candidate table.
-    pub fn cus(
-        &self,
-        kb: &KnowledgeBase,
-        learned: &Learned,
-    ) -> Result<Environment, ModelReadError> {
+    /// The CUs as the last published [`CuSnapshot`] has them, without waiting for a refresh
+    /// another thread has under way: up to date when nothing was written since, or when no
+    /// refresh is under way (this read then makes one); otherwise the last snapshot
+    /// published, which holds every write whose writer published before it answered.
+    pub fn cus_now(&self, kb: &KnowledgeBase) -> Result<Arc<CuSnapshot>, ModelReadError> {
         let key = (kb.spec_generation(), kb.environment_generation());
-        let guard = self.refreshed(kb)?;
-        let empty = BTreeMap::new();
-        let library = guard.as_ref().map_or(&empty, |s| &s.base.env.library);
-        let cus = self.cached_cus(kb, key, library)?;
-        let mut env = Environment::default();
-        for cu in cus.values() {
-            if let Some(t) = library.get(&cu.tid) {
-                env.library.insert(cu.tid.clone(), t.clone());
-            }
+        let last = self
+            .published
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        match last {
+            Some(last) if at_least(last.key, key) => Ok(last),
+            Some(last) => Ok(self.refresh(kb, false)?.unwrap_or(last)),
+            None => Ok(self.refresh(kb, true)?.unwrap_or_default()),
         }
-        drop(guard);
-        learned.apply(&mut env);
-        env.cus = cus;
-        Ok(env)
     }
 
-    /// The transformation specs now (shared, not copied).
-    pub fn spec_part_specs(
+    /// Brings the cache up to date and publishes the CUs for [`SpecCache::cus_now`]: what a
+    /// writer that changed CUs or specs calls before it answers.
+    pub fn publish(&self, kb: &KnowledgeBase) -> Result<Arc<CuSnapshot>, ModelReadError> {
+        Ok(self.refresh(kb, true)?.unwrap_or_default())
+    }
+
+    /// Reads and publishes a snapshot; `None` without `wait` when another thread holds the
+    /// cache.
+    fn refresh(
         &self,
         kb: &KnowledgeBase,
-    ) -> Result<Arc<BTreeMap<Tid, TransformationSpec>>, ModelReadError> {
-        let guard = self.refreshed(kb)?;
-        Ok(guard
+        wait: bool,
+    ) -> Result<Option<Arc<CuSnapshot>>, ModelReadError> {
+        let key = (kb.spec_generation(), kb.environment_generation());
+        let locked = if wait {
+            (
+                self.state.lock().unwrap_or_else(PoisonError::into_inner),
+                self.cus.lock().unwrap_or_else(PoisonError::into_inner),
+            )
+        } else {
+            // Someone is refreshing: not waiting for them.
+            let state = match self.state.try_lock() {
+                Ok(g) => g,
+                Err(TryLockError::Poisoned(p)) => p.into_inner(),
+                Err(TryLockError::WouldBlock) => return Ok(None),
+            };
+            let cus = match self.cus.try_lock() {
+                Ok(g) => g,
+                Err(TryLockError::Poisoned(p)) => p.into_inner(),
+                Err(TryLockError::WouldBlock) => return Ok(None),
+            };
+            (state, cus)
+        };
+        let (state, mut cached) = locked;
+        let guard = Self::up_to_date(state, kb)?;
+        let empty = BTreeMap::new();
+        let (library, specs) = guard.as_ref().map_or((&empty, Arc::default()), |s| {
+            (&s.base.env.library, Arc::clone(&s.base.specs))
+        });
+        let cus = cus_at(&mut cached, kb, key, library)?;
+        drop(cached);
+        let library = cus
+            .values()
+            .filter_map(|cu| Some((cu.tid.clone(), library.get(&cu.tid)?.clone())))
+            .collect();
+        drop(guard);
+        let snapshot = Arc::new(CuSnapshot {
+            key,
+            cus,
+            library,
+            specs,
+        });
+        let mut published = self
+            .published
+            .write()
+            .unwrap_or_else(PoisonError::into_inner);
+        // Never an older read over a newer one (a reader that began before a writer and
+        // ends after it).
+        if published
             .as_ref()
-            .map(|s| Arc::clone(&s.base.specs))
-            .unwrap_or_default())
+            .is_none_or(|p| at_least(snapshot.key, p.key))
+        {
+            *published = Some(Arc::clone(&snapshot));
+        }
+        Ok(Some(snapshot))
     }
 
     /// The CUs cached at `key` (spec generation, environment generation), read again (their
@@ -162,14 +236,7 @@ impl SpecCache {
         library: &BTreeMap<Tid, Transformation>,
     ) -> Result<BTreeMap<Cid, ComputationUnit>, ModelReadError> {
         let mut cached = self.cus.lock().unwrap_or_else(PoisonError::into_inner);
-        match cached.as_ref() {
-            Some((k, cus)) if *k == key => Ok(cus.clone()),
-            _ => {
-                let cus = cus_of(cu_rows(kb)?, library);
-                *cached = Some((key, cus.clone()));
-                Ok(cus)
-            }
-        }
+        cus_at(&mut cached, kb, key, library)
     }
 
     /// The cache brought up to date (patched, or derived anew), locked.
@@ -177,7 +244,17 @@ impl SpecCache {
         &self,
         kb: &KnowledgeBase,
     ) -> Result<std::sync::MutexGuard<'_, Option<SpecState>>, ModelReadError> {
-        let mut guard = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        Self::up_to_date(
+            self.state.lock().unwrap_or_else(PoisonError::into_inner),
+            kb,
+        )
+    }
+
+    /// The locked cache brought up to date (patched, or derived anew).
+    fn up_to_date<'a>(
+        mut guard: std::sync::MutexGuard<'a, Option<SpecState>>,
+        kb: &KnowledgeBase,
+    ) -> Result<std::sync::MutexGuard<'a, Option<SpecState>>, ModelReadError> {
         let changes = guard
             .as_ref()
             .map(|state| kb.spec_changes_since(state.generation));
@@ -196,6 +273,24 @@ impl SpecCache {
             _ => *guard = Some(SpecState::build(kb)?),
         }
         Ok(guard)
+    }
+}
+
+/// The CUs cached in `cached` at `key` (spec generation, environment generation), read again
+/// (their unbound ports from `library`) when the key changed.
+fn cus_at(
+    cached: &mut Option<CachedCus>,
+    kb: &KnowledgeBase,
+    key: (u64, u64),
+    library: &BTreeMap<Tid, Transformation>,
+) -> Result<BTreeMap<Cid, ComputationUnit>, ModelReadError> {
+    match cached.as_ref() {
+        Some((k, cus)) if *k == key => Ok(cus.clone()),
+        _ => {
+            let cus = cus_of(cu_rows(kb)?, library);
+            *cached = Some((key, cus.clone()));
+            Ok(cus)
+        }
     }
 }
 
@@ -698,4 +793,60 @@ pub fn reserved_names(kb: &KnowledgeBase) -> Result<Vec<String>, ModelReadError>
     }
     out.sort();
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::InputFormat;
+
+    fn example_12() -> KnowledgeBase {
+        let kb = KnowledgeBase::in_memory().unwrap();
+        for f in ["example-12.ttl", "example-12-targets.ttl"] {
+            let path = format!("{}/../specs/turtle/{f}", env!("CARGO_MANIFEST_DIR"));
+            kb.load_document(&std::fs::read(&path).unwrap(), InputFormat::Turtle)
+                .unwrap();
+        }
+        kb
+    }
+
+    /// `GET /cus` never waits for a refresh another thread has under way (a review patching
+    /// the candidate table): it is served the last published snapshot; once nobody refreshes,
+    /// a read brings the snapshot up to date itself; with nothing written, no read again.
+    #[test]
+    fn a_read_under_a_refresh_gets_the_last_snapshot_without_waiting() {
+        let kb = example_12();
+        let cache = SpecCache::default();
+        let first = cache.publish(&kb).unwrap();
+        assert!(first.specs.contains_key("tid4"));
+        assert!(Arc::ptr_eq(&cache.cus_now(&kb).unwrap(), &first));
+        kb.remove_spec(SpecKind::Transformation, "tid4").unwrap();
+        for lock in ["state", "cus"] {
+            std::thread::scope(|s| {
+                // A refresh under way holds one of the cache's locks.
+                let held_state = (lock == "state").then(|| cache.state.lock().unwrap());
+                let held_cus = (lock == "cus").then(|| cache.cus.lock().unwrap());
+                let (tx, rx) = mpsc::channel();
+                let (cache, kb) = (&cache, &kb);
+                s.spawn(move || {
+                    let _ = tx.send(cache.cus_now(kb).unwrap());
+                });
+                let got = rx
+                    .recv_timeout(Duration::from_secs(30))
+                    .expect("the read waited for the refresh under way");
+                assert!(Arc::ptr_eq(&got, &first), "{lock}: {got:?}");
+                drop((held_state, held_cus));
+            });
+        }
+        let now = cache.cus_now(&kb).unwrap();
+        assert!(!now.specs.contains_key("tid4"));
+        assert!(at_least(
+            now.key,
+            (kb.spec_generation(), kb.environment_generation())
+        ));
+    }
 }
