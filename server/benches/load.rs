@@ -2,7 +2,8 @@
 //! `dyknow serve` (on-disk store) while the Chapter 6 pipeline runs live on a stand-alone
 //! executor `piff`. Mixed reads (SPARQL, the spec list, `/cus`, the model export, the
 //! environment) and writes (spec post and delete, group create and destroy) for
-//! `--secs` seconds (default 600). Prints, per route: requests, unexpected answers (any
+//! `--secs` seconds (default 600), and once per rotation in five `GET /health`, a handler that
+//! does nothing: the latency floor of this machine under this load. Prints, per route: requests, unexpected answers (any
 //! status but the expected one, or no answer within 30 s), p50, p99 and max latency; and the
 //! manager's resident memory every 10 s.
 //!
@@ -166,12 +167,23 @@ fn client(id: usize, url: &str, routes: &Routes, stop: &AtomicBool) {
     let mut k = 0usize;
     while !stop.load(Ordering::Relaxed) {
         match (id + k) % 10 {
-            0 | 5 => record(
-                routes,
-                "GET /cus",
-                &[200],
-                request(&agent, "GET", &format!("{url}/cus"), None),
-            ),
+            0 | 5 => {
+                record(
+                    routes,
+                    "GET /cus",
+                    &[200],
+                    request(&agent, "GET", &format!("{url}/cus"), None),
+                );
+                if (id + k) % 10 == 0 {
+                    // The floor: a handler that does nothing, under the same load.
+                    record(
+                        routes,
+                        "GET /health (no-op: the floor)",
+                        &[200],
+                        request(&agent, "GET", &format!("{url}/health"), None),
+                    );
+                }
+            }
             1 => record(
                 routes,
                 "GET /sparql",
