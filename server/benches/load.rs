@@ -174,7 +174,7 @@ fn client(id: usize, url: &str, routes: &Routes, stop: &AtomicBool) {
                     &[200],
                     request(&agent, "GET", &format!("{url}/cus"), None),
                 );
-                if (id + k) % 10 == 0 {
+                if (id + k).is_multiple_of(10) {
                     // The floor: a handler that does nothing, under the same load.
                     record(
                         routes,
