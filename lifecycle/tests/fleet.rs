@@ -17,6 +17,16 @@ use dyknow_cu::zenoh::{self, Wait};
 use dyknow_lifecycle::{Executor, Fleet, FleetEvent};
 use tokio::sync::mpsc::UnboundedReceiver;
 
+/// Answers a query with `value` as JSON, as an executor's services do.
+fn reply_json(query: &zenoh::query::Query, value: &impl serde::Serialize) {
+    let _ = query
+        .reply(
+            query.key_expr().clone(),
+            serde_json::to_vec(value).expect("json"),
+        )
+        .wait();
+}
+
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -112,12 +122,7 @@ fn a_flapping_token_ends_as_zenoh_last_said() {
                     })
                     .collect(),
             };
-            let _ = query
-                .reply(
-                    query.key_expr().clone(),
-                    serde_json::to_vec(&info).expect("json"),
-                )
-                .wait();
+            reply_json(&query, &info);
         })
         .wait()
         .expect("a queryable");
@@ -244,12 +249,7 @@ fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
                 processes: false,
                 cus: Vec::new(),
             };
-            let _ = query
-                .reply(
-                    query.key_expr().clone(),
-                    serde_json::to_vec(&info).expect("json"),
-                )
-                .wait();
+            reply_json(&query, &info);
         })
         .wait()
         .expect("a queryable");
@@ -266,12 +266,7 @@ fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
             let reply = ApplyReply {
                 failures: Vec::new(),
             };
-            let _ = query
-                .reply(
-                    query.key_expr().clone(),
-                    serde_json::to_vec(&reply).expect("json"),
-                )
-                .wait();
+            reply_json(&query, &reply);
         })
         .wait()
         .expect("a queryable");
