@@ -11,7 +11,11 @@ The problem (seed Ch. 4.3, with DyKnow's rules, docs/engine.md):
   and the wiring is acyclic (integer levels);
 - every target reads from one chosen (transformation, out port), or is left unsatisfied (the
   pragmatic relaxation) at a cost above every real cost (lexicographic: a big weight);
-- one out port feeds one channel; targets on one channel, when fed, read from the same port.
+- one out port feeds one channel; targets on one channel, when fed, read from the same port;
+- a chosen transformation may run more than once: d further CUs of it let each of its out
+  ports feed up to 1 + d channels. A further CU is one of its existing CUs the first does not
+  use (another protected one: free; any other: horizon x upkeep), else a spawn (labour +
+  horizon x upkeep). Further CUs read what the first reads, so they add no wiring.
 
 Costs are scaled to integers (x 1e6, rounded); the reported cost is recomputed in floating
 point from the chosen set, and the bound is CP-SAT's scaled bound minus the rounding slack.
@@ -68,16 +72,36 @@ def solve(instance, seconds, workers):
             feeds.setdefault((p, port), {}).setdefault(target["channel"], []).append(f)
         model.Add(sum(fs.values()) + u == 1)
         fvars.append(fs)
-    # One out port feeds one channel.
+    # Further CUs: d[t] = free + kept + spawned (the cheapest kinds fill first).
+    further = {}
+    extra_cost = []
+    channels = len({t["channel"] for t in targets})
+    for t in {p for p, _port in feeds}:
+        tf = tids[t]
+        protected_cus = tf.get("protected_cus", 1 if tf["protected"] else 0)
+        other_cus = tf.get("other_cus", 0)
+        if protected_cus > 0:
+            free_n, kept_n = protected_cus - 1, other_cus
+        else:
+            free_n, kept_n = 0, max(other_cus - 1, 0)
+        free = model.NewIntVar(0, min(free_n, channels), f"free{t}")
+        kept = model.NewIntVar(0, min(kept_n, channels), f"kept{t}")
+        spawned = model.NewIntVar(0, channels, f"spawned{t}")
+        d = model.NewIntVar(0, channels, f"d{t}")
+        model.Add(d == free + kept + spawned)
+        model.Add(d == 0).OnlyEnforceIf(x[t].Not())
+        further[t] = (d, kept, spawned)
+        extra_cost.append(round(tf.get("keep", tf["cost"]) * SCALE) * kept)
+        extra_cost.append(round(tf.get("spawn", tf["cost"]) * SCALE) * spawned)
+    # One out port feeds one channel per CU.
     for key, by_channel in feeds.items():
-        if len(by_channel) > 1:
-            used = []
-            for channel, fs in by_channel.items():
-                g = model.NewBoolVar(f"g{key}_{channel}")
-                for f in fs:
-                    model.AddImplication(f, g)
-                used.append(g)
-            model.Add(sum(used) <= 1)
+        used = []
+        for channel, fs in by_channel.items():
+            g = model.NewBoolVar(f"g{key}_{channel}")
+            for f in fs:
+                model.AddImplication(f, g)
+            used.append(g)
+        model.Add(sum(used) <= 1 + further[key[0]][0])
     # Targets on one channel, when fed, read from the same port.
     for q1, t1 in enumerate(targets):
         for q2, t2 in enumerate(targets):
@@ -89,8 +113,12 @@ def solve(instance, seconds, workers):
                     else:
                         model.Add(f1 <= f2 + unsat[q2])
     costs = [0 if tf["protected"] else round(tf["cost"] * SCALE) for tf in tids]
-    big = sum(costs) + 1
-    model.Minimize(big * sum(unsat) + sum(c * v for c, v in zip(costs, x)))
+    big = sum(costs) + channels * sum(
+        round(max(tf.get("spawn", tf["cost"]), tf["cost"]) * SCALE) for tf in tids
+    ) + 1
+    model.Minimize(
+        big * sum(unsat) + sum(c * v for c, v in zip(costs, x)) + sum(extra_cost)
+    )
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = seconds
     solver.parameters.num_workers = workers
@@ -103,11 +131,16 @@ def solve(instance, seconds, workers):
     chosen = [t for t in range(n) if solver.Value(x[t])]
     unsatisfied = sum(solver.Value(u) for u in unsat)
     cost = sum(0.0 if tids[t]["protected"] else tids[t]["cost"] for t in chosen) + constant
+    runs = 0
+    for t, (d, kept, spawned) in further.items():
+        runs += solver.Value(d)
+        cost += solver.Value(kept) * tids[t].get("keep", tids[t]["cost"])
+        cost += solver.Value(spawned) * tids[t].get("spawn", tids[t]["cost"])
     # The bound, in the same units: the scaled bound less the big weight of the unsatisfied
     # targets it implies, less the rounding slack of every term.
     scaled_bound = solver.BestObjectiveBound()
     bound_unsat = int(scaled_bound // big)
-    slack = 0.5 * n / SCALE
+    slack = 0.5 * (n + 2 * len(further) * channels) / SCALE
     bound = (scaled_bound - bound_unsat * big) / SCALE - slack + constant
     return {
         "status": solver.StatusName(status),
@@ -116,6 +149,7 @@ def solve(instance, seconds, workers):
         "bound": bound if bound_unsat == unsatisfied else None,
         "bound_unsatisfied": bound_unsat,
         "chosen": len(chosen),
+        "further_cus": runs,
         "seconds": elapsed,
     }
 

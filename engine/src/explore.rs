@@ -1,7 +1,8 @@
 //! EXPLORE (seed Algorithm 4) and EXPAND (Algorithm 5): a depth-first branch-and-bound search
 //! for the cheapest valid computation graph, built from the root node whose inputs are the
 //! targets. Nodes are CUs-to-be, one per transformation (the seed's *registry* maps tids to
-//! nodes): an existing CU of the transformation (no labour), or a CU to spawn. A *job* is a node
+//! nodes) unless a target needs a further one: an existing CU of the transformation (no
+//! labour), or a CU to spawn. A *job* is a node
 //! with one of its in ports to satisfy; the *trace* records every choice so the search can
 //! backtrack.
 //!
@@ -10,6 +11,9 @@
 //! - protected CUs are never destroyed: they are nodes from the start, their inputs jobs;
 //! - reusing a plan node (a *virtual* connection, `⇝`) never closes a cycle;
 //! - two targets on one channel need the same out port, and one out port feeds one channel;
+//! - a transformation may run more than once: a target whose stream every node of its
+//!   transformation already publishes on another target's channel may get a further CU of it
+//!   ([`Search::further_choices`]);
 //! - the any-time extension (Ch. 4.3.3): past the timeout, backtracking stops once a solution
 //!   exists, and the result says whether optimality was proven;
 //! - the pragmatic relaxation (Def. 33): when enabled, a target may be left unsatisfied, at a
@@ -228,8 +232,18 @@ struct Search<'a> {
     for_target: Vec<Vec<Static>>,
     nodes: Vec<PlanNode>,
     node_tids: Vec<usize>,
-    /// tid → node (Alg. 4 line 2).
-    registry: FxHashMap<usize, usize>,
+    /// tid → its nodes, in creation order (Alg. 4 line 2; more than one when a transformation
+    /// runs twice to publish on a second target channel, or has several protected CUs).
+    registry: Vec<Vec<usize>>,
+    /// The existing CUs of each transformation.
+    existing_of: Vec<Vec<usize>>,
+    /// What a further CU of each transformation costs: an existing one kept (horizon ×
+    /// upkeep), or a spawn (labour + horizon × upkeep).
+    keep_cost: Vec<f64>,
+    spawn_cost: Vec<f64>,
+    /// A lower bound on what a CU of a transformation costs beyond its first one: `keep_cost`
+    /// when it has two existing CUs or more, else `spawn_cost`.
+    further_cost: Vec<f64>,
     /// What feeds each input of each existing CU now: (CU, out port).
     current_in: FxHashMap<(Cid, usize), (Cid, usize)>,
     /// What feeds each target now.
@@ -412,7 +426,9 @@ fn assignment(rows: &[Vec<(usize, f64)>], columns: usize) -> (usize, f64) {
     (unassigned, cost)
 }
 
-/// The size of a maximum matching of left nodes to right nodes (Kuhn's augmenting paths).
+/// The size of a maximum matching of left nodes to right nodes (Kuhn's augmenting paths): the
+/// reference the assignment's property test compares with.
+#[cfg(test)]
 fn matching(edges: &[Vec<usize>], right: usize) -> usize {
     fn augment(u: usize, edges: &[Vec<usize>], seen: &mut [bool], owner: &mut [usize]) -> bool {
         for &v in &edges[u] {
@@ -524,8 +540,9 @@ pub fn explore(
             let inputs = search.nodes[n].inputs.len();
             jobs.truncate(jobs.len() - inputs);
             let tid = search.node_tids[n];
-            search.registry.remove(&tid);
-            search.in_plan[tid] = false;
+            debug_assert_eq!(search.registry[tid].last(), Some(&n));
+            search.registry[tid].pop();
+            search.in_plan[tid] = !search.registry[tid].is_empty();
             search.nodes.pop();
             search.node_tids.pop();
         }
@@ -763,6 +780,20 @@ impl<'a> Search<'a> {
             feeds_targets[*t] = true;
         }
         let out_counts: Vec<usize> = tids.iter().map(|t| env.library[t].outputs.len()).collect();
+        let keep_cost: Vec<f64> = tids.iter().map(|t| h * env.library[t].upkeep).collect();
+        let spawn_cost: Vec<f64> = tids
+            .iter()
+            .map(|t| env.library[t].labour + h * env.library[t].upkeep)
+            .collect();
+        let further_cost: Vec<f64> = (0..n)
+            .map(|t| {
+                if existing[t].len() >= 2 {
+                    keep_cost[t]
+                } else {
+                    spawn_cost[t]
+                }
+            })
+            .collect();
         let channel_of: Vec<usize> = targets
             .iter()
             .map(|q| {
@@ -806,7 +837,11 @@ impl<'a> Search<'a> {
             for_target,
             nodes: Vec::new(),
             node_tids: Vec::new(),
-            registry: FxHashMap::default(),
+            registry: vec![Vec::new(); n],
+            existing_of: existing,
+            keep_cost,
+            spawn_cost,
+            further_cost,
             current_in,
             current_target,
             own,
@@ -836,7 +871,7 @@ impl<'a> Search<'a> {
             let Some(&t) = tid_index.get(cu.tid.as_str()) else {
                 continue;
             };
-            search.registry.entry(t).or_insert(search.nodes.len());
+            search.registry[t].push(search.nodes.len());
             search.in_plan[t] = true;
             search.nodes.push(PlanNode {
                 tid: cu.tid.clone(),
@@ -894,20 +929,22 @@ impl<'a> Search<'a> {
     ///   jobs, inputs of transformations in the reach), `flow(t) = (own(t) + Σ over inputs of
     ///   the cheapest provider's flow) / K(t)` never exceeds what `t` passes up.
     ///
-    /// - **assignment**: targets on distinct channels need distinct out ports, so the open
-    ///   target channels are assigned out ports at least cost (a minimum-cost assignment,
-    ///   as many channels as possible first): a port costs its transformation's own cost
-    ///   (divided among its out ports) plus the cheapest chain below it, the other jobs their
-    ///   cheapest chain; in these chains transformations that may feed a target cost nothing
-    ///   (they are paid by the assignment), so no node is charged more than its cost.
+    /// - **assignment**: targets on distinct channels need distinct out ports of one CU, so the
+    ///   open target channels are assigned out ports at least cost (a minimum-cost assignment,
+    ///   as many channels as possible first): a port of a transformation's first CU costs its
+    ///   own cost (divided among its out ports) plus the cheapest chain below it, the other
+    ///   jobs their cheapest chain; in these chains transformations that may feed a target
+    ///   cost nothing (they are paid by the assignment), so no node is charged more than its
+    ///   cost. A channel may instead be fed by a *further* CU (a private column of its own):
+    ///   at least `further_cost` divided among the out ports, plus the chain below when the
+    ///   transformation is not in the plan (shared like the others'). The cheapest completion
+    ///   maps each channel to a first CU's port (distinct columns) or a further CU's (its own
+    ///   column), an assignment that costs no more than it.
     ///
     /// Targets: with the relaxation, a target may be left unsatisfied. Those that no chain can
-    /// feed, and the channels that cannot all get distinct out ports (a maximum matching of
-    /// open target channels to the out ports no other channel uses; one out port feeds one
-    /// channel), must be: they count in `unsatisfied`, and the value drops the largest target
-    /// values accordingly. Any completion leaving more targets unsatisfied costs more
-    /// (lexicographically) than the bound. Cycles count as 0; an open input no chain can feed
-    /// makes the partial graph infeasible ([`Cost::INFINITE`]).
+    /// feed must be: they count in `unsatisfied`. Any completion leaving more targets
+    /// unsatisfied costs more (lexicographically) than the bound. Cycles count as 0; an open
+    /// input no chain can feed makes the partial graph infeasible ([`Cost::INFINITE`]).
     fn lower_bound(&mut self, jobs: &[Job], enough: Cost) -> Cost {
         let epoch = self.reach(jobs);
         let mut bound = self.measure_bound(jobs, epoch, 0);
@@ -1012,7 +1049,7 @@ impl<'a> Search<'a> {
     /// of [`Search::reach`] (`epoch`).
     fn measure_bound(&mut self, jobs: &[Job], epoch: u32, measure: usize) -> Cost {
         let mut other = 0.0f64;
-        let mut targets: Vec<f64> = Vec::new();
+        let mut targets = 0.0f64;
         let mut unfeedable = 0u32;
         for &job in jobs {
             let (providers, free) = self.job_providers(job);
@@ -1027,7 +1064,7 @@ impl<'a> Search<'a> {
             };
             if job.node == 0 {
                 if value.is_finite() {
-                    targets.push(value);
+                    targets += value;
                 } else if self.options.relax {
                     unfeedable += 1;
                 } else {
@@ -1039,21 +1076,9 @@ impl<'a> Search<'a> {
                 return Cost::INFINITE;
             }
         }
-        // Targets that must be left unsatisfied (the relaxation), beyond the unfeedable ones:
-        // drop as many of the largest target values.
-        let mut unsatisfied = unfeedable;
-        let mut extra = 0;
-        if self.options.relax {
-            let unmatched = self.unmatched_channels(jobs);
-            if unmatched > unfeedable {
-                extra = (unmatched - unfeedable) as usize;
-                unsatisfied = unmatched;
-                targets.sort_by(|a, b| b.total_cmp(a));
-            }
-        }
         Cost {
-            unsatisfied,
-            value: other + targets.iter().skip(extra).sum::<f64>(),
+            unsatisfied: unfeedable,
+            value: other + targets,
         }
     }
 
@@ -1085,18 +1110,20 @@ impl<'a> Search<'a> {
         }
         let mut columns: Vec<(usize, usize)> = Vec::new();
         let mut rows: Vec<Vec<(usize, f64)>> = Vec::with_capacity(channels.len());
+        let mut private: Vec<f64> = Vec::with_capacity(channels.len());
         for c in &channels {
             let mut ports: Vec<(usize, usize)> = jobs
                 .iter()
                 .filter(|j| j.node == 0 && self.channel_of[j.input] == *c)
                 .flat_map(|j| self.ports_target[j.input].iter().copied())
-                .filter(|p| !taken.contains(p))
                 .collect();
             ports.sort_unstable();
             ports.dedup();
-            let mut row = Vec::with_capacity(ports.len());
+            let mut row = Vec::with_capacity(ports.len() + 1);
+            // The cheapest further CU for this channel (a private column).
+            let mut further = f64::INFINITY;
             for (t, port) in ports {
-                let weight = if self.in_plan[t] {
+                let below = if self.in_plan[t] {
                     0.0
                 } else {
                     let mut below = 0.0f64;
@@ -1111,11 +1138,21 @@ impl<'a> Search<'a> {
                             .fold(f64::INFINITY, f64::min);
                         below = below.max(cheapest);
                     }
-                    self.own[t] / self.out_counts[t].max(1) as f64 + below
+                    below
                 };
-                if !weight.is_finite() {
+                if !below.is_finite() {
                     continue;
                 }
+                let share = |cost: f64| cost / self.out_counts[t].max(1) as f64;
+                further = further.min(share(self.further_cost[t]) + below);
+                if taken.contains(&(t, port)) {
+                    continue;
+                }
+                let weight = if self.in_plan[t] {
+                    0.0
+                } else {
+                    share(self.own[t]) + below
+                };
                 let col = match columns.iter().position(|k| *k == (t, port)) {
                     Some(k) => k,
                     None => {
@@ -1126,6 +1163,13 @@ impl<'a> Search<'a> {
                 row.push((col, weight));
             }
             rows.push(row);
+            private.push(further);
+        }
+        for (r, further) in private.into_iter().enumerate() {
+            if further.is_finite() {
+                columns.push((usize::MAX, r));
+                rows[r].push((columns.len() - 1, further));
+            }
         }
         let (unassigned, cost) = assignment(&rows, columns.len());
         if unassigned > 0 && !self.options.relax {
@@ -1154,42 +1198,18 @@ impl<'a> Search<'a> {
             .collect();
         channels.sort_unstable();
         channels.dedup();
+        // An out port of a transformation is taken when every node of it publishes it for a
+        // target already.
         let taken = fed
             .iter()
             .map(|(_, l)| (self.node_tids[l.node], l.port))
-            .collect();
-        (channels, taken)
-    }
-
-    /// How many channels of open targets cannot get an out port of their own: the number of
-    /// such channels (with no target fed yet) minus a maximum matching of them to the out
-    /// ports that may feed one of their targets and feed no other channel's target.
-    fn unmatched_channels(&self, jobs: &[Job]) -> u32 {
-        let (channels, taken) = self.open_channels(jobs);
-        if channels.len() < 2 {
-            return 0;
-        }
-        let mut ports: FxHashMap<(usize, usize), usize> = FxHashMap::default();
-        let edges: Vec<Vec<usize>> = channels
-            .iter()
-            .map(|c| {
-                let mut out: Vec<usize> = jobs
+            .filter(|(t, port)| {
+                self.registry[*t]
                     .iter()
-                    .filter(|j| j.node == 0 && self.channel_of[j.input] == *c)
-                    .flat_map(|j| self.ports_target[j.input].iter().copied())
-                    .filter(|p| !taken.contains(p))
-                    .map(|p| {
-                        let next = ports.len();
-                        *ports.entry(p).or_insert(next)
-                    })
-                    .collect();
-                out.sort_unstable();
-                out.dedup();
-                out
+                    .all(|&node| fed.iter().any(|(_, l)| l.node == node && l.port == *port))
             })
             .collect();
-        let matched = matching(&edges, ports.len());
-        (channels.len() - matched) as u32
+        (channels, taken)
     }
 
     /// `chain(t)` (`measure` 0), `flow(t)` (1) or `chain'(t)` (2) of [`Search::lower_bound`],
@@ -1276,15 +1296,16 @@ impl<'a> Search<'a> {
         let mut out = Vec::with_capacity(statics.len() + 1);
         // Plan nodes first (free), once per (node, port).
         for s in statics {
-            if let Some(&n) = self.registry.get(&s.tid)
-                && !out
+            for &n in &self.registry[s.tid] {
+                if !out
                     .iter()
                     .any(|c| matches!(c, Choice::Reuse(l) if l.node == n && l.port == s.port))
-            {
-                out.push(Choice::Reuse(Link {
-                    node: n,
-                    port: s.port,
-                }));
+                {
+                    out.push(Choice::Reuse(Link {
+                        node: n,
+                        port: s.port,
+                    }));
+                }
             }
         }
         // New nodes: preferred ones first, then by their estimated subtree *given the plan*:
@@ -1292,7 +1313,7 @@ impl<'a> Search<'a> {
         // provider's static subtree estimate (so sharing with the plan counts).
         let reused = out.len();
         for s in statics {
-            if !self.registry.contains_key(&s.tid) {
+            if self.registry[s.tid].is_empty() {
                 out.push(Choice::New {
                     tid: s.tid,
                     port: s.port,
@@ -1300,6 +1321,9 @@ impl<'a> Search<'a> {
                     cost: s.cost,
                 });
             }
+        }
+        if job.node == 0 {
+            self.further_choices(job, statics, &mut out);
         }
         let estimate = |c: &Choice| -> (bool, f64) {
             let Choice::New {
@@ -1358,6 +1382,50 @@ impl<'a> Search<'a> {
             out.push(Choice::Unsatisfied);
         }
         out
+    }
+
+    /// A further CU of a transformation already in the plan, for target `job`, when every plan
+    /// node of it publishes the wanted out port on another target's channel (one out port
+    /// feeds one channel): each existing CU of it the plan does not use yet, else a spawn.
+    /// Only targets need one: a further CU's out ports could feed no in port that the
+    /// transformation's first node could not feed as well (docs/engine.md).
+    fn further_choices(&self, job: Job, statics: &[Static], out: &mut Vec<Choice>) {
+        let mut seen: Vec<(usize, usize)> = Vec::new();
+        for s in statics {
+            let nodes = &self.registry[s.tid];
+            if nodes.is_empty() || seen.contains(&(s.tid, s.port)) {
+                continue;
+            }
+            seen.push((s.tid, s.port));
+            let busy = nodes
+                .iter()
+                .all(|&node| self.channel_clash(job.input, Some(Link { node, port: s.port })));
+            if !busy {
+                continue;
+            }
+            let before = out.len();
+            for &c in &self.existing_of[s.tid] {
+                let used = nodes.iter().any(
+                    |&n| matches!(&self.nodes[n].kind, NodeKind::Existing(e) if *e == self.cus[c]),
+                );
+                if !used {
+                    out.push(Choice::New {
+                        tid: s.tid,
+                        port: s.port,
+                        existing: Some(c),
+                        cost: self.keep_cost[s.tid],
+                    });
+                }
+            }
+            if out.len() == before {
+                out.push(Choice::New {
+                    tid: s.tid,
+                    port: s.port,
+                    existing: None,
+                    cost: self.spawn_cost[s.tid],
+                });
+            }
+        }
     }
 
     /// Whether `to` is reachable from `from` along inputs (so linking `to` to read from
@@ -1444,7 +1512,7 @@ impl<'a> Search<'a> {
                         inputs: vec![None; self.in_counts[tid]],
                     });
                     self.node_tids.push(tid);
-                    self.registry.insert(tid, n);
+                    self.registry[tid].push(n);
                     self.in_plan[tid] = true;
                     self.nodes[job.node].inputs[job.input] = Some(Link { node: n, port });
                     return Some(Entry {

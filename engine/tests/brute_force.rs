@@ -1,6 +1,7 @@
 //! Property test: on random environments of at most 9 transformations and 3 targets (with
 //! existing and protected CUs), EXPLORE's cost equals a brute-force optimum over every set of
-//! transformations that admits an acyclic valid configuration, targets left unsatisfied
+//! transformations that admits an acyclic valid configuration, with further CUs of them for
+//! targets that need one (a transformation may run more than once), targets left unsatisfied
 //! counted first (the relaxation; one out port publishes on one channel, so targets on distinct
 //! channels need distinct out ports); applying the change set yields an environment whose only
 //! invalidities are the targets reported unsatisfied.
@@ -148,44 +149,86 @@ fn brute_force(tfs: &[Tf], targets: &[u8]) -> Option<(u32, f64)> {
         if (0..n).any(|k| chosen(k) && !producible[k]) {
             continue;
         }
-        // One out port publishes on one channel, and targets have distinct channels: the
-        // satisfied targets are a maximum matching of targets to producible out ports.
-        let ports: Vec<(usize, usize)> = (0..n)
-            .filter(|p| producible[*p])
-            .flat_map(|p| (0..tfs[p].outputs.len()).map(move |j| (p, j)))
-            .collect();
-        let edges: Vec<Vec<usize>> = targets
-            .iter()
-            .map(|q| {
-                (0..ports.len())
-                    .filter(|k| similar(q, &tfs[ports[*k].0].outputs[ports[*k].1]))
-                    .collect()
-            })
-            .collect();
-        let unsatisfied = (targets.len() - matching(&edges, ports.len())) as u32;
         let cost: f64 = (0..n)
             .filter(|k| chosen(*k))
-            .map(|k| {
-                let t = &tfs[k];
-                if t.protected && t.existing > 0 {
-                    0.0
-                } else if t.existing > 0 {
-                    H * t.upkeep
-                } else {
-                    t.labour + H * t.upkeep
-                }
-            })
+            .map(|k| instance_cost(&tfs[k], 0))
             .sum::<f64>()
             + protected_upkeep;
-        let better = match best {
-            None => true,
-            Some((u, c)) => (unsatisfied, cost) < (u, c) && (unsatisfied < u || cost < c - 1e-9),
-        };
-        if better {
-            best = Some((unsatisfied, cost));
+        // A chosen transformation may run more than once: a further CU publishes its out ports
+        // on further channels (docs/engine.md). Any acyclic wiring of the set feeds a further
+        // CU's inputs too, so only targets need one, and at most one per target beyond the
+        // first: every way to add up to `targets - 1` further CUs.
+        let producers: Vec<usize> = (0..n)
+            .filter(|k| {
+                producible[*k]
+                    && targets
+                        .iter()
+                        .any(|q| tfs[*k].outputs.iter().any(|o| similar(q, o)))
+            })
+            .collect();
+        let mut extras: Vec<Vec<usize>> = vec![Vec::new()];
+        let mut last: Vec<Vec<usize>> = vec![Vec::new()];
+        for _ in 1..targets.len() {
+            // The multisets one longer: non-decreasing sequences.
+            last = last
+                .iter()
+                .flat_map(|e| {
+                    producers
+                        .iter()
+                        .filter(|p| e.last().is_none_or(|l| *p >= l))
+                        .map(|p| [e.as_slice(), &[*p]].concat())
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            extras.extend(last.iter().cloned());
+        }
+        for extra in extras {
+            // One out port publishes on one channel, and targets have distinct channels: the
+            // satisfied targets are a maximum matching of targets to the out ports of every CU.
+            let mut ports: Vec<(usize, usize)> = (0..n)
+                .filter(|p| producible[*p])
+                .flat_map(|p| (0..tfs[p].outputs.len()).map(move |j| (p, j)))
+                .collect();
+            let mut more = 0.0;
+            for (k, p) in extra.iter().enumerate() {
+                let before = extra[..k].iter().filter(|e| *e == p).count();
+                more += instance_cost(&tfs[*p], before + 1);
+                ports.extend((0..tfs[*p].outputs.len()).map(|j| (*p, j)));
+            }
+            let edges: Vec<Vec<usize>> = targets
+                .iter()
+                .map(|q| {
+                    (0..ports.len())
+                        .filter(|k| similar(q, &tfs[ports[*k].0].outputs[ports[*k].1]))
+                        .collect()
+                })
+                .collect();
+            let unsatisfied = (targets.len() - matching(&edges, ports.len())) as u32;
+            let cost = cost + more;
+            let better = match best {
+                None => true,
+                Some((u, c)) => {
+                    (unsatisfied, cost) < (u, c) && (unsatisfied < u || cost < c - 1e-9)
+                }
+            };
+            if better {
+                best = Some((unsatisfied, cost));
+            }
         }
     }
     best
+}
+
+/// What the `k`-th CU (from 0) of a transformation costs: its existing CUs first (the protected
+/// one's upkeep is a constant), then spawns.
+fn instance_cost(t: &Tf, k: usize) -> f64 {
+    if t.protected && k == 0 && t.existing > 0 {
+        0.0
+    } else if k < usize::from(t.existing) {
+        H * t.upkeep
+    } else {
+        t.labour + H * t.upkeep
+    }
 }
 
 /// The size of a maximum matching (Kuhn's augmenting paths) of left nodes to right nodes.

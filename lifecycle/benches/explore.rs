@@ -257,8 +257,9 @@ fn tree(transformations: usize, targets: usize) -> (Environment, Candidates) {
 /// The configuration problem of `env` as the CP-SAT reference reads it
 /// (`benches/peers/cpsat_explore.py`), derived from the environment and the candidate table
 /// alone: per transformation its node cost (an existing CU's upkeep over the horizon, else a
-/// spawn's labour and upkeep), whether a protected CU runs it, and its inputs' providers; per
-/// target its providers and channel.
+/// spawn's labour and upkeep), its existing CUs (protected and others) and what keeping or
+/// spawning a further CU costs, and its inputs' providers; per target its providers and
+/// channel.
 fn instance(env: &Environment, candidates: &Candidates, options: &ExploreOptions) -> String {
     let h = options.horizon;
     let tids: Vec<&dyknow_engine::Tid> = env.library.keys().collect();
@@ -285,10 +286,15 @@ fn instance(env: &Environment, candidates: &Candidates, options: &ExploreOptions
             } else {
                 h * tf.upkeep
             };
+            let protected = existing.iter().filter(|c| c.protected).count();
             serde_json::json!({
                 "tid": tid.as_str(),
                 "cost": cost,
-                "protected": existing.iter().any(|c| c.protected),
+                "protected": protected > 0,
+                "protected_cus": protected,
+                "other_cus": existing.len() - protected,
+                "keep": h * tf.upkeep,
+                "spawn": tf.labour + h * tf.upkeep,
                 "inputs": (0..tf.inputs.len())
                     .map(|i| providers(candidates.for_input(tid, i)))
                     .collect::<Vec<_>>(),

@@ -698,3 +698,109 @@ fn a_stand_alone_executor_stops_its_process_cus_on_sigterm() {
         "process CU {pid} survived its executor's SIGTERM"
     );
 }
+
+/// Issue 18 item 4: two targets on different channels want the same stream of one
+/// transformation. One out port publishes on one channel, so the engine runs a second CU of the
+/// transformation; both read the one counter CU (shared, free), and both channels carry the
+/// computed values. A `kill -9` of one of them is repaired with both targets satisfied again;
+/// when one target goes, its CU goes with it.
+#[test]
+fn two_channels_wanting_one_stream_get_a_cu_each_of_the_same_transformation() {
+    let service = Service::start(&[]);
+    let process_map = format!("{BIN} cu dyknow/map");
+    for spec in [
+        counter(&[("period_ms", "20")]),
+        tf(
+            "tenfold",
+            "process",
+            &process_map,
+            &[("scale", "10")],
+            &[("in", "Count")],
+            &[("out", "Tenfold")],
+        ),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let session = service.session();
+    let a = Listener::new(&session, "/tenfold-a");
+    let b = Listener::new(&session, "/tenfold-b");
+    service.post("/targets", &target("tenfold-a", "/tenfold-a", "Tenfold"));
+    service.post("/targets", &target("tenfold-b", "/tenfold-b", "Tenfold"));
+    // Both channels carry the counts times ten.
+    for listener in [&a, &b] {
+        let (_, first) = listener.next();
+        let (_, second) = listener.next();
+        let first = first.value.as_i64().unwrap();
+        assert_eq!(first % 10, 0, "{first} is a counter value times ten");
+        assert!(second.value.as_i64().unwrap() > first);
+    }
+    let of = |transformation: &str| -> Vec<Value> {
+        service
+            .get("/cus")
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["transformation"] == transformation)
+            .cloned()
+            .collect()
+    };
+    let tenfolds = eventually("two tenfold CUs running", Duration::from_secs(30), || {
+        let cus = of("tenfold");
+        (cus.len() == 2 && cus.iter().all(|c| c["state"] == "running")).then_some(cus)
+    });
+    let counters = of("counter");
+    assert_eq!(counters.len(), 1, "{counters:?}");
+    let counted = counters[0]["outputs"]["out"].as_str().unwrap();
+    let mut published: Vec<&str> = tenfolds
+        .iter()
+        .map(|c| c["outputs"]["out"].as_str().unwrap())
+        .collect();
+    published.sort_unstable();
+    assert_eq!(published, ["/tenfold-a", "/tenfold-b"]);
+    for cu in &tenfolds {
+        assert_eq!(cu["inputs"]["in"], counted, "{cu}");
+    }
+    for q in ["tenfold-a", "tenfold-b"] {
+        let target = service.get(&format!("/targets/{q}"));
+        assert_eq!(target["satisfied"], true, "{target}");
+    }
+
+    // kill -9 of the one on /tenfold-b: repaired, both targets satisfied again.
+    let on_b = tenfolds
+        .iter()
+        .find(|c| c["outputs"]["out"] == "/tenfold-b")
+        .unwrap()["name"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let detail = service.get(&format!("/cus/{on_b}"));
+    let pid = detail["pid"].as_u64().unwrap();
+    let killed_at = Instant::now();
+    Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap();
+    crash_change_set(&service, &on_b);
+    b.first_after(killed_at);
+    a.first_after(killed_at);
+    assert_eq!(of("tenfold").len(), 2);
+    for q in ["tenfold-a", "tenfold-b"] {
+        let target = service.get(&format!("/targets/{q}"));
+        assert_eq!(target["satisfied"], true, "{target}");
+    }
+
+    // One target goes: its CU goes with it.
+    let response = agent()
+        .delete(&format!("{}/targets/tenfold-b", service.url))
+        .call()
+        .unwrap();
+    assert_eq!(response.status(), 204);
+    let left = eventually("one tenfold CU left", Duration::from_secs(30), || {
+        let cus = of("tenfold");
+        (cus.len() == 1).then_some(cus)
+    });
+    assert_eq!(left[0]["outputs"]["out"], "/tenfold-a");
+    assert_eq!(of("counter").len(), 1);
+    let status = service.sigterm();
+    assert!(status.success(), "{status}");
+}
