@@ -292,6 +292,21 @@ impl Manager {
         Ok(loaded)
     }
 
+    /// [`Manager::load`] without waiting for a review or a spec write under way: their
+    /// spec-derived part may be the last one published then, with the CUs as
+    /// [`Manager::cus`] has them ([`SpecCache::load_now`]). For reads (`GET /environment`).
+    pub fn load_now(&self) -> Result<Loaded, LifecycleError> {
+        let learned = self.learned();
+        let mut loaded = self.specs.load_now(&self.kb, Some(&learned))?;
+        let executor = &self.executor;
+        let specs = &loaded.specs;
+        loaded
+            .env
+            .library
+            .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
+        Ok(loaded)
+    }
+
     /// The CUs now, with only the transformations they instantiate in the library (learned
     /// estimates applied; those the executors cannot run left out, as [`Manager::load`] does)
     /// and no targets: what reads of the CUs need, without copying the library or the

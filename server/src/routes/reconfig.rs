@@ -569,7 +569,8 @@ pub async fn get_environment(
     // client that sees a review counted also sees its change set applied.
     let life = state.lifecycle.status();
     let s = state.clone();
-    let loaded = blocking(move || Ok(s.lifecycle.load()?)).await?;
+    // Never waits for a review or spec write under way (the last published snapshot then).
+    let loaded = blocking(move || Ok(s.lifecycle.load_now()?)).await?;
     let horizon = state.lifecycle.settings().horizon;
     let invalidities = loaded.env.invalidities(&loaded.candidates);
     let unsatisfied_targets = invalidities

@@ -83,6 +83,8 @@ pub struct SpecCache {
     state: Mutex<Option<SpecState>>,
     cus: Mutex<Option<CachedCus>>,
     published: RwLock<Option<Arc<CuSnapshot>>>,
+    /// The spec-derived part last read by [`SpecCache::load_now`], at its spec generation.
+    published_base: RwLock<Option<Arc<(u64, Loaded)>>>,
 }
 
 /// The CUs at a (spec generation, environment generation), with what reads of them need of
@@ -134,6 +136,71 @@ impl SpecCache {
         }
         loaded.env.cus = self.cached_cus(kb, key, &loaded.env.library)?;
         Ok(loaded)
+    }
+
+    /// [`SpecCache::load`] for reads that must not wait for a review or a spec write patching
+    /// the candidate table (`GET /environment`). When nobody holds the cache, it is brought up
+    /// to date as `load` does and its spec-derived part published. Otherwise the last
+    /// published spec-derived part is used, with the CUs of [`SpecCache::cus_now`] (which hold
+    /// every CU write whose writer has answered). The transformations of those CUs that the
+    /// older part lacks come from the CU snapshot, so a CU never reads as an instance of an
+    /// unknown transformation. Only before any publication does it wait.
+    pub fn load_now(
+        &self,
+        kb: &KnowledgeBase,
+        learned: Option<&Learned>,
+    ) -> Result<Loaded, ModelReadError> {
+        let free = match self.state.try_lock() {
+            Ok(g) => Some(g),
+            Err(TryLockError::Poisoned(p)) => Some(p.into_inner()),
+            Err(TryLockError::WouldBlock) => None,
+        };
+        let last = self
+            .published_base
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        let base = match (free, last) {
+            (None, Some(last)) => last,
+            (Some(guard), _) => self.publish_base(Self::up_to_date(guard, kb)?),
+            (None, None) => self.publish_base(self.refreshed(kb)?),
+        };
+        let mut loaded = base.1.clone();
+        let snapshot = self.cus_now(kb)?;
+        for (tid, tf) in &snapshot.library {
+            if !loaded.env.library.contains_key(tid) {
+                loaded.env.library.insert(tid.clone(), tf.clone());
+            }
+        }
+        match learned {
+            Some(l) => l.apply(&mut loaded.env),
+            None => self::learned(kb)?.apply(&mut loaded.env),
+        }
+        loaded.env.cus = snapshot.cus.clone();
+        Ok(loaded)
+    }
+
+    /// Publishes the spec-derived part of the locked, up-to-date cache for
+    /// [`SpecCache::load_now`] (never over a newer one), and returns it.
+    fn publish_base(
+        &self,
+        guard: std::sync::MutexGuard<'_, Option<SpecState>>,
+    ) -> Arc<(u64, Loaded)> {
+        let base = Arc::new(
+            guard
+                .as_ref()
+                .map(|s| (s.generation, s.base.clone()))
+                .unwrap_or_default(),
+        );
+        drop(guard);
+        let mut published = self
+            .published_base
+            .write()
+            .unwrap_or_else(PoisonError::into_inner);
+        if published.as_ref().is_none_or(|p| p.0 <= base.0) {
+            *published = Some(Arc::clone(&base));
+        }
+        base
     }
 
     /// The spec-derived part now (no CUs, the specs' own estimates).
@@ -848,5 +915,41 @@ mod tests {
             now.key,
             (kb.spec_generation(), kb.environment_generation())
         ));
+    }
+
+    /// `GET /environment` never waits for a refresh under way either: it gets the last
+    /// published spec-derived part (here still with `tid4`) and the CUs as `cus_now` has them;
+    /// once nobody refreshes it is up to date again, and equal to `load`.
+    #[test]
+    fn an_environment_read_under_a_refresh_gets_the_last_spec_part_without_waiting() {
+        let kb = example_12();
+        let cache = SpecCache::default();
+        let first = cache.load_now(&kb, None).unwrap();
+        assert!(first.env.library.contains_key("tid4"));
+        assert_eq!(
+            first.env,
+            cache.load(&kb, None).unwrap().env,
+            "load_now is load when nobody refreshes"
+        );
+        kb.remove_spec(SpecKind::Transformation, "tid4").unwrap();
+        std::thread::scope(|s| {
+            let held = cache.state.lock().unwrap();
+            let (tx, rx) = mpsc::channel();
+            let (cache, kb) = (&cache, &kb);
+            s.spawn(move || {
+                let _ = tx.send(cache.load_now(kb, None).unwrap());
+            });
+            let got = rx
+                .recv_timeout(Duration::from_secs(30))
+                .expect("the read waited for the refresh under way");
+            assert!(
+                got.env.library.contains_key("tid4"),
+                "the last published part"
+            );
+            drop(held);
+        });
+        let now = cache.load_now(&kb, None).unwrap();
+        assert!(!now.env.library.contains_key("tid4"));
+        assert_eq!(now.env, cache.load(&kb, None).unwrap().env);
     }
 }
