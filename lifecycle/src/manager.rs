@@ -282,14 +282,18 @@ impl Manager {
     /// another is invalid, and the search never plans one).
     pub fn load(&self) -> Result<Loaded, LifecycleError> {
         let learned = self.learned();
-        let mut loaded = self.specs.load(&self.kb, Some(&learned))?;
+        Ok(self.runnable_only(self.specs.load(&self.kb, Some(&learned))?))
+    }
+
+    /// `loaded` with only the transformations the executors can run in its library.
+    fn runnable_only(&self, mut loaded: Loaded) -> Loaded {
         let executor = &self.executor;
         let specs = &loaded.specs;
         loaded
             .env
             .library
             .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
-        Ok(loaded)
+        loaded
     }
 
     /// [`Manager::load`] without waiting for a review or a spec write under way: their
@@ -297,14 +301,7 @@ impl Manager {
     /// [`Manager::cus`] has them ([`SpecCache::load_now`]). For reads (`GET /environment`).
     pub fn load_now(&self) -> Result<Loaded, LifecycleError> {
         let learned = self.learned();
-        let mut loaded = self.specs.load_now(&self.kb, Some(&learned))?;
-        let executor = &self.executor;
-        let specs = &loaded.specs;
-        loaded
-            .env
-            .library
-            .retain(|tid, _| specs.get(tid).is_some_and(|s| executor.runnable(s).is_ok()));
-        Ok(loaded)
+        Ok(self.runnable_only(self.specs.load_now(&self.kb, Some(&learned))?))
     }
 
     /// The CUs now, with only the transformations they instantiate in the library (learned

@@ -130,14 +130,7 @@ fn an_executor_its_process_cus_and_a_client_run_over_mutual_tls() {
         ),
         // A process CU: it connects to its executor's endpoint, over TLS, with the
         // certificates of the executor's --zenoh-config (DYKNOW_ZENOH_CONFIG).
-        tf(
-            "tenfold",
-            "process",
-            &process_map,
-            &[("scale", "10")],
-            &[("in", "Count")],
-            &[("out", "Tenfold")],
-        ),
+        tenfold(&process_map),
     ] {
         service.post("/transformations", &spec.turtle());
     }

@@ -708,17 +708,7 @@ fn a_stand_alone_executor_stops_its_process_cus_on_sigterm() {
 fn two_channels_wanting_one_stream_get_a_cu_each_of_the_same_transformation() {
     let service = Service::start(&[]);
     let process_map = format!("{BIN} cu dyknow/map");
-    for spec in [
-        counter(&[("period_ms", "20")]),
-        tf(
-            "tenfold",
-            "process",
-            &process_map,
-            &[("scale", "10")],
-            &[("in", "Count")],
-            &[("out", "Tenfold")],
-        ),
-    ] {
+    for spec in [counter(&[("period_ms", "20")]), tenfold(&process_map)] {
         service.post("/transformations", &spec.turtle());
     }
     let session = service.session();

@@ -305,6 +305,19 @@ pub fn tf<'a>(
     }
 }
 
+/// `tenfold`: a process CU (`process_map`, the `dyknow cu dyknow/map` command line) that
+/// multiplies the counts it reads (`Count`) by ten (`Tenfold`).
+pub fn tenfold(process_map: &str) -> Tf<'_> {
+    tf(
+        "tenfold",
+        "process",
+        process_map,
+        &[("scale", "10")],
+        &[("in", "Count")],
+        &[("out", "Tenfold")],
+    )
+}
+
 pub fn target(label: &str, channel: &str, tag: &str) -> String {
     format!(
         "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
