@@ -125,12 +125,7 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     // kill -9 of a process CU.
     let tenfold_name = tenfold["name"].as_str().unwrap().to_owned();
     let pid = detail["pid"].as_u64().unwrap();
-    let killed_at = Instant::now();
-    Command::new("kill")
-        .args(["-9", &pid.to_string()])
-        .status()
-        .unwrap();
-    crash_change_set(&service, &tenfold_name);
+    let killed_at = kill_and_repair(&service, &tenfold_name, pid);
     let flowing = out.first_after(killed_at);
     eprintln!(
         "kill -9ed process CU: stream flowing again after {:?}",
@@ -765,12 +760,7 @@ fn two_channels_wanting_one_stream_get_a_cu_each_of_the_same_transformation() {
         .to_owned();
     let detail = service.get(&format!("/cus/{on_b}"));
     let pid = detail["pid"].as_u64().unwrap();
-    let killed_at = Instant::now();
-    Command::new("kill")
-        .args(["-9", &pid.to_string()])
-        .status()
-        .unwrap();
-    crash_change_set(&service, &on_b);
+    let killed_at = kill_and_repair(&service, &on_b, pid);
     b.first_after(killed_at);
     a.first_after(killed_at);
     assert_eq!(of("tenfold").len(), 2);

@@ -379,6 +379,19 @@ pub fn alive(pid: u64) -> bool {
         .is_ok_and(|s| !s.contains(") Z ") && !s.contains(") X "))
 }
 
+/// `kill -9` of CU `cu` (process `pid`), and the change set that repairs it; returns when the
+/// kill was sent.
+pub fn kill_and_repair(service: &Service, cu: &str, pid: u64) -> Instant {
+    let killed_at = Instant::now();
+    let status = Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(status.success(), "kill -9 {pid}: {status}");
+    crash_change_set(service, cu);
+    killed_at
+}
+
 pub fn crash_change_set(service: &Service, cu: &str) -> Value {
     eventually(
         "a change set repairing the crash",
