@@ -170,34 +170,41 @@ fn generated(transformations: usize, targets: usize, seed: u64) -> (Environment,
     }
     // Targets ask for tags of the highest level whose tags all have producers.
     let top_level = (k / (per_level * alternatives)).clamp(1, levels) - 1;
-    let mut target_tags = Vec::new();
-    for q in 0..targets {
-        let qid = format!("q{q}");
-        env.targets.insert(
-            qid.as_str().into(),
-            Target {
-                qid: qid.as_str().into(),
-                channel: format!("/target{q}").into(),
-            },
-        );
-        target_tags.push((qid, format!("L{top_level}-{}", rng.below(per_level))));
-    }
+    let wants = (0..targets)
+        .map(|q| {
+            let tag = format!("L{top_level}-{}", rng.below(per_level));
+            (format!("q{q}"), format!("/target{q}"), tag)
+        })
+        .collect();
     tagged(
         env,
         &in_tags.into_iter().collect(),
         &out_tags.into_iter().collect(),
-        &target_tags.into_iter().collect(),
+        wants,
     )
 }
 
-/// `env` with the candidate table of its tags: each transformation's input tags and (single)
-/// output tag, each target's wanted tag, matched by equality.
+/// `env` with the targets `wants` (qid, channel, wanted tag) and the candidate table of its
+/// tags: each transformation's input tags and (single) output tag, each target's wanted tag,
+/// matched by equality.
 fn tagged(
-    env: Environment,
+    mut env: Environment,
     inputs: &std::collections::HashMap<String, Vec<String>>,
     output: &std::collections::HashMap<String, String>,
-    wants: &std::collections::HashMap<String, String>,
+    wants: Vec<(String, String, String)>,
 ) -> (Environment, Candidates) {
+    let mut tag_of = std::collections::HashMap::new();
+    for (qid, channel, tag) in wants {
+        env.targets.insert(
+            qid.as_str().into(),
+            Target {
+                qid: qid.as_str().into(),
+                channel: channel.into(),
+            },
+        );
+        tag_of.insert(qid, tag);
+    }
+    let wants = tag_of;
     let candidates = Candidates::from_tags(
         &env,
         |tid, i| vec![inputs[tid][i].clone()],
@@ -239,19 +246,13 @@ fn tree(transformations: usize, targets: usize) -> (Environment, Candidates) {
             output_of.insert(tid, format!("s{k}"));
         }
     }
-    let mut wants = std::collections::HashMap::new();
-    for j in 0..targets {
-        let qid = format!("q{j}");
-        env.targets.insert(
-            qid.as_str().into(),
-            Target {
-                qid: qid.as_str().into(),
-                channel: format!("out{j}").into(),
-            },
-        );
-        wants.insert(qid, format!("s{}", streams - 1 - (j * 7919) % streams));
-    }
-    tagged(env, &input_of, &output_of, &wants)
+    let wants = (0..targets)
+        .map(|j| {
+            let tag = format!("s{}", streams - 1 - (j * 7919) % streams);
+            (format!("q{j}"), format!("out{j}"), tag)
+        })
+        .collect();
+    tagged(env, &input_of, &output_of, wants)
 }
 
 /// The configuration problem of `env` as the CP-SAT reference reads it

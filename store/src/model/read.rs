@@ -186,6 +186,18 @@ impl SpecCache {
         &self,
         guard: std::sync::MutexGuard<'_, Option<SpecState>>,
     ) -> Arc<(u64, Loaded)> {
+        let mut published = self
+            .published_base
+            .write()
+            .unwrap_or_else(PoisonError::into_inner);
+        let generation = guard.as_ref().map_or(0, |s| s.generation);
+        // Nothing changed since the last one: no copy of the library.
+        if let Some(p) = published.as_ref()
+            && guard.is_some()
+            && p.0 == generation
+        {
+            return Arc::clone(p);
+        }
         let base = Arc::new(
             guard
                 .as_ref()
@@ -193,10 +205,6 @@ impl SpecCache {
                 .unwrap_or_default(),
         );
         drop(guard);
-        let mut published = self
-            .published_base
-            .write()
-            .unwrap_or_else(PoisonError::into_inner);
         if published.as_ref().is_none_or(|p| p.0 <= base.0) {
             *published = Some(Arc::clone(&base));
         }
