@@ -337,6 +337,10 @@ impl<E: std::fmt::Display> From<E> for Failure {
 /// Runs the command line.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Serve(_) | Command::Executor(_)) {
+        // The long-running processes: glibc's allocator tuned (docs/reliability.md, guarantee 5).
+        crate::allocator::tune();
+    }
     let result = match cli.command {
         Command::Serve(args) => serve(args),
         Command::Executor(args) => executor(&args),

@@ -163,3 +163,134 @@ fn an_executor_its_process_cus_and_a_client_run_over_mutual_tls() {
         "a plain TCP client joined a TLS endpoint"
     );
 }
+
+/// Zenoh's access control for a manager whose executors are `names`: denied by default; every
+/// peer may carry streams, CU tokens and CU control, hear what the manager sends and ask; each
+/// executor may speak on its own control keys only (its events, its services, its token), told
+/// by the common name of its certificate.
+fn acl(names: &[&str]) -> String {
+    let all = r#""put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+        "liveliness_token", "declare_liveliness_subscriber", "liveliness_query""#;
+    let mut rules = format!(
+        r#"{{ id: "streams", messages: [{all}], flows: ["ingress", "egress"], permission: "allow",
+             key_exprs: ["dyknow/channel/**", "dyknow/@dyknow/cu/*", "dyknow/@dyknow/cu-control/*"] }},
+           {{ id: "from-manager", messages: [{all}], flows: ["egress"], permission: "allow",
+             key_exprs: ["dyknow/@dyknow/**"] }},
+           {{ id: "ask", messages: ["declare_subscriber", "query", "declare_liveliness_subscriber",
+             "liveliness_query"], flows: ["ingress"], permission: "allow",
+             key_exprs: ["dyknow/@dyknow/**"] }},"#
+    );
+    let mut subjects = String::new();
+    let mut policies = format!(
+        r#"{{ rules: ["streams", "from-manager", "ask"], subjects: [{}] }},"#,
+        names
+            .iter()
+            .map(|n| format!("{n:?}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    for n in names {
+        rules.push_str(&format!(
+            r#"{{ id: "as-{n}", messages: ["put", "delete", "declare_queryable", "reply",
+                 "liveliness_token"], flows: ["ingress"], permission: "allow",
+                 key_exprs: ["dyknow/@dyknow/events/{n}", "dyknow/@dyknow/service/{n}/**",
+                             "dyknow/@dyknow/executor/{n}"] }},"#
+        ));
+        subjects.push_str(&format!(r#"{{ id: "{n}", cert_common_names: ["{n}"] }},"#));
+        policies.push_str(&format!(r#"{{ rules: ["as-{n}"], subjects: ["{n}"] }},"#));
+    }
+    format!(
+        r#"access_control: {{ enabled: true, default_permission: "deny",
+             rules: [{rules}], subjects: [{subjects}], policies: [{policies}] }},"#
+    )
+}
+
+/// A manager over mutual TLS (with access control if `acl`), executor `a` running a counter, and
+/// a peer holding executor `b`'s certificate that publishes, on `a`'s event key, that the counter
+/// crashed. Whether the manager took the forged crash (a change set with cause `cu-crashed`).
+fn forged_crash_is_taken(acl_on: bool) -> bool {
+    let dir = tempfile::tempdir().unwrap();
+    let authority = Authority::new(dir.path());
+    let names = ["localhost", "127.0.0.1"];
+    let manager = authority.issue("manager", &names);
+    let extra = if acl_on {
+        acl(&["a", "b"])
+    } else {
+        String::new()
+    };
+    let manager_config = manager.config_with(dir.path(), "manager.json5", true, &extra);
+    let a = authority
+        .issue("a", &names)
+        .config(dir.path(), "a.json5", true);
+    let b = authority
+        .issue("b", &names)
+        .config(dir.path(), "b.json5", true);
+    let endpoint = format!("tls/localhost:{}", free_port());
+    let service = Service::start_with(
+        &["--in-memory"],
+        &endpoint,
+        &[
+            "--no-executor",
+            "--zenoh-config",
+            manager_config.to_str().unwrap(),
+        ],
+    );
+    let _a = executor_with(&endpoint, "a", &["--zenoh-config", a.to_str().unwrap()]);
+    service.post(
+        "/transformations",
+        &tf(
+            "counter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "20")],
+            &[],
+            &[("out", "Count")],
+        )
+        .turtle(),
+    );
+    service.post("/targets", &target("q", "/counts", "Count"));
+    // Executor a's own messages pass: it joins, is asked to spawn, answers, reports it running.
+    let cu = eventually("the counter to run on a", Duration::from_secs(30), || {
+        service
+            .cu_of("counter")
+            .filter(|c| c["executor"] == "a" && service.get("/environment")["valid"] == true)
+    });
+    let name = cu["name"].as_str().unwrap().to_owned();
+    let impostor =
+        zenoh::open(client_config_file(Some(&b), std::slice::from_ref(&endpoint)).unwrap())
+            .wait()
+            .unwrap();
+    let forged = serde_json::json!({
+        "kind": "cu-crashed", "cu": name, "transformation": "counter", "reason": "forged"
+    });
+    let crashed = || {
+        service
+            .change_sets()
+            .iter()
+            .any(|c| c["cause"]["kind"] == "cu-crashed")
+    };
+    assert!(!crashed());
+    // The forged crash, until the manager takes it or for 3 s (absence cannot be polled for).
+    let deadline = std::time::Instant::now() + Duration::from_secs(3);
+    while std::time::Instant::now() < deadline {
+        impostor
+            .put("dyknow/@dyknow/events/a", forged.to_string())
+            .wait()
+            .unwrap();
+        if crashed() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Still a's, still running.
+    assert_eq!(service.cu_of("counter").unwrap()["name"], name.as_str());
+    false
+}
+
+#[test]
+fn access_control_keeps_a_peer_from_speaking_for_another_executor() {
+    // Mutual TLS alone lets any peer with a certificate report another executor's CU crashed.
+    assert!(forged_crash_is_taken(false), "without access control");
+    // With the access-control rules of docs/reliability.md it cannot.
+    assert!(!forged_crash_is_taken(true), "with access control");
+}

@@ -278,15 +278,23 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
          satisfied (a review in flight then: {in_flight})"
     );
     // Flat memory is not fully met (docs/reliability.md, guarantee 3): the history, the terms
-    // and the memtables are bounded, but the resident memory still creeps (~60-150 kB per
-    // review measured: the history filling up, allocator retention, and live heap growth not
-    // yet attributed). This bound guards against a leak of what it holds coming back (~250 kB
-    // per review before) over a minute or more; a short storm is mostly warm-up.
+    // and the memtables are bounded, but the resident memory still creeps (the history filling
+    // up, allocator retention, growth not yet attributed). This bound guards against a leak of
+    // what it holds coming back, over a minute or more, per crash recorded (what the history
+    // holds grows with the crashes each change set records, and reviews coalesce more of them
+    // the faster the manager is: 4.3 per review on 2026-11-23, 9.6 on 2026-11-24): measured 41
+    // kB per crash (60 s, 2026-11-23), 25 kB (60 s) and 16 kB (240 s) with the tuned allocator.
+    // A short storm is mostly warm-up: there, at most 1 MB per review.
     let manager_first = rss[0].1;
     let manager_last = rss.last().unwrap().1;
-    let per_review = manager_last.saturating_sub(manager_first) / reviews.max(1);
+    let grown = manager_last.saturating_sub(manager_first);
+    let (per, bound, unit) = if seconds >= 60 {
+        (grown / recorded.max(1), 45, "crash recorded")
+    } else {
+        (grown / reviews.max(1), 1024, "review")
+    };
     assert!(
-        per_review <= if seconds >= 60 { 200 } else { 1024 },
-        "the manager grew {per_review} kB per review ({manager_first} → {manager_last} kB)"
+        per <= bound,
+        "the manager grew {per} kB per {unit} ({manager_first} → {manager_last} kB)"
     );
 }

@@ -434,13 +434,17 @@ pub struct Certificates {
     pub key: PathBuf,
 }
 
-impl Certificates {
-    pub fn generate(dir: &Path) -> Self {
-        Self::generate_for(dir, &["localhost", "127.0.0.1"])
-    }
+/// A certificate authority that signs certificates for peers, each with a common name of its
+/// own (what Zenoh's access control tells subjects by).
+pub struct Authority {
+    dir: PathBuf,
+    ca: PathBuf,
+    issuer: Issuer<'static, KeyPair>,
+}
 
-    /// A certificate for these names and addresses.
-    pub fn generate_for(dir: &Path, names: &[&str]) -> Self {
+impl Authority {
+    /// A new authority, its certificate written as `ca.pem` in `dir`.
+    pub fn new(dir: &Path) -> Self {
         let ca_key = KeyPair::generate().unwrap();
         let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
         ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
@@ -448,35 +452,61 @@ impl Certificates {
             .distinguished_name
             .push(DnType::CommonName, "DyKnow test authority");
         let ca = ca_params.self_signed(&ca_key).unwrap();
-        let issuer = Issuer::new(ca_params, ca_key);
+        let path = dir.join("ca.pem");
+        std::fs::write(&path, ca.pem()).unwrap();
+        Self {
+            dir: dir.to_owned(),
+            ca: path,
+            issuer: Issuer::new(ca_params, ca_key),
+        }
+    }
+
+    /// A certificate with the common name `cn` for these names and addresses (server and
+    /// client use), written as `<cn>.pem` and `<cn>-key.pem`.
+    pub fn issue(&self, cn: &str, names: &[&str]) -> Certificates {
         let key = KeyPair::generate().unwrap();
         let mut params =
             CertificateParams::new(names.iter().map(|n| (*n).to_owned()).collect::<Vec<_>>())
                 .unwrap();
-        params
-            .distinguished_name
-            .push(DnType::CommonName, "dyknow-test-peer");
+        params.distinguished_name.push(DnType::CommonName, cn);
         params.extended_key_usages = vec![
             ExtendedKeyUsagePurpose::ServerAuth,
             ExtendedKeyUsagePurpose::ClientAuth,
         ];
-        let certificate = params.signed_by(&key, &issuer).unwrap();
-        let write = |name: &str, pem: String| {
-            let path = dir.join(name);
+        let certificate = params.signed_by(&key, &self.issuer).unwrap();
+        let write = |name: String, pem: String| {
+            let path = self.dir.join(name);
             std::fs::write(&path, pem).unwrap();
             path
         };
-        Self {
-            ca: write("ca.pem", ca.pem()),
-            certificate: write("peer.pem", certificate.pem()),
-            key: write("peer-key.pem", key.serialize_pem()),
+        Certificates {
+            ca: self.ca.clone(),
+            certificate: write(format!("{cn}.pem"), certificate.pem()),
+            key: write(format!("{cn}-key.pem"), key.serialize_pem()),
         }
+    }
+}
+
+impl Certificates {
+    pub fn generate(dir: &Path) -> Self {
+        Self::generate_for(dir, &["localhost", "127.0.0.1"])
+    }
+
+    /// A certificate for these names and addresses.
+    pub fn generate_for(dir: &Path, names: &[&str]) -> Self {
+        Authority::new(dir).issue("dyknow-test-peer", names)
     }
 
     /// A Zenoh configuration file: TLS with these certificates, mutual or not.
     pub fn config(&self, dir: &Path, name: &str, mutual: bool) -> PathBuf {
+        self.config_with(dir, name, mutual, "")
+    }
+
+    /// [`Self::config`] with more of Zenoh's configuration (`extra`: top-level fields, each
+    /// followed by a comma), e.g. `access_control`.
+    pub fn config_with(&self, dir: &Path, name: &str, mutual: bool, extra: &str) -> PathBuf {
         let text = format!(
-            r#"{{ transport: {{ link: {{ tls: {{
+            r#"{{ {extra} transport: {{ link: {{ tls: {{
                 root_ca_certificate: {ca:?},
                 listen_certificate: {cert:?}, listen_private_key: {key:?},
                 connect_certificate: {cert:?}, connect_private_key: {key:?},
