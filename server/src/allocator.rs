@@ -4,9 +4,9 @@
 //! and raises its `mmap` threshold each time a large block is freed, so large buffers end up
 //! inside arenas that it can only trim from the top. Under the service's load (a thread per
 //! blocking request, RocksDB's and Zenoh's threads: ~100 threads) the manager's resident memory
-//! grew from 39 to 541 MB in 5 minutes while its live heap stayed under 60 MB
-//! (docs/reliability.md, guarantee 5). With fewer arenas and a fixed threshold it stays near
-//! 200 MB and answers faster.
+//! grew from 39 to 589 MB in 10 minutes while a heap profile saw ~70 MB live
+//! (docs/reliability.md, guarantee 5). With as many arenas as cores and a fixed threshold it
+//! grew to 293 MB in the same run, and answered faster.
 //!
 //! These settings are glibc *tunables*, read once when the process starts, so they cannot be set
 //! from inside it without `unsafe` (`mallopt`), which the workspace forbids. Instead the process

@@ -120,14 +120,7 @@ fn an_executor_its_process_cus_and_a_client_run_over_mutual_tls() {
     });
     let process_map = format!("{BIN} cu dyknow/map");
     for spec in [
-        tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", "20")],
-            &[],
-            &[("out", "Count")],
-        ),
+        counter(&[("period_ms", "20")]),
         // A process CU: it connects to its executor's endpoint, over TLS, with the
         // certificates of the executor's --zenoh-config (DYKNOW_ZENOH_CONFIG).
         tenfold(&process_map),
@@ -238,15 +231,7 @@ fn forged_crash_is_taken(acl_on: bool) -> bool {
     let _a = executor_with(&endpoint, "a", &["--zenoh-config", a.to_str().unwrap()]);
     service.post(
         "/transformations",
-        &tf(
-            "counter",
-            "builtin",
-            "dyknow/signal",
-            &[("period_ms", "20")],
-            &[],
-            &[("out", "Count")],
-        )
-        .turtle(),
+        &counter(&[("period_ms", "20")]).turtle(),
     );
     service.post("/targets", &target("q", "/counts", "Count"));
     // Executor a's own messages pass: it joins, is asked to spawn, answers, reports it running.

@@ -44,17 +44,22 @@ fn started(args: &[&str], preset: Option<&str>, marker: &str) -> (Killed, Option
     (child, tunables)
 }
 
-#[test]
-fn serve_and_executor_run_with_tuned_arenas_unless_the_user_tuned_them() {
-    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    let serve = [
+/// `dyknow serve` in memory with its Zenoh router on `zenoh`.
+fn serve_on(zenoh: &str) -> [&str; 6] {
+    [
         "serve",
         "--in-memory",
         "--bind",
         "127.0.0.1:0",
         "--zenoh-listen",
-        &zenoh,
-    ];
+        zenoh,
+    ]
+}
+
+#[test]
+fn serve_and_executor_run_with_tuned_arenas_unless_the_user_tuned_them() {
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let serve = serve_on(&zenoh);
     let cores = std::thread::available_parallelism().unwrap().get().max(2);
     let (_manager, tuned) = started(&serve, None, "knowledge service listening on ");
     // glibc (2.36) cuts the variable in the process' own environment at the first `:` once it
@@ -70,14 +75,7 @@ fn serve_and_executor_run_with_tuned_arenas_unless_the_user_tuned_them() {
         "{tuned}"
     );
     let other = format!("tcp/127.0.0.1:{}", free_port());
-    let serve = [
-        "serve",
-        "--in-memory",
-        "--bind",
-        "127.0.0.1:0",
-        "--zenoh-listen",
-        &other,
-    ];
+    let serve = serve_on(&other);
     let (_, own) = started(
         &serve,
         Some("glibc.malloc.arena_max=3"),

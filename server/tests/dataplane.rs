@@ -144,19 +144,6 @@ fn a_chain_of_builtin_and_process_cus_computes_and_crashes_are_repaired_unreport
     assert!(!alive(new_pid), "process CU {new_pid} survived the service");
 }
 
-/// `counter`: a `dyknow/signal` counting 0, 1, 2, … on out port `out` (tag `Count`), with
-/// `params` (`period_ms`).
-fn counter<'a>(params: &'a [(&'a str, &'a str)]) -> Tf<'a> {
-    tf(
-        "counter",
-        "builtin",
-        "dyknow/signal",
-        params,
-        &[],
-        &[("out", "Count")],
-    )
-}
-
 /// A counter (`dyknow/signal` every `period_ms`) and an echo (`dyknow/relay`) of its counts.
 fn post_counter_echo(service: &Service, period_ms: &str) {
     for spec in [

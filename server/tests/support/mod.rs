@@ -28,9 +28,20 @@ pub fn free_port() -> u16 {
 
 /// Reads a child's stderr until a line contains `marker` (returned), then drains it.
 pub fn wait_for_line(child: &mut Child, marker: &str) -> String {
+    wait_for_line_keeping(child, marker).0
+}
+
+/// The last lines a child wrote on its standard error.
+pub type Tail = std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<String>>>;
+
+/// [`wait_for_line`], keeping the last 40 lines the child writes (shown when a request to it
+/// fails: why a service went away).
+pub fn wait_for_line_keeping(child: &mut Child, marker: &str) -> (String, Tail) {
     let stderr = child.stderr.take().unwrap();
     let (tx, rx) = mpsc::channel();
     let marker = marker.to_owned();
+    let tail = Tail::default();
+    let kept = tail.clone();
     std::thread::spawn(move || {
         let mut sent = false;
         let verbose = std::env::var_os("DYKNOW_TEST_VERBOSE").is_some();
@@ -39,13 +50,23 @@ pub fn wait_for_line(child: &mut Child, marker: &str) -> String {
                 eprintln!("| {line}");
             }
             if !sent && line.contains(&marker) {
-                let _ = tx.send(line);
+                let _ = tx.send(line.clone());
                 sent = true;
             }
+            let mut kept = kept.lock().unwrap();
+            if kept.len() == 40 {
+                kept.pop_front();
+            }
+            kept.push_back(line);
         }
+        kept.lock()
+            .unwrap()
+            .push_back("(standard error closed)".into());
     });
-    rx.recv_timeout(Duration::from_secs(60))
-        .expect("the process did not start")
+    let line = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("the process did not start");
+    (line, tail)
 }
 
 /// A running `dyknow serve` with its data plane on a port of its own.
@@ -53,6 +74,8 @@ pub struct Service {
     pub child: Child,
     pub url: String,
     pub zenoh: String,
+    /// The last lines of its standard error.
+    pub tail: Tail,
 }
 
 impl Service {
@@ -79,18 +102,41 @@ impl Service {
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
-        let line = wait_for_line(&mut child, "knowledge service listening on ");
+        let (line, tail) = wait_for_line_keeping(&mut child, "knowledge service listening on ");
         let url = line
             .split("listening on ")
             .nth(1)
             .and_then(|r| r.split_whitespace().next())
             .unwrap()
             .to_owned();
-        Self { child, url, zenoh }
+        Self {
+            child,
+            url,
+            zenoh,
+            tail,
+        }
+    }
+
+    /// Panics with `what` went wrong and the service's last lines of standard error.
+    pub fn failed(&self, what: &str, error: impl std::fmt::Display) -> ! {
+        let tail = self
+            .tail
+            .lock()
+            .unwrap()
+            .iter()
+            .cloned()
+            .collect::<Vec<_>>();
+        panic!(
+            "{what}: {error}; the service's last lines:\n{}",
+            tail.join("\n")
+        )
     }
 
     pub fn get(&self, path: &str) -> Value {
-        let mut r = agent().get(&format!("{}{path}", self.url)).call().unwrap();
+        let mut r = agent()
+            .get(&format!("{}{path}", self.url))
+            .call()
+            .unwrap_or_else(|e| self.failed(&format!("GET {path}"), e));
         assert_eq!(r.status().as_u16(), 200, "GET {path}");
         serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap()
     }
@@ -99,7 +145,7 @@ impl Service {
         agent()
             .get(&format!("{}{path}", self.url))
             .call()
-            .unwrap()
+            .unwrap_or_else(|e| self.failed(&format!("GET {path}"), e))
             .status()
             .as_u16()
     }
@@ -109,7 +155,7 @@ impl Service {
             .post(&format!("{}{path}", self.url))
             .header("Content-Type", "text/turtle")
             .send(turtle.as_bytes())
-            .unwrap();
+            .unwrap_or_else(|e| self.failed(&format!("POST {path}"), e));
         let body = r.body_mut().read_to_string().unwrap();
         assert_eq!(r.status().as_u16(), 201, "POST {path}: {body}");
     }
@@ -303,6 +349,19 @@ pub fn tf<'a>(
         upkeep: None,
         executor: None,
     }
+}
+
+/// `counter`: a `dyknow/signal` counting 0, 1, 2, … on out port `out` (tag `Count`), with
+/// `params` (`period_ms`).
+pub fn counter<'a>(params: &'a [(&'a str, &'a str)]) -> Tf<'a> {
+    tf(
+        "counter",
+        "builtin",
+        "dyknow/signal",
+        params,
+        &[],
+        &[("out", "Count")],
+    )
 }
 
 /// `tenfold`: a process CU (`process_map`, the `dyknow cu dyknow/map` command line) that
