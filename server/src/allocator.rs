@@ -1,30 +1,25 @@
 //! The C allocator of the long-running processes (`dyknow serve`, `dyknow executor`).
 //!
-//! glibc's `malloc` gives every thread that contends an arena of its own (up to eight per core)
-//! and raises its `mmap` threshold each time a large block is freed, so large buffers end up
-//! inside arenas that it can only trim from the top. Under the service's load (a thread per
-//! blocking request, RocksDB's and Zenoh's threads: ~100 threads) the manager's resident memory
-//! grew from 39 to 589 MB in 10 minutes while a heap profile saw ~70 MB live
-//! (docs/reliability.md, guarantee 5). With as many arenas as cores and a fixed threshold it
-//! grew to 293 MB in the same run, and answered faster.
+//! glibc's `malloc` gives every thread that contends an arena of its own, up to eight per core.
+//! Under the service's load (a thread per blocking request in flight, RocksDB's and Zenoh's
+//! threads: ~100 threads) the manager's resident memory grew from 39 to 541 MB in 5 minutes
+//! while a heap profile saw ~70 MB live (docs/reliability.md, guarantee 5). With as many arenas
+//! as cores it grew to 229 MB in the same 5 minutes, and answered faster. (A fixed 128 KiB
+//! `mmap` and trim threshold on top gained little memory and made one large spec POST 41 %
+//! slower, so it is not set.)
 //!
-//! These settings are glibc *tunables*, read once when the process starts, so they cannot be set
-//! from inside it without `unsafe` (`mallopt`), which the workspace forbids. Instead the process
-//! re-executes itself, once, with `GLIBC_TUNABLES` set ([`tune`]). Whoever already set
-//! `GLIBC_TUNABLES` (even to the empty string) keeps their own.
+//! Tunables are read once when the process starts, so they cannot be set from inside it
+//! without `unsafe` (`mallopt`), which the workspace forbids. Instead the process re-executes
+//! itself, once, with `GLIBC_TUNABLES` set ([`tune`]). Whoever already set `GLIBC_TUNABLES`
+//! (even to the empty string) keeps their own.
 
 /// The variable glibc reads its tunables from.
 pub const VAR: &str = "GLIBC_TUNABLES";
 
-/// The tunables for a machine with `cores` cores: as many arenas as cores (at least 2), and
-/// allocations from 128 KiB up served by `mmap` and returned on `free` (the fixed threshold turns
-/// glibc's dynamic raise off), with the heap trimmed above 128 KiB free.
+/// The tunables for a machine with `cores` cores: as many malloc arenas as cores, at least 2.
 #[must_use]
 pub fn tunables(cores: usize) -> String {
-    format!(
-        "glibc.malloc.arena_max={}:glibc.malloc.mmap_threshold=131072:glibc.malloc.trim_threshold=131072",
-        cores.max(2)
-    )
+    format!("glibc.malloc.arena_max={}", cores.max(2))
 }
 
 /// Re-executes this process with [`tunables`] in `GLIBC_TUNABLES` unless the variable is set
@@ -56,9 +51,8 @@ mod tests {
 
     #[test]
     fn there_are_as_many_arenas_as_cores_and_at_least_two() {
-        assert!(tunables(1).starts_with("glibc.malloc.arena_max=2:"));
-        assert!(tunables(2).starts_with("glibc.malloc.arena_max=2:"));
-        assert!(tunables(16).starts_with("glibc.malloc.arena_max=16:"));
-        assert!(tunables(4).contains(":glibc.malloc.mmap_threshold=131072:"));
+        assert_eq!(tunables(1), "glibc.malloc.arena_max=2");
+        assert_eq!(tunables(2), "glibc.malloc.arena_max=2");
+        assert_eq!(tunables(16), "glibc.malloc.arena_max=16");
     }
 }
