@@ -132,22 +132,22 @@ impl Service {
         )
     }
 
-    pub fn get(&self, path: &str) -> Value {
-        let mut r = agent()
+    /// `GET path`, whatever its status.
+    fn call(&self, path: &str) -> ureq::http::Response<ureq::Body> {
+        agent()
             .get(&format!("{}{path}", self.url))
             .call()
-            .unwrap_or_else(|e| self.failed(&format!("GET {path}"), e));
+            .unwrap_or_else(|e| self.failed(&format!("GET {path}"), e))
+    }
+
+    pub fn get(&self, path: &str) -> Value {
+        let mut r = self.call(path);
         assert_eq!(r.status().as_u16(), 200, "GET {path}");
         serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap()
     }
 
     pub fn status(&self, path: &str) -> u16 {
-        agent()
-            .get(&format!("{}{path}", self.url))
-            .call()
-            .unwrap_or_else(|e| self.failed(&format!("GET {path}"), e))
-            .status()
-            .as_u16()
+        self.call(path).status().as_u16()
     }
 
     pub fn post(&self, path: &str, turtle: &str) {
