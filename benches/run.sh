@@ -35,6 +35,13 @@ fi
 export OXIGRAPH_BIN="$PWD/$venv/bin/oxigraph"
 export PEER_PYTHON="$PWD/$venv/bin/python"
 which="${1:-all}"
+# The benches that measure the service against a peer's release binary measure ours built the
+# same way (profile `dist`: LTO, one codegen unit, as Oxigraph's release is built).
+dist_binary() {
+  cargo build --locked --profile dist -p dyknow-server --bin dyknow
+  export DYKNOW_BIN="$CARGO_TARGET_DIR/dist/dyknow"
+}
+case "$which" in all|knowledge|load) dist_binary ;; esac
 if [ "$which" = all ] || [ "$which" = knowledge ]; then
   cargo bench --locked --workspace --bench knowledge_service
 fi

@@ -15,7 +15,10 @@
 //!   transformation already publishes on another target's channel may get a further CU of it
 //!   ([`Search::further_choices`]);
 //! - the any-time extension (Ch. 4.3.3): past the timeout, backtracking stops once a solution
-//!   exists, and the result says whether optimality was proven;
+//!   exists, and the result says whether optimality was proven; with a timeout, *probes*
+//!   (a large-neighbourhood search around the best graph, taking turns with the main search
+//!   and sharing its best cost) look for cheaper graphs outside its first top-level decisions
+//!   ([`ProbeOptions`]; the main search stays exhaustive);
 //! - the pragmatic relaxation (Def. 33): when enabled, a target may be left unsatisfied, at a
 //!   cost that exceeds every real cost (lexicographically), so all targets are satisfied
 //!   whenever that is possible, and as many as possible otherwise;
@@ -94,6 +97,31 @@ pub struct ExploreOptions {
     pub relax: bool,
     /// Transformations to try first among spawns (those of crashed CUs, Ch. 4.3.3).
     pub prefer: Vec<Tid>,
+    /// The any-time probes (with a timeout only; see [`explore`]); `None` turns them off.
+    pub probes: Option<ProbeOptions>,
+}
+
+/// When and how long the any-time probes search (see [`explore`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ProbeOptions {
+    /// Backtracks of the main search before the first probe (so a search that ends at once,
+    /// e.g. for its first solution, never copies its state for one).
+    pub after: u64,
+    /// The main search and the probes take turns: the main search for this many backtracks,
+    /// then the probes for as long as that took (half the time each).
+    pub every: u64,
+    /// Backtracks of one probe round before the next round (another neighbourhood).
+    pub limit: u64,
+}
+
+impl Default for ProbeOptions {
+    fn default() -> Self {
+        Self {
+            after: 16,
+            every: 16,
+            limit: 64,
+        }
+    }
 }
 
 impl Default for ExploreOptions {
@@ -103,6 +131,7 @@ impl Default for ExploreOptions {
             timeout: None,
             relax: true,
             prefer: Vec::new(),
+            probes: Some(ProbeOptions::default()),
         }
     }
 }
@@ -220,8 +249,13 @@ struct Static {
     cost: f64,
 }
 
+#[derive(Clone)]
 struct Search<'a> {
     options: &'a ExploreOptions,
+    /// The probes' reordering of new-node choices (none in the main search).
+    perturbation: Option<Perturbation>,
+    /// The probes' neighbourhood: providers their jobs keep (none in the main search).
+    guide: Option<Guide>,
     tids: Vec<Tid>,
     in_counts: Vec<usize>,
     cus: Vec<Cid>,
@@ -273,7 +307,7 @@ struct Search<'a> {
 }
 
 /// Epoch-stamped scratch arrays of [`Search::lower_bound`] (no clearing between bounds).
-#[derive(Default)]
+#[derive(Default, Clone)]
 struct Scratch {
     epoch: u32,
     /// Open jobs whose reach contains each transformation, valid when `counted == epoch`.
@@ -294,7 +328,7 @@ struct Scratch {
 
 /// Memoised values: `valued == epoch` when done, `entered == epoch` once entered (in progress
 /// until valued).
-#[derive(Default)]
+#[derive(Default, Clone)]
 struct Memo {
     value: Vec<f64>,
     valued: Vec<u32>,
@@ -462,83 +496,196 @@ pub fn explore(
     let mut search = Search::new(env, candidates, options);
     // Protected CUs are paid for whatever the plan: a constant.
     let constant = protected_upkeep(env, options);
-
+    let deadline = options.timeout.map(|t| start + t);
+    // Any-time mode only: the probes' own copy of the search, made when they start.
+    let probing = options.probes.filter(|_| deadline.is_some());
+    let mut probes: Option<Probes<'_>> = None;
     // Lines 2–7: registry, open jobs, trace, best trace, best cost, root.
-    let mut jobs: Vec<Job> = Vec::new();
-    for (n, node) in search.nodes.iter().enumerate().rev() {
-        for i in (0..node.inputs.len()).rev() {
-            jobs.push(Job { node: n, input: i });
-        }
-    }
-    let mut trace: Vec<Entry> = Vec::new();
-    let mut best: Option<Vec<PlanNode>> = None;
-    let mut best_cost = Cost::INFINITE;
-    let mut sum = Cost::ZERO;
-    let mut from = 0;
+    let mut main = Dfs::root(&search);
+    let mut best = Best {
+        cost: Cost::INFINITE,
+        nodes: None,
+        node_tids: Vec::new(),
+    };
     let mut expansions = 0u64;
     let mut proven_optimal = true;
     let mut steps = 0u64;
-    let deadline = options.timeout.map(|t| start + t);
-    let root_bound = search.lower_bound(&jobs, Cost::INFINITE);
+    let root_bound = search.lower_bound(&main.jobs, Cost::INFINITE);
+    let mut since = Instant::now();
     // Lines 9–40.
     loop {
-        // Lines 11–23: expand open jobs until one fails or none is left.
-        if let Some(job) = jobs.pop() {
-            // Line 10, strengthened: once a best graph exists, a partial graph whose cost plus
-            // the admissible bound of its open jobs reaches the best cost cannot lead to a
-            // better one (the job fails, as when no choice stays under the best).
-            jobs.push(job);
-            let hopeless = best.is_some() && {
-                let enough = Cost {
-                    unsatisfied: best_cost.unsatisfied.saturating_sub(sum.unsatisfied),
-                    value: best_cost.value - sum.value,
-                };
-                !sum.plus(search.lower_bound(&jobs, enough)).below(best_cost)
-            };
-            jobs.pop();
-            if hopeless {
-                jobs.push(job);
-            } else if let Some(entry) = search.expand(job, from, sum, best_cost) {
-                // Lines 15–18: a new node's inputs become open jobs; candidate indices of
-                // the jobs now on top start from the first candidate again.
+        match main.step(&mut search, &mut best) {
+            Step::Expanded => {
                 expansions += 1;
-                if entry.created {
-                    let n = search.nodes.len() - 1;
-                    for i in (0..search.nodes[n].inputs.len()).rev() {
-                        jobs.push(Job { node: n, input: i });
-                    }
-                }
-                sum = entry.after;
-                trace.push(entry);
-                from = 0;
                 continue;
-            } else {
-                // Lines 20–21: expansion failure.
-                jobs.push(job);
             }
-        } else if sum.below(best_cost) {
-            // Lines 26–28: a complete graph, better than the best so far.
-            best_cost = sum;
-            best = Some(search.nodes.clone());
+            Step::Exhausted => break, // Line 38.
+            Step::Backtracked => {}
         }
         // Line 24, with the any-time guard of Ch. 4.3.3.
         steps += 1;
         if steps.is_multiple_of(16)
-            && best.is_some()
+            && best.nodes.is_some()
             && deadline.is_some_and(|d| Instant::now() >= d)
         {
-            proven_optimal = trace.is_empty();
+            proven_optimal = main.trace.is_empty();
             break;
         }
+        if let Some(p) = probing
+            && best.nodes.is_some()
+            && steps >= p.after
+            && steps.is_multiple_of(p.every.max(1))
+        {
+            // The probes get as much time as the main search had since their last turn.
+            let slice = since.elapsed();
+            let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit));
+            let turn = Instant::now();
+            loop {
+                probes.run(&mut best, &mut expansions);
+                if turn.elapsed() >= slice {
+                    break;
+                }
+            }
+            since = Instant::now();
+        }
+    }
+    let plan = best.nodes.map(|nodes| Plan {
+        nodes,
+        targets: search.targets.clone(),
+    });
+    let constant_cost = Cost {
+        unsatisfied: 0,
+        value: constant,
+    };
+    let bound = match (&plan, proven_optimal) {
+        (Some(_), true) => best.cost.plus(constant_cost),
+        (None, true) => Cost::INFINITE,
+        _ => root_bound.plus(constant_cost),
+    };
+    Exploration {
+        bound,
+        cost: if plan.is_some() {
+            best.cost.plus(constant_cost)
+        } else {
+            Cost::INFINITE
+        },
+        plan,
+        proven_optimal,
+        expansions,
+        elapsed: start.elapsed(),
+    }
+}
+
+/// The cheapest complete graph found so far (Alg. 4's best trace and best cost).
+struct Best {
+    cost: Cost,
+    nodes: Option<Vec<PlanNode>>,
+    /// The transformation (index) of each of its nodes (`usize::MAX` for the root).
+    node_tids: Vec<usize>,
+}
+
+/// What one step of the depth-first search did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// A job was closed (lines 11–18).
+    Expanded,
+    /// A job failed or the graph was complete, and the last choice was undone (lines 19–36).
+    Backtracked,
+    /// Nothing is left to undo: the search is complete (line 38).
+    Exhausted,
+}
+
+/// The state of one depth-first search (Alg. 4 lines 3–8) over a [`Search`]'s plan.
+#[derive(Clone)]
+struct Dfs {
+    jobs: Vec<Job>,
+    trace: Vec<Entry>,
+    sum: Cost,
+    from: usize,
+}
+
+impl Dfs {
+    /// The root: every input of the root and of the protected CUs is an open job.
+    fn root(search: &Search<'_>) -> Self {
+        let mut jobs: Vec<Job> = Vec::new();
+        for (n, node) in search.nodes.iter().enumerate().rev() {
+            for i in (0..node.inputs.len()).rev() {
+                jobs.push(Job { node: n, input: i });
+            }
+        }
+        Self {
+            jobs,
+            trace: Vec::new(),
+            sum: Cost::ZERO,
+            from: 0,
+        }
+    }
+
+    /// Lines 10–36, once: expands the open job on top, or records a complete graph and
+    /// backtracks, or backtracks from a job that failed.
+    fn step(&mut self, search: &mut Search<'_>, best: &mut Best) -> Step {
+        // Lines 11–23: expand open jobs until one fails or none is left.
+        if let Some(job) = self.jobs.pop() {
+            // Line 10, strengthened: once a best graph exists, a partial graph whose cost plus
+            // the admissible bound of its open jobs reaches the best cost cannot lead to a
+            // better one (the job fails, as when no choice stays under the best).
+            self.jobs.push(job);
+            // A probe's round prunes by cost alone: in its small neighbourhood the bound costs
+            // more time than it saves (docs/engine.md).
+            let hopeless = best.nodes.is_some() && search.guide.is_none() && {
+                let enough = Cost {
+                    unsatisfied: best.cost.unsatisfied.saturating_sub(self.sum.unsatisfied),
+                    value: best.cost.value - self.sum.value,
+                };
+                !self
+                    .sum
+                    .plus(search.lower_bound(&self.jobs, enough))
+                    .below(best.cost)
+            };
+            self.jobs.pop();
+            if hopeless {
+                self.jobs.push(job);
+            } else if let Some(entry) = search.expand(job, self.from, self.sum, best.cost) {
+                // Lines 15–18: a new node's inputs become open jobs; candidate indices of
+                // the jobs now on top start from the first candidate again.
+                if entry.created {
+                    let n = search.nodes.len() - 1;
+                    for i in (0..search.nodes[n].inputs.len()).rev() {
+                        self.jobs.push(Job { node: n, input: i });
+                    }
+                }
+                self.sum = entry.after;
+                self.trace.push(entry);
+                self.from = 0;
+                return Step::Expanded;
+            } else {
+                // Lines 20–21: expansion failure.
+                self.jobs.push(job);
+            }
+        } else if self.sum.below(best.cost) {
+            // Lines 26–28: a complete graph, better than the best so far.
+            best.cost = self.sum;
+            best.nodes = Some(search.nodes.clone());
+            best.node_tids.clone_from(&search.node_tids);
+        }
         // Lines 25–36: undo the last choice and retry its job from the next candidate.
-        let Some(entry) = trace.pop() else {
-            break; // Line 38.
+        if self.undo(search) {
+            Step::Backtracked
+        } else {
+            Step::Exhausted
+        }
+    }
+
+    /// Undoes the last choice (lines 29–36); false when there is none.
+    fn undo(&mut self, search: &mut Search<'_>) -> bool {
+        let Some(entry) = self.trace.pop() else {
+            return false;
         };
         if entry.created {
             // Lines 32–34: drop the node and its (now invalidated) jobs.
             let n = search.nodes.len() - 1;
             let inputs = search.nodes[n].inputs.len();
-            jobs.truncate(jobs.len() - inputs);
+            self.jobs.truncate(self.jobs.len() - inputs);
             let tid = search.node_tids[n];
             debug_assert_eq!(search.registry[tid].last(), Some(&n));
             search.registry[tid].pop();
@@ -548,37 +695,169 @@ pub fn explore(
         }
         // Lines 30–31.
         search.nodes[entry.job.node].inputs[entry.job.input] = None;
-        jobs.push(entry.job); // Line 36.
-        from = entry.choice + 1;
-        sum = entry.before;
+        self.jobs.push(entry.job); // Line 36.
+        self.from = entry.choice + 1;
+        self.sum = entry.before;
+        true
     }
-    let plan = best.map(|nodes| Plan {
-        nodes,
-        targets: search.targets.clone(),
-    });
-    let constant_cost = Cost {
-        unsatisfied: 0,
-        value: constant,
-    };
-    let bound = match (&plan, proven_optimal) {
-        (Some(_), true) => best_cost.plus(constant_cost),
-        (None, true) => Cost::INFINITE,
-        _ => root_bound.plus(constant_cost),
-    };
-    Exploration {
-        bound,
-        cost: if plan.is_some() {
-            best_cost.plus(Cost {
-                unsatisfied: 0,
-                value: constant,
-            })
-        } else {
-            Cost::INFINITE
-        },
-        plan,
-        proven_optimal,
-        expansions,
-        elapsed: start.elapsed(),
+}
+
+/// Any-time probes (our extension of Ch. 4.3.3's any-time search): a large-neighbourhood
+/// search around the best graph. The depth-first search stays inside its first top-level
+/// decisions for as long as it cannot prove them optimal, so on large libraries its any-time
+/// cost stops improving. In any-time mode, once the main search has backtracked
+/// [`ProbeOptions::after`] times, a second search on its own copy of the plan takes turns with
+/// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run for as
+/// long as those took. Each of their rounds frees a few targets chosen from a seed: the jobs of
+/// the best graph that serve only other targets keep their provider ([`Guide`]), the freed ones
+/// choose among all theirs (in an order perturbed by the seed), and Algorithm 4 searches that
+/// neighbourhood, pruning by cost against the one best cost, for at most
+/// [`ProbeOptions::limit`] backtracks. A cheaper graph it finds prunes the main
+/// search too, which stays exhaustive: when it ends, its proof is Algorithm 4's. A round's
+/// own end proves nothing (its neighbourhood is not the whole space).
+struct Probes<'a> {
+    search: Search<'a>,
+    dfs: Dfs,
+    backtracks: u64,
+    limit: u64,
+    round: u64,
+    /// The nodes at the root (the root and the protected CUs).
+    roots: usize,
+}
+
+impl<'a> Probes<'a> {
+    /// The probes' copy of the search, taken back to the root from the main search's state.
+    fn new(search: &Search<'a>, main: &Dfs, limit: u64) -> Self {
+        let mut search = search.clone();
+        let mut dfs = main.clone();
+        while dfs.undo(&mut search) {}
+        Self {
+            dfs: Dfs::root(&search),
+            roots: search.nodes.len(),
+            search,
+            backtracks: 0,
+            limit,
+            round: 0,
+        }
+    }
+
+    /// One turn: steps up to the next backtrack, starting a round when none is under way.
+    fn run(&mut self, best: &mut Best, expansions: &mut u64) {
+        if self.search.guide.is_none() {
+            self.round += 1;
+            self.search.guide = best
+                .nodes
+                .as_deref()
+                .map(|nodes| Guide::around(nodes, &best.node_tids, self.roots, self.round));
+            self.search.perturbation = Some(Perturbation::new(self.round));
+        }
+        let ended = loop {
+            match self.dfs.step(&mut self.search, best) {
+                Step::Expanded => *expansions += 1,
+                Step::Backtracked => break false,
+                Step::Exhausted => break true,
+            }
+        };
+        self.backtracks += 1;
+        if ended || self.backtracks >= self.limit {
+            while self.dfs.undo(&mut self.search) {}
+            self.dfs = Dfs::root(&self.search);
+            self.backtracks = 0;
+            self.search.guide = None;
+        }
+    }
+}
+
+/// A neighbourhood of a graph (one probe round): the provider each job keeps, keyed by the
+/// consumer (a target, or a transformation's input); jobs not listed choose freely.
+#[derive(Debug, Clone, Default)]
+struct Guide {
+    /// (target index, input) for targets as `(usize::MAX, q)`, else (consumer tid, input) →
+    /// the provider (tid, out port), or `None` for a target left unsatisfied.
+    kept: FxHashMap<(usize, usize), Option<(usize, usize)>>,
+}
+
+impl Guide {
+    /// Frees 1 to 3 targets of `nodes` (chosen from `round`) and whatever of the graph only
+    /// they use; everything else keeps its provider. Nodes `1..protected` are the protected
+    /// CUs (nodes from the start).
+    fn around(nodes: &[PlanNode], node_tids: &[usize], protected: usize, round: u64) -> Self {
+        let targets = nodes.first().map_or(0, |root| root.inputs.len());
+        let mut kept = FxHashMap::default();
+        if targets == 0 {
+            return Self { kept };
+        }
+        let mut random = splitmix(round);
+        let mut freed = vec![false; targets];
+        for _ in 0..=(round % 3) {
+            random = splitmix(random);
+            freed[(random % targets as u64) as usize] = true;
+        }
+        // The nodes each kept target reaches keep their inputs' providers.
+        let mut reached = vec![false; nodes.len()];
+        let mut stack: Vec<usize> = Vec::new();
+        for (q, link) in nodes[0].inputs.iter().enumerate() {
+            if freed[q] {
+                continue;
+            }
+            kept.insert((usize::MAX, q), link.map(|l| (node_tids[l.node], l.port)));
+            stack.extend(link.map(|l| l.node));
+        }
+        // Protected CUs' inputs are jobs from the start: kept as well.
+        stack.extend(1..protected.min(nodes.len()));
+        while let Some(n) = stack.pop() {
+            if std::mem::replace(&mut reached[n], true) {
+                continue;
+            }
+            for (i, link) in nodes[n].inputs.iter().enumerate() {
+                if let Some(l) = link {
+                    kept.entry((node_tids[n], i))
+                        .or_insert(Some((node_tids[l.node], l.port)));
+                    stack.push(l.node);
+                }
+            }
+        }
+        Self { kept }
+    }
+
+    /// The provider a job keeps, if it is kept.
+    fn kept(&self, consumer: usize, input: usize) -> Option<Option<(usize, usize)>> {
+        self.kept.get(&(consumer, input)).copied()
+    }
+}
+
+/// SplitMix64's step: a well-mixed 64-bit value from `z`.
+fn splitmix(z: u64) -> u64 {
+    let mut z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A seeded reordering of new-node choices: each estimate is scaled by a factor in
+/// `[1, 1 + amplitude)` drawn from the seed, the job and the choice (the same for the same
+/// job in the same state, so a job's choice indices stay valid while it is retried).
+#[derive(Debug, Clone, Copy)]
+struct Perturbation {
+    seed: u64,
+    amplitude: f64,
+}
+
+impl Perturbation {
+    fn new(seed: u64) -> Self {
+        // Cycles through gentle to strong reorderings.
+        const AMPLITUDES: [f64; 4] = [0.1, 0.25, 0.5, 1.0];
+        Self {
+            seed,
+            amplitude: AMPLITUDES[(seed % 4) as usize],
+        }
+    }
+
+    fn factor(self, job: Job, tid: usize) -> f64 {
+        let z = splitmix(
+            splitmix(self.seed ^ ((job.node as u64) << 32 | job.input as u64)) ^ tid as u64,
+        );
+        1.0 + self.amplitude * (z >> 11) as f64 / (1u64 << 53) as f64
     }
 }
 
@@ -828,6 +1107,8 @@ impl<'a> Search<'a> {
             .collect();
         let mut search = Self {
             options,
+            perturbation: None,
+            guide: None,
             tids,
             in_counts,
             cus,
@@ -1347,7 +1628,11 @@ impl<'a> Search<'a> {
                     }
                 })
                 .sum();
-            (existing.is_none() && self.preferred[tid], cost + below)
+            let estimate = cost + below;
+            let estimate = self
+                .perturbation
+                .map_or(estimate, |p| estimate * p.factor(job, tid));
+            (existing.is_none() && self.preferred[tid], estimate)
         };
         out[reused..].sort_by(|a, b| {
             let (pa, ea) = estimate(a);
@@ -1380,6 +1665,23 @@ impl<'a> Search<'a> {
         }
         if job.node == 0 && self.options.relax {
             out.push(Choice::Unsatisfied);
+        }
+        // A probe's neighbourhood: a kept job offers only its provider in the best graph.
+        let consumer = if job.node == 0 {
+            usize::MAX
+        } else {
+            self.node_tids[job.node]
+        };
+        if let Some(kept) = self
+            .guide
+            .as_ref()
+            .and_then(|g| g.kept(consumer, job.input))
+        {
+            out.retain(|c| match *c {
+                Choice::Reuse(l) => kept == Some((self.node_tids[l.node], l.port)),
+                Choice::New { tid, port, .. } => kept == Some((tid, port)),
+                Choice::Unsatisfied => kept.is_none(),
+            });
         }
         out
     }
@@ -1547,7 +1849,69 @@ impl<'a> Search<'a> {
 
 #[cfg(test)]
 mod tests {
-    use super::{assignment, matching};
+    use super::{Guide, Link, NodeKind, PlanNode, assignment, matching};
+
+    /// A graph of three targets: target q is fed by a chain of its own (tids 2q, 2q + 1), and
+    /// targets 1 and 2 share a source (tid 6).
+    fn graph() -> (Vec<PlanNode>, Vec<usize>) {
+        let node = |inputs: Vec<Option<Link>>| PlanNode {
+            tid: "t".into(),
+            kind: NodeKind::Spawn,
+            inputs,
+        };
+        let link = |node: usize| Some(Link { node, port: 0 });
+        let nodes = vec![
+            PlanNode {
+                tid: Default::default(),
+                kind: NodeKind::Root,
+                inputs: vec![link(1), link(3), link(5)],
+            },
+            node(vec![link(2)]),
+            node(vec![]),
+            node(vec![link(4), link(7)]),
+            node(vec![]),
+            node(vec![link(6), link(7)]),
+            node(vec![]),
+            node(vec![]),
+        ];
+        (nodes, vec![usize::MAX, 0, 1, 2, 3, 4, 5, 6])
+    }
+
+    #[test]
+    fn a_probe_round_keeps_what_the_targets_it_holds_use() {
+        let (nodes, tids) = graph();
+        let mut freed_counts = std::collections::BTreeSet::new();
+        for round in 1..64 {
+            let guide = Guide::around(&nodes, &tids, 1, round);
+            let held: Vec<usize> = (0..3)
+                .filter(|&q| guide.kept(usize::MAX, q).is_some())
+                .collect();
+            freed_counts.insert(3 - held.len());
+            assert!(held.len() < 3, "round {round} frees no target");
+            for &q in &held {
+                let chain = nodes[0].inputs[q].unwrap().node;
+                assert_eq!(guide.kept(usize::MAX, q), Some(Some((tids[chain], 0))));
+                // The chain's inputs keep their providers, the shared source included.
+                for (i, link) in nodes[chain].inputs.iter().enumerate() {
+                    let provider = link.unwrap().node;
+                    assert_eq!(guide.kept(tids[chain], i), Some(Some((tids[provider], 0))));
+                }
+            }
+            // A freed target's own chain is free, unless a held target uses it.
+            for q in (0..3).filter(|q| !held.contains(q)) {
+                let chain = nodes[0].inputs[q].unwrap().node;
+                assert_eq!(
+                    guide.kept(tids[chain], 0),
+                    None,
+                    "round {round}, target {q}"
+                );
+            }
+        }
+        assert!(
+            freed_counts.len() > 1,
+            "rounds free different numbers of targets"
+        );
+    }
     use proptest::prelude::*;
 
     /// Every way of giving rows distinct columns or none: (most rows assigned, least cost).

@@ -38,7 +38,7 @@ pub use change_set::{
 };
 pub use compile::{Compiled, CostSummary, compile};
 pub use estimate::{CostKind, Estimate, Learned};
-pub use explore::{Cost, Exploration, ExploreOptions, Plan, explore, lower_bound};
+pub use explore::{Cost, Exploration, ExploreOptions, Plan, ProbeOptions, explore, lower_bound};
 pub use ids::{ChangeSetId, Channel, Cid, Ids, Qid, Tid};
 pub use model::{Action, ComputationUnit, Environment, Invalidity, Target, Transformation};
 pub use review::{Reviewed, review};

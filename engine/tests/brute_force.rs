@@ -10,8 +10,8 @@
 use std::collections::BTreeMap;
 
 use dyknow_engine::{
-    Candidates, Cid, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, Target, Tid,
-    Transformation, compile, explore, lower_bound,
+    Candidates, Cid, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, ProbeOptions,
+    Target, Tid, Transformation, compile, explore, lower_bound,
 };
 use proptest::prelude::*;
 
@@ -306,6 +306,41 @@ proptest! {
                 let recompiled = compile(&after, &again, &options, &mut Ids::after(&after));
                 prop_assert!(recompiled.actions.is_empty(), "{:?}", recompiled.actions);
                 let _: BTreeMap<(), ()> = BTreeMap::new();
+            }
+        }
+    }
+
+    /// With a timeout the any-time probes search beside the main search, here from its first
+    /// backtrack and restarting every 3 of theirs: the result is still the optimum, proven.
+    #[test]
+    fn explore_with_probes_is_optimal((tfs, targets) in case(), every in 1u64..4, limit in 1u64..6) {
+        let (env, candidates) = build(&tfs, &targets);
+        let options = ExploreOptions {
+            horizon: H,
+            timeout: Some(std::time::Duration::from_secs(60)),
+            probes: Some(ProbeOptions { after: 0, every, limit }),
+            ..ExploreOptions::default()
+        };
+        let exploration = explore(&env, &candidates, &options);
+        prop_assert!(exploration.proven_optimal);
+        match brute_force(&tfs, &targets) {
+            None => prop_assert!(exploration.plan.is_none()),
+            Some((unsatisfied, cost)) => {
+                let plan = exploration.plan.clone().unwrap();
+                prop_assert_eq!(plan.unsatisfied().len() as u32, unsatisfied);
+                prop_assert!((exploration.cost.value - cost).abs() < 1e-9,
+                    "explore {} brute force {}", exploration.cost.value, cost);
+                let compiled = compile(&env, &exploration, &options, &mut Ids::after(&env));
+                prop_assert!((compiled.cost.total - cost).abs() < 1e-9,
+                    "compiled {} brute force {}", compiled.cost.total, cost);
+                let mut after = env.clone();
+                after.apply(&compiled.actions);
+                let expected_invalid: Vec<Invalidity> = compiled
+                    .unsatisfied_targets
+                    .iter()
+                    .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
+                    .collect();
+                prop_assert_eq!(after.invalidities(&candidates), expected_invalid);
             }
         }
     }

@@ -38,7 +38,11 @@ fn free_port() -> u16 {
 }
 
 fn start_dyknow(data: &std::path::Path) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_dyknow"))
+    // `DYKNOW_BIN` (as `benches/run.sh` sets it: the `dist` build, optimised as the peer's
+    // release is) or the binary Cargo built for this bench.
+    let bin =
+        std::env::var("DYKNOW_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_dyknow").to_owned());
+    let mut child = Command::new(bin)
         .args(["serve", "--bind", "127.0.0.1:0", "--data"])
         .arg(data)
         .env("RUST_LOG", "warn,dyknow_server=info")
@@ -133,6 +137,8 @@ fn rows_of(json: &[u8]) -> usize {
 fn main() {
     // `cargo bench` passes --bench; a filter argument is not supported by this harness.
     let quick = std::env::var("BENCH_QUICK").is_ok();
+    // `BENCH_ONLY=sparql` skips the ingestion half (the queries load their own store).
+    let sparql_only = std::env::var("BENCH_ONLY").is_ok_and(|v| v == "sparql");
     let (singles, batch, reps) = if quick {
         (100, 1_000, 11)
     } else {
@@ -149,15 +155,37 @@ fn main() {
         "# DyKnow knowledge service benchmark ({singles} single POSTs, batch of {batch}, {reps} runs per query)"
     );
 
+    if !sparql_only {
+        ingestion(
+            &agent,
+            &mut out,
+            dir.path(),
+            peer.as_deref(),
+            singles,
+            batch,
+        );
+    }
+    sparql(&agent, &mut out, dir.path(), peer.as_deref(), batch, reps);
+}
+
+/// Single POSTs and one batch POST, against the peer's loads of the same data.
+fn ingestion(
+    agent: &ureq::Agent,
+    out: &mut impl Write,
+    dir: &std::path::Path,
+    peer: Option<&str>,
+    singles: usize,
+    batch: usize,
+) {
     // --- Ingestion -----------------------------------------------------------------------
-    let server = start_dyknow(&dir.path().join("ingest"));
+    let server = start_dyknow(&dir.join("ingest"));
     let url = format!("{}/transformations", server.url);
     let bodies: Vec<String> = (0..singles)
         .map(|i| format!("{PREFIXES}{}", spec(i)))
         .collect();
     let start = Instant::now();
     for body in &bodies {
-        assert_eq!(post(&agent, &url, "text/turtle", body.as_bytes()), 201);
+        assert_eq!(post(agent, &url, "text/turtle", body.as_bytes()), 201);
     }
     let single_rate = singles as f64 / start.elapsed().as_secs_f64();
     let mut doc = String::from(PREFIXES);
@@ -165,20 +193,20 @@ fn main() {
         doc.push_str(&spec(i));
     }
     let start = Instant::now();
-    assert_eq!(post(&agent, &url, "text/turtle", doc.as_bytes()), 201);
+    assert_eq!(post(agent, &url, "text/turtle", doc.as_bytes()), 201);
     let batch_elapsed = start.elapsed();
     let batch_rate = batch as f64 / batch_elapsed.as_secs_f64();
     drop(server);
 
     // Peer ingestion of the same specs as N-Triples graphs (no validation), for scale.
     let mut peer_single_rate = None;
-    if let Some(bin) = &peer {
-        let p = start_oxigraph(bin, &dir.path().join("peer-ingest"));
+    if let Some(bin) = peer {
+        let p = start_oxigraph(bin, &dir.join("peer-ingest"));
         let nt: Vec<Vec<u8>> = bodies.iter().map(|b| turtle_to_ntriples(b)).collect();
         let start = Instant::now();
         for (i, body) in nt.iter().enumerate() {
             let status = post(
-                &agent,
+                agent,
                 &format!("{}/store?graph=urn:bench:{i}", p.url),
                 "application/n-triples",
                 body,
@@ -192,7 +220,7 @@ fn main() {
     // graph, and the same quads DyKnow stores (after normalisation) into the same named graphs,
     // transactionally and with its bulk loader. Each on a fresh on-disk store.
     let mut peer_batch: Vec<(&str, Duration)> = Vec::new();
-    if let Some(bin) = &peer {
+    if let Some(bin) = peer {
         let nquads = spec_quads(&doc);
         for (i, (what, path, content_type, body)) in [
             (
@@ -217,9 +245,9 @@ fn main() {
         .into_iter()
         .enumerate()
         {
-            let p = start_oxigraph(bin, &dir.path().join(format!("peer-batch-{i}")));
+            let p = start_oxigraph(bin, &dir.join(format!("peer-batch-{i}")));
             let start = Instant::now();
-            let status = post(&agent, &format!("{}{path}", p.url), content_type, body);
+            let status = post(agent, &format!("{}{path}", p.url), content_type, body);
             assert!(status == 201 || status == 204, "oxigraph answered {status}");
             peer_batch.push((what, start.elapsed()));
         }
@@ -262,9 +290,19 @@ fn main() {
             );
         }
     }
+}
 
+/// The three queries, against the peer's two layouts of the same data.
+fn sparql(
+    agent: &ureq::Agent,
+    out: &mut impl Write,
+    dir: &std::path::Path,
+    peer: Option<&str>,
+    batch: usize,
+    reps: usize,
+) {
     // --- SPARQL ---------------------------------------------------------------------------
-    let data = dir.path().join("sparql");
+    let data = dir.join("sparql");
     let server = start_dyknow(&data);
     let mut doc = String::from(PREFIXES);
     for i in 0..batch {
@@ -272,7 +310,7 @@ fn main() {
     }
     assert_eq!(
         post(
-            &agent,
+            agent,
             &format!("{}/transformations", server.url),
             "text/turtle",
             doc.as_bytes()
@@ -282,7 +320,7 @@ fn main() {
     // Two peers: the same quads in the same named graphs (answering over their union, as we
     // do), and the same triples in the default graph (no union to compute).
     let mut peers: Vec<Server> = Vec::new();
-    if let Some(bin) = &peer {
+    if let Some(bin) = peer {
         let kb = dyknow_store::KnowledgeBase::in_memory().expect("store");
         kb.post_specs(
             doc.as_bytes(),
@@ -299,9 +337,9 @@ fn main() {
             dyknow_store::serialize(&triples, dyknow_store::oxigraph::io::RdfFormat::NTriples)
                 .expect("dump triples");
         for (file, body) in [("model.nq", nquads), ("model.nt", ntriples)] {
-            let path = dir.path().join(file);
+            let path = dir.join(file);
             std::fs::write(&path, &body).expect("write dump");
-            let location = dir.path().join(format!("peer-{file}"));
+            let location = dir.join(format!("peer-{file}"));
             let status = Command::new(bin)
                 .args(["load", "--location"])
                 .arg(&location)
@@ -344,18 +382,18 @@ fn main() {
         let peer_endpoints: Vec<String> =
             peers.iter().map(|p| format!("{}/query", p.url)).collect();
         // Warm-up, and a check that every server answers the same number of rows.
-        let (_, ours_body) = query(&agent, &ours_endpoint, q);
+        let (_, ours_body) = query(agent, &ours_endpoint, q);
         let rows = rows_of(&ours_body);
         for pe in &peer_endpoints {
-            let (_, peer_body) = query(&agent, pe, q);
+            let (_, peer_body) = query(agent, pe, q);
             assert_eq!(rows, rows_of(&peer_body), "{name}: {pe} disagrees");
         }
         let mut ours = Vec::new();
         let mut theirs: Vec<Vec<Duration>> = vec![Vec::new(); peer_endpoints.len()];
         for _ in 0..reps {
-            ours.push(query(&agent, &ours_endpoint, q).0);
+            ours.push(query(agent, &ours_endpoint, q).0);
             for (i, pe) in peer_endpoints.iter().enumerate() {
-                theirs[i].push(query(&agent, pe, q).0);
+                theirs[i].push(query(agent, pe, q).0);
             }
         }
         let ours = median(ours);

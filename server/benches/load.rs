@@ -12,6 +12,7 @@
 //! (`OXIGRAPH_BIN`, as `benches/run.sh` installs it) loaded with the same triples, as a ratio.
 //!
 //! `cargo bench -p dyknow-server --bench load -- [--secs N] [--clients N] [--peer-secs N]`
+//! (`DYKNOW_BIN` names another `dyknow` binary to measure, e.g. the `dist` build).
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -24,7 +25,11 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 
-const BIN: &str = env!("CARGO_BIN_EXE_dyknow");
+/// The `dyknow` binary: `DYKNOW_BIN` (as `benches/run.sh` sets it, the `dist` build) or the
+/// one Cargo built for this bench.
+static BIN: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    std::env::var("DYKNOW_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_dyknow").to_owned())
+});
 
 /// The query of the SPARQL route (and of the peer).
 const QUERY: &str = "SELECT ?s ?label WHERE { ?s <http://www.w3.org/2000/01/rdf-schema#label> ?label } ORDER BY ?label LIMIT 100";
@@ -351,7 +356,7 @@ fn main() {
     let peer_secs = arg(&args, "--peer-secs", 30);
     let dir = tempfile::tempdir().unwrap();
     let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    let mut child = Command::new(BIN)
+    let mut child = Command::new(&*BIN)
         .args(["serve", "--data"])
         .arg(dir.path().join("store"))
         .args([
@@ -389,8 +394,8 @@ fn main() {
         assert_eq!(status, Some(201), "POST {path} {file}");
     }
     // Piff's executor; its PATH finds `dyknow` (the segmenter is a process CU).
-    let dir_of_bin = std::path::Path::new(BIN).parent().unwrap();
-    let mut piff = Command::new(BIN)
+    let dir_of_bin = std::path::Path::new(&*BIN).parent().unwrap();
+    let mut piff = Command::new(&*BIN)
         .args(["executor", "--name", "piff", "--connect", &zenoh])
         .env(
             "PATH",

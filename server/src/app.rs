@@ -116,13 +116,29 @@ impl AppState {
     }
 }
 
-/// Runs blocking knowledge-base work off the async runtime.
+/// Runs blocking knowledge-base work without stalling the async runtime.
+///
+/// On a multi-threaded runtime (the service's) the work runs on the request's own thread,
+/// which hands its other tasks to another thread first ([`tokio::task::block_in_place`]): no
+/// hop to the blocking pool and back on the request's path (measured: ~30 µs of a 0.23 ms
+/// SPARQL lookup; `docs/benchmarks.md`, "Per-request cost"). On a current-thread runtime
+/// (where that is not possible) it goes to the blocking pool.
 pub(crate) async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
 ) -> Result<T, ApiError> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(ApiError::internal)?
+    if multi_threaded() {
+        tokio::task::block_in_place(f)
+    } else {
+        tokio::task::spawn_blocking(f)
+            .await
+            .map_err(ApiError::internal)?
+    }
+}
+
+/// Whether the current runtime can run blocking work in place.
+pub(crate) fn multi_threaded() -> bool {
+    tokio::runtime::Handle::try_current()
+        .is_ok_and(|h| h.runtime_flavor() == tokio::runtime::RuntimeFlavor::MultiThread)
 }
 
 /// The HTTP API of `dyknow serve` (contract `http-api.md`).

@@ -12,7 +12,7 @@ use dyknow_store::oxigraph::sparql::results::QueryResultsFormat;
 use dyknow_store::{ParsedQuery, QueryForm, ResultFormat, SparqlQueryError};
 use serde::Deserialize;
 
-use crate::app::{AppState, typed};
+use crate::app::{AppState, blocking, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
 
@@ -82,15 +82,15 @@ async fn answer(
     let timeout = state.config.query_timeout;
     let cancel = parsed.cancellation_token();
     let kb = state.kb.clone();
-    let task = tokio::task::spawn_blocking(move || kb.run_query(parsed, format, timeout));
-    let answer = match tokio::time::timeout(timeout, task).await {
-        Ok(joined) => joined.map_err(ApiError::internal)??,
-        Err(_) => {
-            // The evaluation notices the token and stops; the client is answered now.
-            cancel.cancel();
-            return Err(SparqlQueryError::Timeout(timeout).into());
-        }
-    };
+    // A timer cancels the evaluation when its time is up; oxigraph notices between solutions,
+    // the serialisation between rows, and the client is answered 503.
+    let timer = tokio::spawn(async move {
+        tokio::time::sleep(timeout).await;
+        cancel.cancel();
+    });
+    let answer = blocking(move || Ok(kb.run_query(parsed, format, timeout)?)).await;
+    timer.abort();
+    let answer = answer?;
     Ok(typed(StatusCode::OK, answer.media_type, answer.body))
 }
 
