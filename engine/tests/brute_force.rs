@@ -7,8 +7,6 @@
 //! invalidities are the targets reported unsatisfied.
 #![expect(clippy::unwrap_used, reason = "tests")]
 
-use std::collections::BTreeMap;
-
 use dyknow_engine::{
     Candidates, Cid, ComputationUnit, Environment, ExploreOptions, Ids, Invalidity, ProbeOptions,
     Target, Tid, Transformation, compile, explore, lower_bound,
@@ -279,39 +277,21 @@ proptest! {
             );
             prop_assert!((exploration.bound.value - cost).abs() < 1e-9);
         }
-        match expected {
-            None => prop_assert!(exploration.plan.is_none()),
-            Some((unsatisfied, cost)) => {
-                let plan = exploration.plan.clone().unwrap();
-                prop_assert_eq!(plan.unsatisfied().len() as u32, unsatisfied);
-                prop_assert!((exploration.cost.value - cost).abs() < 1e-9,
-                    "explore {} brute force {}", exploration.cost.value, cost);
-                let compiled = compile(&env, &exploration, &options, &mut Ids::after(&env));
-                prop_assert!((compiled.cost.total - cost).abs() < 1e-9,
-                    "compiled {} brute force {}", compiled.cost.total, cost);
-                let mut after = env.clone();
-                after.apply(&compiled.actions);
-                let expected_invalid: Vec<Invalidity> = compiled
-                    .unsatisfied_targets
-                    .iter()
-                    .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
-                    .collect();
-                prop_assert_eq!(after.invalidities(&candidates), expected_invalid);
-                // Protected CUs are never destroyed.
-                for cu in env.cus.values().filter(|c| c.protected) {
-                    prop_assert!(after.cus.contains_key(&cu.cid));
-                }
-                // A second review from the result changes nothing.
-                let again = explore(&after, &candidates, &options);
-                let recompiled = compile(&after, &again, &options, &mut Ids::after(&after));
-                prop_assert!(recompiled.actions.is_empty(), "{:?}", recompiled.actions);
-                let _: BTreeMap<(), ()> = BTreeMap::new();
+        if let Some(after) = optimal_and_valid(&env, &candidates, &options, &exploration, expected)? {
+            // Protected CUs are never destroyed.
+            for cu in env.cus.values().filter(|c| c.protected) {
+                prop_assert!(after.cus.contains_key(&cu.cid));
             }
+            // A second review from the result changes nothing.
+            let again = explore(&after, &candidates, &options);
+            let recompiled = compile(&after, &again, &options, &mut Ids::after(&after));
+            prop_assert!(recompiled.actions.is_empty(), "{:?}", recompiled.actions);
         }
     }
 
     /// With a timeout the any-time probes search beside the main search, here from its first
-    /// backtrack and restarting every 3 of theirs: the result is still the optimum, proven.
+    /// backtrack, taking turns every 1 to 3 of its backtracks, in rounds of 1 to 5 backtracks:
+    /// the result is still the optimum, proven, and its change set valid.
     #[test]
     fn explore_with_probes_is_optimal((tfs, targets) in case(), every in 1u64..4, limit in 1u64..6) {
         let (env, candidates) = build(&tfs, &targets);
@@ -323,25 +303,46 @@ proptest! {
         };
         let exploration = explore(&env, &candidates, &options);
         prop_assert!(exploration.proven_optimal);
-        match brute_force(&tfs, &targets) {
-            None => prop_assert!(exploration.plan.is_none()),
-            Some((unsatisfied, cost)) => {
-                let plan = exploration.plan.clone().unwrap();
-                prop_assert_eq!(plan.unsatisfied().len() as u32, unsatisfied);
-                prop_assert!((exploration.cost.value - cost).abs() < 1e-9,
-                    "explore {} brute force {}", exploration.cost.value, cost);
-                let compiled = compile(&env, &exploration, &options, &mut Ids::after(&env));
-                prop_assert!((compiled.cost.total - cost).abs() < 1e-9,
-                    "compiled {} brute force {}", compiled.cost.total, cost);
-                let mut after = env.clone();
-                after.apply(&compiled.actions);
-                let expected_invalid: Vec<Invalidity> = compiled
-                    .unsatisfied_targets
-                    .iter()
-                    .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
-                    .collect();
-                prop_assert_eq!(after.invalidities(&candidates), expected_invalid);
-            }
-        }
+        optimal_and_valid(&env, &candidates, &options, &exploration, brute_force(&tfs, &targets))?;
     }
+}
+
+/// Checks `exploration` against the brute-force optimum `expected`: no plan when there is none,
+/// else the optimum's cost and unsatisfied targets, and a compiled change set whose result's only
+/// invalidities are those targets. Returns that result.
+fn optimal_and_valid(
+    env: &Environment,
+    candidates: &Candidates,
+    options: &ExploreOptions,
+    exploration: &dyknow_engine::Exploration,
+    expected: Option<(u32, f64)>,
+) -> Result<Option<Environment>, TestCaseError> {
+    let Some((unsatisfied, cost)) = expected else {
+        prop_assert!(exploration.plan.is_none());
+        return Ok(None);
+    };
+    let plan = exploration.plan.clone().unwrap();
+    prop_assert_eq!(plan.unsatisfied().len() as u32, unsatisfied);
+    prop_assert!(
+        (exploration.cost.value - cost).abs() < 1e-9,
+        "explore {} brute force {}",
+        exploration.cost.value,
+        cost
+    );
+    let compiled = compile(env, exploration, options, &mut Ids::after(env));
+    prop_assert!(
+        (compiled.cost.total - cost).abs() < 1e-9,
+        "compiled {} brute force {}",
+        compiled.cost.total,
+        cost
+    );
+    let mut after = env.clone();
+    after.apply(&compiled.actions);
+    let expected_invalid: Vec<Invalidity> = compiled
+        .unsatisfied_targets
+        .iter()
+        .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
+        .collect();
+    prop_assert_eq!(after.invalidities(candidates), expected_invalid);
+    Ok(Some(after))
 }
