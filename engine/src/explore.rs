@@ -779,8 +779,8 @@ struct Guide {
 
 impl Guide {
     /// Frees 1 to 3 targets of `nodes` (chosen from `round`) and whatever of the graph only
-    /// they use; everything else keeps its provider. Nodes `1..protected` are the protected
-    /// CUs (nodes from the start).
+    /// they use, and in even rounds one in ten of the other jobs; everything else keeps its
+    /// provider. Nodes `1..protected` are the protected CUs (nodes from the start).
     fn around(nodes: &[PlanNode], node_tids: &[usize], protected: usize, round: u64) -> Self {
         let targets = nodes.first().map_or(0, |root| root.inputs.len());
         let mut kept = FxHashMap::default();
@@ -816,6 +816,14 @@ impl Guide {
                     stack.push(l.node);
                 }
             }
+        }
+        // Every other round also frees one kept job in ten, anywhere in the graph: the shared
+        // part the held targets use changes too.
+        if round.is_multiple_of(2) {
+            kept.retain(|_, _| {
+                random = splitmix(random);
+                !random.is_multiple_of(10)
+            });
         }
         Self { kept }
     }
@@ -1883,6 +1891,15 @@ mod tests {
         let mut freed_counts = std::collections::BTreeSet::new();
         for round in 1..64 {
             let guide = Guide::around(&nodes, &tids, 1, round);
+            // Whatever is kept is the graph's own provider.
+            for (&(consumer, input), &provider) in &guide.kept {
+                let n = tids.iter().position(|&t| t == consumer).unwrap_or(0);
+                let link = nodes[n].inputs[input].map(|l| (tids[l.node], l.port));
+                assert_eq!(provider, link, "round {round}");
+            }
+            if round % 2 == 0 {
+                continue; // Even rounds also free jobs at random: checked above only.
+            }
             let held: Vec<usize> = (0..3)
                 .filter(|&q| guide.kept(usize::MAX, q).is_some())
                 .collect();
