@@ -512,6 +512,7 @@ pub fn explore(
     let mut steps = 0u64;
     let root_bound = search.lower_bound(&main.jobs, Cost::INFINITE);
     let mut since = Instant::now();
+    let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
     // Lines 9–40.
     loop {
         match main.step(&mut search, &mut best) {
@@ -528,7 +529,9 @@ pub fn explore(
             && best.nodes.is_some()
             && deadline.is_some_and(|d| Instant::now() >= d)
         {
-            proven_optimal = main.trace.is_empty();
+            // `step` has undone a choice already: even with the trace empty, the root's job
+            // has choices left (an exhausted search ended above, with its proof).
+            proven_optimal = false;
             break;
         }
         if let Some(p) = probing
@@ -536,15 +539,14 @@ pub fn explore(
             && steps >= p.after
             && steps.is_multiple_of(p.every.max(1))
         {
-            // The probes get as much time as the main search had since their last turn.
-            let slice = since.elapsed();
+            // The probes run while they have had less time in all than the main search (one
+            // dive may overshoot; the next turn then waits), and never past the deadline.
+            main_time += since.elapsed();
             let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit));
-            let turn = Instant::now();
-            loop {
+            while probe_time < main_time && deadline.is_none_or(|d| Instant::now() < d) {
+                let turn = Instant::now();
                 probes.run(&mut best, &mut expansions);
-                if turn.elapsed() >= slice {
-                    break;
-                }
+                probe_time += turn.elapsed();
             }
             since = Instant::now();
         }

@@ -84,14 +84,21 @@ async fn answer(
     let kb = state.kb.clone();
     // A timer cancels the evaluation when its time is up; oxigraph notices between solutions,
     // the serialisation between rows, and the client is answered 503.
-    let timer = tokio::spawn(async move {
+    let _timer = AbortOnDrop(tokio::spawn(async move {
         tokio::time::sleep(timeout).await;
         cancel.cancel();
-    });
-    let answer = blocking(move || Ok(kb.run_query(parsed, format, timeout)?)).await;
-    timer.abort();
-    let answer = answer?;
+    }));
+    let answer = blocking(move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
     Ok(typed(StatusCode::OK, answer.media_type, answer.body))
+}
+
+/// Aborts a task when dropped (the query's timer, once the query has ended either way).
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 /// A query as `?query=`.
