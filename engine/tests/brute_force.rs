@@ -316,15 +316,7 @@ proptest! {
                         && exploration.cost.value >= cost - 1e-9),
                 "any-time {:?} below the optimum ({}, {})", exploration.cost, unsatisfied, cost
             );
-            let compiled = compile(&env, &exploration, &options, &mut Ids::after(&env));
-            let mut after = env.clone();
-            after.apply(&compiled.actions);
-            let expected_invalid: Vec<Invalidity> = compiled
-                .unsatisfied_targets
-                .iter()
-                .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
-                .collect();
-            prop_assert_eq!(after.invalidities(&candidates), expected_invalid);
+            valid_change_set(&env, &candidates, &options, &exploration)?;
         }
     }
 }
@@ -351,13 +343,25 @@ fn optimal_and_valid(
         exploration.cost.value,
         cost
     );
-    let compiled = compile(env, exploration, options, &mut Ids::after(env));
+    let (compiled_cost, after) = valid_change_set(env, candidates, options, exploration)?;
     prop_assert!(
-        (compiled.cost.total - cost).abs() < 1e-9,
+        (compiled_cost - cost).abs() < 1e-9,
         "compiled {} brute force {}",
-        compiled.cost.total,
+        compiled_cost,
         cost
     );
+    Ok(Some(after))
+}
+
+/// Compiles `exploration` and applies it: the result's only invalidities are the targets the
+/// change set reports unsatisfied. Returns the change set's cost and the result.
+fn valid_change_set(
+    env: &Environment,
+    candidates: &Candidates,
+    options: &ExploreOptions,
+    exploration: &dyknow_engine::Exploration,
+) -> Result<(f64, Environment), TestCaseError> {
+    let compiled = compile(env, exploration, options, &mut Ids::after(env));
     let mut after = env.clone();
     after.apply(&compiled.actions);
     let expected_invalid: Vec<Invalidity> = compiled
@@ -366,5 +370,5 @@ fn optimal_and_valid(
         .map(|q| Invalidity::UnsatisfiedTarget { target: q.clone() })
         .collect();
     prop_assert_eq!(after.invalidities(candidates), expected_invalid);
-    Ok(Some(after))
+    Ok((compiled.cost.total, after))
 }
