@@ -13,7 +13,7 @@ use dyknow_engine::{
     CostSummary, CuOutcome, CuOutcomeState, Environment, ExploreOptions, Ids, Invalidity, Learned,
     Tid,
 };
-use dyknow_store::model::{self, Loaded, SpecCache};
+use dyknow_store::model::{self, CuSnapshot, Loaded, SpecCache};
 use dyknow_store::spec::TransformationSpec;
 use dyknow_store::{EnvironmentPart, KnowledgeBase};
 use tokio::sync::{Notify, broadcast};
@@ -317,7 +317,17 @@ impl Manager {
     /// in it; a transformation spec written meanwhile (its `upkeep`, its ports) shows once a
     /// refresh has run: the next read that finds nobody refreshing, or the review it causes.
     pub fn cus(&self) -> Result<Environment, LifecycleError> {
-        let snapshot = self.specs.cus_now(&self.kb)?;
+        Ok(self.cus_of(&*self.specs.cus_now(&self.kb)?))
+    }
+
+    /// [`Manager::cus`] when it needs no read of the store (nothing was written since the CUs
+    /// were last published), so that a caller on an async runtime can answer at once; `None`
+    /// otherwise.
+    pub fn cus_published(&self) -> Option<Environment> {
+        Some(self.cus_of(&*self.specs.cus_published(&self.kb)?))
+    }
+
+    fn cus_of(&self, snapshot: &CuSnapshot) -> Environment {
         let executor = &self.executor;
         let mut env = Environment {
             library: snapshot
@@ -335,7 +345,7 @@ impl Manager {
         };
         self.learned().apply(&mut env);
         env.cus = snapshot.cus.clone();
-        Ok(env)
+        env
     }
 
     /// Writes environment graphs and publishes the CUs for reads.

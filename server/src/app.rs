@@ -28,6 +28,9 @@ pub struct ServerConfig {
     pub max_body_bytes: usize,
     /// How long a SPARQL query may run.
     pub query_timeout: Duration,
+    /// How many requests do work on the store at once; more wait their turn, in order (0: no
+    /// limit). See [`in_turn`].
+    pub store_concurrency: usize,
     /// The configuration life-cycle's settings: the horizon H, the time unit, how long a
     /// review's search may run.
     pub lifecycle: Settings,
@@ -39,6 +42,7 @@ impl Default for ServerConfig {
             token: None,
             max_body_bytes: 16 * 1024 * 1024,
             query_timeout: Duration::from_secs(30),
+            store_concurrency: default_store_concurrency(),
             lifecycle: Settings::default(),
         }
     }
@@ -59,6 +63,8 @@ pub struct AppState {
     pub fleet: Option<Arc<Fleet>>,
     /// The formula groups.
     pub groups: Arc<Groups>,
+    /// The turns of [`in_turn`] (`store_concurrency` permits).
+    turns: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -78,7 +84,12 @@ impl AppState {
         let kb = Arc::new(kb);
         let lifecycle = Arc::new(Manager::new(kb.clone(), executor, config.lifecycle)?);
         let groups = Groups::empty(kb.clone(), lifecycle.clone());
+        let permits = match config.store_concurrency {
+            0 => tokio::sync::Semaphore::MAX_PERMITS,
+            n => n.min(tokio::sync::Semaphore::MAX_PERMITS),
+        };
         Ok(Self {
+            turns: Arc::new(tokio::sync::Semaphore::new(permits)),
             groups,
             kb,
             config: Arc::new(config),
@@ -133,6 +144,29 @@ pub(crate) async fn blocking<T: Send + 'static>(
             .await
             .map_err(ApiError::internal)?
     }
+}
+
+/// [`blocking`] in turn: at most `--store-concurrency` requests do work on the store at once,
+/// the others wait, first come first served, without holding a thread.
+///
+/// Why: every request at work holds a thread, and on a small machine with tens of runnable
+/// threads every thread waits its turn of the scheduler: the cheapest answers
+/// (`GET /health`, `GET /cus`) and the life-cycle's reviews too, which then starve. Under the
+/// load bench's 64 clients on 2 cores, 4 turns took `GET /health`'s p99 from 56 to 9 ms
+/// (`docs/benchmarks.md`, "Work in turn"). Reads that answer from memory (`GET /cus` when
+/// nothing was written since its last snapshot, `GET /changesets`, `GET /health`) and calls
+/// that wait for executors take no turn.
+pub(crate) async fn in_turn<T: Send + 'static>(
+    state: &AppState,
+    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    let _turn = state.turns.acquire().await.map_err(ApiError::internal)?;
+    blocking(f).await
+}
+
+/// Twice the cores: as many requests as cores at work while as many again finish theirs.
+pub fn default_store_concurrency() -> usize {
+    2 * std::thread::available_parallelism().map_or(1, usize::from)
 }
 
 /// Whether the current runtime can run blocking work in place.
@@ -373,4 +407,143 @@ pub(crate) fn typed(status: StatusCode, media_type: &str, body: impl Into<Body>)
         body.into(),
     )
         .into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::mpsc;
+
+    use axum::body::Body;
+    use axum::http::Request;
+    use tower::ServiceExt;
+
+    use super::*;
+
+    fn state(store_concurrency: usize) -> AppState {
+        let kb = KnowledgeBase::in_memory().expect("in-memory knowledge base");
+        AppState::new(
+            kb,
+            ServerConfig {
+                store_concurrency,
+                ..ServerConfig::default()
+            },
+        )
+        .expect("state")
+    }
+
+    async fn status(state: &AppState, uri: &str) -> StatusCode {
+        app(state.clone())
+            .oneshot(Request::get(uri).body(Body::empty()).unwrap())
+            .await
+            .unwrap()
+            .status()
+    }
+
+    /// Holds the state's turns until the returned sender is dropped or sent to.
+    async fn hold_turns(
+        state: &AppState,
+        n: usize,
+    ) -> Vec<(mpsc::Sender<()>, tokio::task::JoinHandle<()>)> {
+        let mut held = Vec::new();
+        for _ in 0..n {
+            let (release, wait) = mpsc::channel::<()>();
+            let (started, running) = tokio::sync::oneshot::channel();
+            let s = state.clone();
+            let task = tokio::spawn(async move {
+                in_turn(&s, move || {
+                    started.send(()).unwrap();
+                    let _ = wait.recv();
+                    Ok(())
+                })
+                .await
+                .unwrap();
+            });
+            running.await.unwrap();
+            held.push((release, task));
+        }
+        held
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn no_more_than_the_turns_work_at_once_and_the_rest_wait_in_order() {
+        let state = state(2);
+        let held = hold_turns(&state, 2).await;
+        // A third waits: it has not started while both turns are held.
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let running = Arc::new(AtomicUsize::new(0));
+        let mut waiting = Vec::new();
+        for i in 0..3 {
+            let (s, order, running) = (state.clone(), order.clone(), running.clone());
+            let mut work = Box::pin(async move {
+                in_turn(&s, move || {
+                    order.lock().unwrap().push(i);
+                    let now = running.fetch_add(1, Ordering::SeqCst) + 1;
+                    std::thread::sleep(Duration::from_millis(5));
+                    running.fetch_sub(1, Ordering::SeqCst);
+                    Ok(now)
+                })
+                .await
+                .unwrap()
+            });
+            // Polled once, it is in the queue: the next one is behind it.
+            std::future::poll_fn(|cx| {
+                assert!(work.as_mut().poll(cx).is_pending(), "ran without a turn");
+                Poll::Ready(())
+            })
+            .await;
+            waiting.push(tokio::spawn(work));
+        }
+        assert!(
+            order.lock().unwrap().is_empty(),
+            "work started without a turn"
+        );
+        for (release, task) in held {
+            release.send(()).unwrap();
+            task.await.unwrap();
+        }
+        let mut most = 0;
+        for w in waiting {
+            most = most.max(w.await.unwrap());
+        }
+        assert!(most <= 2, "{most} at work at once with 2 turns");
+        assert_eq!(
+            *order.lock().unwrap(),
+            vec![0, 1, 2],
+            "not first come, first served"
+        );
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn health_and_the_cus_answer_while_every_turn_is_held() {
+        let state = state(1);
+        // The CUs' snapshot is published (the first read makes it).
+        assert_eq!(status(&state, "/cus").await, StatusCode::OK);
+        let held = hold_turns(&state, 1).await;
+        let answers = async {
+            (
+                status(&state, "/health").await,
+                status(&state, "/cus").await,
+                status(&state, "/changesets").await,
+            )
+        };
+        let answers = tokio::time::timeout(Duration::from_secs(10), answers)
+            .await
+            .expect("an answer from memory waited for a turn");
+        assert_eq!(answers, (StatusCode::OK, StatusCode::OK, StatusCode::OK));
+        // A query of the store waits for the turn.
+        let s = state.clone();
+        let mut query = tokio::spawn(async move { status(&s, "/sparql?query=ASK%7B%7D").await });
+        assert!(
+            tokio::time::timeout(Duration::from_millis(200), &mut query)
+                .await
+                .is_err(),
+            "a query of the store ran without a turn"
+        );
+        for (release, task) in held {
+            release.send(()).unwrap();
+            task.await.unwrap();
+        }
+        assert_eq!(query.await.unwrap(), StatusCode::OK);
+    }
 }

@@ -217,6 +217,12 @@ pub struct ServeArgs {
     /// How long a SPARQL query may run, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
     pub query_timeout: f64,
+    /// How many requests do work on the store at once (SPARQL queries, spec, model and
+    /// environment reads and writes); more wait their turn, first come first served. Default:
+    /// twice the cores. 0: no limit (every request at work holds a thread; on a small machine
+    /// under many clients every answer, and the reviews, then wait for the scheduler).
+    #[arg(long, value_name = "N", env = "DYKNOW_STORE_CONCURRENCY")]
+    pub store_concurrency: Option<usize>,
     /// The largest accepted request body, in bytes.
     #[arg(long, value_name = "BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_body: usize,
@@ -844,6 +850,9 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         token: args.token,
         max_body_bytes: args.max_body,
         query_timeout: Duration::from_secs_f64(args.query_timeout),
+        store_concurrency: args
+            .store_concurrency
+            .unwrap_or_else(crate::app::default_store_concurrency),
         lifecycle: dyknow_lifecycle::Settings {
             horizon: args.horizon,
             time_unit: Duration::from_secs_f64(args.time_unit),

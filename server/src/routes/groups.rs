@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, in_turn, typed};
 use crate::error::ApiError;
 use crate::groups::{GroupError, status};
 use crate::negotiate::content_type;
@@ -208,7 +208,7 @@ pub async fn create_group(
 ) -> Result<Response, ApiError> {
     let spec: GroupSpec = json_body(&headers, &body)?;
     let groups = state.groups.clone();
-    let value = blocking(move || {
+    let value = in_turn(&state, move || {
         let g = groups.create(spec)?;
         Ok(status(&groups, &g))
     })
@@ -220,8 +220,10 @@ pub async fn create_group(
 #[utoipa::path(get, path = "/groups", tag = "groups", responses((status = 200, body = [Object])))]
 pub async fn list_groups(State(state): State<AppState>) -> Result<Json<Vec<Value>>, ApiError> {
     let groups = state.groups.clone();
-    let list =
-        blocking(move || Ok(groups.list().iter().map(|g| status(&groups, g)).collect())).await?;
+    let list = in_turn(&state, move || {
+        Ok(groups.list().iter().map(|g| status(&groups, g)).collect())
+    })
+    .await?;
     Ok(Json(list))
 }
 
@@ -234,7 +236,7 @@ pub async fn get_group(
     Path(label): Path<String>,
 ) -> Result<Json<Value>, ApiError> {
     let groups = state.groups.clone();
-    let v = blocking(move || {
+    let v = in_turn(&state, move || {
         let g = groups.get(&label)?;
         Ok(status(&groups, &g))
     })
@@ -251,7 +253,7 @@ pub async fn start_group(
     Path(label): Path<String>,
 ) -> Result<Json<Value>, ApiError> {
     let groups = state.groups.clone();
-    let v = blocking(move || {
+    let v = in_turn(&state, move || {
         groups.start(&label)?;
         let g = groups.get(&label)?;
         Ok(status(&groups, &g))
@@ -269,7 +271,7 @@ pub async fn stop_group(
     Path(label): Path<String>,
 ) -> Result<Json<Value>, ApiError> {
     let groups = state.groups.clone();
-    let v = blocking(move || {
+    let v = in_turn(&state, move || {
         groups.stop(&label)?;
         let g = groups.get(&label)?;
         Ok(status(&groups, &g))
@@ -287,7 +289,7 @@ pub async fn destroy_group(
     Path(label): Path<String>,
 ) -> Result<StatusCode, ApiError> {
     let groups = state.groups.clone();
-    blocking(move || Ok(groups.destroy(&label)?)).await?;
+    in_turn(&state, move || Ok(groups.destroy(&label)?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -314,7 +316,7 @@ pub async fn add_formula(
 ) -> Result<Response, ApiError> {
     let f: FormulaJson = json_body(&headers, &body)?;
     let groups = state.groups.clone();
-    let index = blocking(move || Ok(groups.add_formula(&label, &f.formula)?)).await?;
+    let index = in_turn(&state, move || Ok(groups.add_formula(&label, &f.formula)?)).await?;
     Ok((StatusCode::CREATED, Json(json!({"index": index}))).into_response())
 }
 
@@ -330,7 +332,7 @@ pub async fn remove_formula(
         .parse()
         .map_err(|_| ApiError::not_found(format!("no formula {index:?} (indices are integers)")))?;
     let groups = state.groups.clone();
-    blocking(move || Ok(groups.remove_formula(&label, index)?)).await?;
+    in_turn(&state, move || Ok(groups.remove_formula(&label, index)?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -408,6 +410,6 @@ pub async fn trace(
     Path(label): Path<String>,
 ) -> Result<Response, ApiError> {
     let groups = state.groups.clone();
-    let text = blocking(move || Ok(groups.get(&label)?.trace(&groups)?)).await?;
+    let text = in_turn(&state, move || Ok(groups.get(&label)?.trace(&groups)?)).await?;
     Ok(typed(StatusCode::OK, "application/x-ndjson", text))
 }

@@ -14,7 +14,7 @@ use dyknow_store::{KnowledgeBase, ModelFormat};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, in_turn, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::negotiate;
 use crate::routes::reconfig::{CuJson, cu_json};
@@ -155,7 +155,7 @@ pub async fn get_model(
     let kb = state.kb.clone();
     let Some(format) = format else {
         let lifecycle = state.lifecycle.clone();
-        let json = blocking(move || {
+        let json = in_turn(&state, move || {
             model_json(&kb, &|t| lifecycle.runnable(t), &|c| {
                 lifecycle.last_heard(c)
             })
@@ -163,7 +163,7 @@ pub async fn get_model(
         .await?;
         return Ok(axum::response::IntoResponse::into_response(Json(json)));
     };
-    let exported = blocking(move || Ok(kb.export(format, inferred)?)).await?;
+    let exported = in_turn(&state, move || Ok(kb.export(format, inferred)?)).await?;
     let mut response = typed(StatusCode::OK, format.media_type(), exported.body);
     if let Ok(v) = HeaderValue::from_str(&exported.unparsed_triples.to_string()) {
         response

@@ -9,7 +9,7 @@ use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking};
+use crate::app::{AppState, in_turn};
 use crate::error::{ApiError, ErrorBody};
 use crate::routes::specs::input_format;
 
@@ -63,7 +63,7 @@ pub async fn post_extension(
 ) -> Result<Response, ApiError> {
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
-    let report = blocking(move || Ok(kb.post_extension(&body, format)?)).await?;
+    let report = in_turn(&state, move || Ok(kb.post_extension(&body, format)?)).await?;
     Ok((
         StatusCode::CREATED,
         Json(ExtensionPostedJson {
@@ -81,7 +81,7 @@ pub async fn list_extensions(
     State(state): State<AppState>,
 ) -> Result<Json<Vec<ExtensionJson>>, ApiError> {
     let kb = state.kb.clone();
-    let list = blocking(move || Ok(kb.extensions()?)).await?;
+    let list = in_turn(&state, move || Ok(kb.extensions()?)).await?;
     Ok(Json(
         list.into_iter()
             .map(|e| ExtensionJson {
@@ -104,6 +104,6 @@ pub async fn delete_extension(
         .graph
         .ok_or_else(|| ApiError::bad_request("DELETE /ontology needs ?graph=<iri>"))?;
     let kb = state.kb.clone();
-    blocking(move || Ok(kb.remove_extension(&graph)?)).await?;
+    in_turn(&state, move || Ok(kb.remove_extension(&graph)?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }

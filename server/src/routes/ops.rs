@@ -8,7 +8,7 @@ use axum::{Json, Router};
 use serde::Serialize;
 use utoipa::{OpenApi, ToSchema};
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, in_turn, typed};
 use crate::error::ApiError;
 
 pub(crate) fn router() -> Router<AppState> {
@@ -36,7 +36,7 @@ pub async fn health() -> Json<Health> {
     responses((status = 200, content_type = "text/plain", description = "Prometheus text format")))]
 pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError> {
     let kb = state.kb.clone();
-    let stats = blocking(move || Ok(kb.statistics()?)).await?;
+    let stats = in_turn(&state, move || Ok(kb.statistics()?)).await?;
     Ok(typed(
         StatusCode::OK,
         "text/plain; version=0.0.4",

@@ -15,7 +15,7 @@ use dyknow_lifecycle::{CuView, Observation, Perturbation, Phase, SpawnRequest};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, blocking, in_turn, typed};
 use crate::error::ApiError;
 use crate::json_body::JsonBody;
 use crate::negotiate::negotiate;
@@ -127,10 +127,16 @@ pub async fn list_cus(
     query: Result<Query<CusQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|e| ApiError::bad_request(e.body_text()))?;
-    let s = state.clone();
     if !query.statistics {
+        // Nothing written since the CUs were last published: answered from memory, on the
+        // runtime's thread, without a turn (the web view polls this).
+        if let Some(env) = state.lifecycle.cus_published() {
+            return Ok(Json(cus_json(&state, &env)).into_response());
+        }
+        let s = state.clone();
         return Ok(Json(blocking(move || cus(&s)).await?).into_response());
     }
+    let s = state.clone();
     let detailed = blocking(move || {
         let env = s.lifecycle.cus()?;
         let names: Vec<Cid> = env.cus.keys().cloned().collect();
@@ -168,7 +174,7 @@ pub async fn spawn_cu(
     JsonBody(body): JsonBody<SpawnJson>,
 ) -> Result<Response, ApiError> {
     let s = state.clone();
-    let cu = blocking(move || {
+    let cu = in_turn(&state, move || {
         let cu = s.lifecycle.spawn(SpawnRequest {
             transformation: body.transformation.into(),
             name: body.name.map(Into::into),
@@ -189,7 +195,7 @@ pub async fn destroy_cu(
     Path(name): Path<String>,
 ) -> Result<StatusCode, ApiError> {
     let s = state.clone();
-    blocking(move || Ok(s.lifecycle.destroy(&name.into())?)).await?;
+    in_turn(&state, move || Ok(s.lifecycle.destroy(&name.into())?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -352,7 +358,7 @@ pub async fn post_perturbation(
     let perturbation: Perturbation = serde_json::from_value(body)
         .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
     let s = state.clone();
-    blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
+    in_turn(&state, move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
@@ -429,7 +435,7 @@ pub async fn post_statistics(
         }
     };
     let s = state.clone();
-    blocking(move || Ok(s.lifecycle.observe(observation)?)).await?;
+    in_turn(&state, move || Ok(s.lifecycle.observe(observation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
@@ -473,7 +479,7 @@ pub async fn get_statistics(
     State(state): State<AppState>,
 ) -> Result<Json<StatisticsListJson>, ApiError> {
     let s = state.clone();
-    blocking(move || {
+    in_turn(&state, move || {
         let learned = s.lifecycle.learned();
         let loaded = s.lifecycle.load()?;
         let estimate = |e: Option<&dyknow_engine::Estimate>| {
@@ -570,7 +576,7 @@ pub async fn get_environment(
     let life = state.lifecycle.status();
     let s = state.clone();
     // Never waits for a review or spec write under way (the last published snapshot then).
-    let loaded = blocking(move || Ok(s.lifecycle.load_now()?)).await?;
+    let loaded = in_turn(&state, move || Ok(s.lifecycle.load_now()?)).await?;
     let horizon = state.lifecycle.settings().horizon;
     let invalidities = loaded.env.invalidities(&loaded.candidates);
     let unsatisfied_targets = invalidities

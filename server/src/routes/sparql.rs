@@ -12,7 +12,7 @@ use dyknow_store::oxigraph::sparql::results::QueryResultsFormat;
 use dyknow_store::{ParsedQuery, QueryForm, ResultFormat, SparqlQueryError};
 use serde::Deserialize;
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, in_turn, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
 
@@ -88,7 +88,7 @@ async fn answer(
         tokio::time::sleep(timeout).await;
         cancel.cancel();
     }));
-    let answer = blocking(move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
+    let answer = in_turn(&state, move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
     Ok(typed(StatusCode::OK, answer.media_type, answer.body))
 }
 

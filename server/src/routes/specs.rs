@@ -14,7 +14,7 @@ use dyknow_store::{InputFormat, KnowledgeBase, serialize};
 use serde::Serialize;
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking, typed};
+use crate::app::{AppState, in_turn, typed};
 use crate::error::{ApiError, ErrorBody};
 use crate::negotiate::{content_type, negotiate};
 
@@ -220,7 +220,7 @@ async fn post_specs(
 ) -> Result<Response, ApiError> {
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
-    let report = blocking(move || Ok(kb.post_specs(&body, format, kind)?)).await?;
+    let report = in_turn(&state, move || Ok(kb.post_specs(&body, format, kind)?)).await?;
     match kind {
         SpecKind::Target => {
             for label in &report.labels {
@@ -252,7 +252,7 @@ async fn list_specs(
     let kb = state.kb.clone();
     let lifecycle = state.lifecycle.clone();
     if media == "text/turtle" {
-        let body = blocking(move || {
+        let body = in_turn(&state, move || {
             let mut triples = Vec::new();
             for (_, graph) in kb.spec_graphs(kind)? {
                 triples.extend(kb.graph_triples(graph.as_ref())?);
@@ -263,7 +263,7 @@ async fn list_specs(
         return Ok(typed(StatusCode::OK, "text/turtle", body));
     }
     let groups = state.groups.clone();
-    let list = blocking(move || {
+    let list = in_turn(&state, move || {
         let users = groups.target_users();
         kb.specs(kind)?
             .into_iter()
@@ -286,7 +286,7 @@ async fn get_spec(
     let missing = || ApiError::not_found(format!("no {} labelled {label:?}", kind.name()));
     if media == "text/turtle" {
         let graph = dyknow_store::graphs::spec_graph(kind, &label);
-        let triples = blocking(move || Ok(kb.graph_triples(graph.as_ref())?)).await?;
+        let triples = in_turn(&state, move || Ok(kb.graph_triples(graph.as_ref())?)).await?;
         if triples.is_empty() {
             return Err(missing());
         }
@@ -295,7 +295,7 @@ async fn get_spec(
     }
     let label2 = label.clone();
     let groups = state.groups.clone();
-    let value = blocking(move || match kb.spec(kind, &label2)? {
+    let value = in_turn(&state, move || match kb.spec(kind, &label2)? {
         Some(spec) => spec_json(&kb, &|t| lifecycle.runnable(t), spec)
             .map(|v| Some(with_groups(v, &groups.target_users()))),
         None => Ok(None),
@@ -312,7 +312,7 @@ async fn delete_spec(
 ) -> Result<StatusCode, ApiError> {
     let kb = state.kb.clone();
     let label2 = label.clone();
-    blocking(move || Ok(kb.remove_spec(kind, &label2)?)).await?;
+    in_turn(&state, move || Ok(kb.remove_spec(kind, &label2)?)).await?;
     // Whether a review follows at once is the life-cycle's call: a released target always, a
     // deregistered transformation when CUs of it are left invalid.
     state.lifecycle.report(match kind {

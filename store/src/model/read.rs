@@ -235,6 +235,18 @@ impl SpecCache {
         }
     }
 
+    /// The last published snapshot when it is up to date: what [`SpecCache::cus_now`] answers
+    /// without reading the store; `None` when it would read it (something was written since).
+    pub fn cus_published(&self, kb: &KnowledgeBase) -> Option<Arc<CuSnapshot>> {
+        let key = (kb.spec_generation(), kb.environment_generation());
+        self.published
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .as_ref()
+            .filter(|last| at_least(last.key, key))
+            .cloned()
+    }
+
     /// Brings the cache up to date and publishes the CUs for [`SpecCache::cus_now`]: what a
     /// writer that changed CUs or specs calls before it answers.
     pub fn publish(&self, kb: &KnowledgeBase) -> Result<Arc<CuSnapshot>, ModelReadError> {
@@ -896,10 +908,16 @@ mod tests {
     fn a_read_under_a_refresh_gets_the_last_snapshot_without_waiting() {
         let kb = example_12();
         let cache = SpecCache::default();
+        assert!(cache.cus_published(&kb).is_none(), "nothing published yet");
         let first = cache.publish(&kb).unwrap();
         assert!(first.specs.contains_key("tid4"));
         assert!(Arc::ptr_eq(&cache.cus_now(&kb).unwrap(), &first));
+        assert!(Arc::ptr_eq(&cache.cus_published(&kb).unwrap(), &first));
         kb.remove_spec(SpecKind::Transformation, "tid4").unwrap();
+        assert!(
+            cache.cus_published(&kb).is_none(),
+            "a snapshot older than a write is not served from memory"
+        );
         for lock in ["state", "cus"] {
             std::thread::scope(|s| {
                 // A refresh under way holds one of the cache's locks.
@@ -919,6 +937,7 @@ mod tests {
         }
         let now = cache.cus_now(&kb).unwrap();
         assert!(!now.specs.contains_key("tid4"));
+        assert!(Arc::ptr_eq(&cache.cus_published(&kb).unwrap(), &now));
         assert!(at_least(
             now.key,
             (kb.spec_generation(), kb.environment_generation())
