@@ -65,6 +65,8 @@ pub struct AppState {
     pub groups: Arc<Groups>,
     /// The turns of [`in_turn`] (`store_concurrency` permits).
     turns: Arc<tokio::sync::Semaphore>,
+    /// Cancels SPARQL queries at `query_timeout`.
+    pub(crate) watchdog: Arc<crate::watchdog::Watchdog>,
 }
 
 impl AppState {
@@ -90,6 +92,7 @@ impl AppState {
         };
         Ok(Self {
             turns: Arc::new(tokio::sync::Semaphore::new(permits)),
+            watchdog: Arc::default(),
             groups,
             kb,
             config: Arc::new(config),

@@ -12,6 +12,7 @@ mod metrics;
 mod negotiate;
 mod openapi;
 pub mod routes;
+mod watchdog;
 
 pub use app::{AppState, ServerConfig, app};
 pub use error::{ApiError, ErrorBody};

@@ -1,6 +1,9 @@
 //! The SPARQL 1.1 Protocol query endpoint (<https://www.w3.org/TR/sparql11-protocol/>) over the
 //! union of ontology, environment and inferred triples. Updates are refused.
 
+use std::sync::Arc;
+use std::time::Instant;
+
 use axum::Router;
 use axum::body::Bytes;
 use axum::extract::{Query, State};
@@ -80,25 +83,21 @@ async fn answer(
     let parsed = ParsedQuery::parse(&query)?;
     let format = result_format(parsed.form(), &headers)?;
     let timeout = state.config.query_timeout;
-    let cancel = parsed.cancellation_token();
-    let kb = state.kb.clone();
-    // A timer cancels the evaluation when its time is up; oxigraph notices between solutions,
-    // the serialisation between rows, and the client is answered 503.
-    let _timer = AbortOnDrop(tokio::spawn(async move {
-        tokio::time::sleep(timeout).await;
-        cancel.cancel();
-    }));
-    let answer = in_turn(&state, move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
-    Ok(typed(StatusCode::OK, answer.media_type, answer.body))
-}
-
-/// Aborts a task when dropped (the query's timer, once the query has ended either way).
-struct AbortOnDrop(tokio::task::JoinHandle<()>);
-
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
+    // The watchdog cancels the evaluation when its time is up (the time waiting for a turn
+    // included); oxigraph notices between solutions, the serialisation between rows, and the
+    // client is answered 503. It watches the query while `cancel` lives: until the answer is
+    // made, or the request is dropped.
+    let cancel = Arc::new(parsed.cancellation_token());
+    if let Some(deadline) = Instant::now().checked_add(timeout) {
+        state
+            .watchdog
+            .watch(deadline, &cancel)
+            .map_err(ApiError::internal)?;
     }
+    let kb = state.kb.clone();
+    let answer = in_turn(&state, move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
+    drop(cancel);
+    Ok(typed(StatusCode::OK, answer.media_type, answer.body))
 }
 
 /// A query as `?query=`.
