@@ -952,6 +952,13 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             }
         );
         state.start_life_cycle();
+        // No Nagle (axum::serve leaves it on): a response written in more than one segment
+        // (a streamed body) must not wait for the client's delayed acknowledgement.
+        let listener = axum::serve::ListenerExt::tap_io(listener, |tcp| {
+            if let Err(e) = tcp.set_nodelay(true) {
+                tracing::debug!("TCP_NODELAY not set on a connection: {e}");
+            }
+        });
         axum::serve(listener, app(state))
             .with_graceful_shutdown(shutdown_signal())
             .await?;
