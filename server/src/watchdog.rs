@@ -157,44 +157,66 @@ mod tests {
         false
     }
 
+    /// Polls until the watchdog's thread sleeps as `sleep` says.
+    fn sleeps(dog: &Watchdog, sleep: fn(Sleep) -> bool) -> bool {
+        eventually(|| sleep(lock(&dog.inner.state).sleep))
+    }
+
     #[test]
     fn a_query_is_cancelled_at_its_deadline_and_not_before() {
         let dog = Watchdog::default();
-        let now = Instant::now();
+        // Woken from a sleep with nothing to watch.
+        let first = token();
+        dog.watch(Instant::now() + Duration::from_secs(3600), &first)
+            .unwrap();
+        drop(first);
         let late = token();
-        dog.watch(now + Duration::from_secs(3600), &late).unwrap();
-        // Earlier than the one the thread sleeps until: it is woken.
+        dog.watch(Instant::now() + Duration::from_secs(3600), &late)
+            .unwrap();
+        assert!(sleeps(&dog, |s| matches!(s, Sleep::Until(_))));
+        // Earlier than the deadline the thread sleeps until: it is woken.
+        let now = Instant::now();
         let soon = token();
         dog.watch(now + Duration::from_millis(20), &soon).unwrap();
         assert!(eventually(|| soon.is_cancelled()));
         assert!(Instant::now() >= now + Duration::from_millis(20));
         assert!(!late.is_cancelled());
-        // After a sleep with nothing to watch, too.
+        // With nothing left to watch the thread sleeps until woken; a new query wakes it.
+        drop(late);
+        let prune = token();
+        dog.watch(Instant::now(), &prune).unwrap();
+        assert!(eventually(|| prune.is_cancelled()));
+        drop(prune);
+        assert!(sleeps(&dog, |s| s == Sleep::Forever));
         let again = token();
         dog.watch(Instant::now() + Duration::from_millis(5), &again)
             .unwrap();
         assert!(eventually(|| again.is_cancelled()));
-        assert!(!late.is_cancelled());
     }
 
     #[test]
     fn deadlines_out_of_order_are_kept_in_order() {
         let dog = Watchdog::default();
         let now = Instant::now();
-        let tokens: Vec<_> = [50u64, 10, 30, 3600]
+        let tokens: Vec<_> = [50u64, 10, 30, 3600, 40]
             .iter()
-            .map(|ms| {
+            .map(|s| {
                 let t = token();
-                dog.watch(now + Duration::from_millis(*ms), &t).unwrap();
-                (*ms, t)
+                dog.watch(now + Duration::from_secs(3600 + s), &t).unwrap();
+                t
             })
             .collect();
-        for (ms, t) in &tokens[..3] {
-            assert!(eventually(|| t.is_cancelled()), "{ms} ms");
+        {
+            let state = lock(&dog.inner.state);
+            let deadlines: Vec<Instant> = state.queue.iter().map(|(d, _)| *d).collect();
+            assert!(deadlines.is_sorted(), "{deadlines:?}");
+            assert_eq!(deadlines.len(), tokens.len());
         }
-        assert!(!tokens[3].1.is_cancelled());
-        let queue = &lock(&dog.inner.state).queue;
-        assert_eq!(queue.len(), 1, "what was cancelled left the queue");
+        // Cancelled in the order of their deadlines, the far one not at all.
+        let soon = token();
+        dog.watch(now + Duration::from_millis(10), &soon).unwrap();
+        assert!(eventually(|| soon.is_cancelled()));
+        assert!(tokens.iter().all(|t| !t.is_cancelled()));
     }
 
     #[test]

@@ -10,7 +10,7 @@ use dyknow_lifecycle::ExecutorSummary;
 use serde::Serialize;
 use utoipa::ToSchema;
 
-use crate::app::{AppState, blocking};
+use crate::app::{AppState, blocking, in_turn};
 use crate::error::ApiError;
 use crate::json_body::JsonBody;
 use crate::routes::reconfig::{CuJson, cu_json};
@@ -55,7 +55,7 @@ pub async fn list_executors(
         return Ok(Json(Vec::new()));
     };
     let lifecycle = state.lifecycle.clone();
-    let list = blocking(move || {
+    let list = in_turn(&state, move || {
         let loaded = lifecycle.load()?;
         Ok(fleet.executors(&loaded.specs))
     })

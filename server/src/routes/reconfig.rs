@@ -129,7 +129,8 @@ pub async fn list_cus(
     let Query(query) = query.map_err(|e| ApiError::bad_request(e.body_text()))?;
     if !query.statistics {
         // Nothing written since the CUs were last published: answered from memory, on the
-        // runtime's thread, without a turn (the web view polls this).
+        // runtime's thread. Otherwise read without a turn as well: one reader at a time
+        // refreshes the snapshot, the others get the last one at once (`SpecCache::cus_now`).
         if let Some(env) = state.lifecycle.cus_published() {
             return Ok(Json(cus_json(&state, &env)).into_response());
         }
@@ -174,7 +175,10 @@ pub async fn spawn_cu(
     JsonBody(body): JsonBody<SpawnJson>,
 ) -> Result<Response, ApiError> {
     let s = state.clone();
-    let cu = in_turn(&state, move || {
+    // Life-cycle calls take no turn: they wait for the configuration lock (a review holds it
+    // through its search and its application by the executors) and must not keep the store's
+    // turns from reads and writes meanwhile.
+    let cu = blocking(move || {
         let cu = s.lifecycle.spawn(SpawnRequest {
             transformation: body.transformation.into(),
             name: body.name.map(Into::into),
@@ -195,7 +199,7 @@ pub async fn destroy_cu(
     Path(name): Path<String>,
 ) -> Result<StatusCode, ApiError> {
     let s = state.clone();
-    in_turn(&state, move || Ok(s.lifecycle.destroy(&name.into())?)).await?;
+    blocking(move || Ok(s.lifecycle.destroy(&name.into())?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -358,7 +362,7 @@ pub async fn post_perturbation(
     let perturbation: Perturbation = serde_json::from_value(body)
         .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
     let s = state.clone();
-    in_turn(&state, move || Ok(s.lifecycle.report(perturbation)?)).await?;
+    blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
@@ -435,7 +439,7 @@ pub async fn post_statistics(
         }
     };
     let s = state.clone();
-    in_turn(&state, move || Ok(s.lifecycle.observe(observation)?)).await?;
+    blocking(move || Ok(s.lifecycle.observe(observation)?)).await?;
     Ok(StatusCode::ACCEPTED)
 }
 
