@@ -501,14 +501,15 @@ mod tests {
         tokio::spawn(work)
     }
 
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn work_waits_for_a_turn_first_come_first_served() {
-        let state = state(1);
-        let held = hold_turns(&state, 1).await;
+    /// With `turns` turns held, queues `n` pieces of work in order, then releases the turns:
+    /// the order they ran in and the most at work at once.
+    async fn queued(turns: usize, n: usize) -> (Vec<usize>, usize) {
+        let state = state(turns);
+        let held = hold_turns(&state, turns).await;
         let order = Arc::new(Mutex::new(Vec::new()));
         let running = Arc::new(AtomicUsize::new(0));
         let mut waiting = Vec::new();
-        for i in 0..3 {
+        for i in 0..n {
             waiting.push(queue(&state, i, &order, &running).await);
         }
         assert!(
@@ -519,36 +520,26 @@ mod tests {
             release.send(()).unwrap();
             task.await.unwrap();
         }
-        for w in waiting {
-            assert_eq!(w.await.unwrap(), 1, "two at work with one turn");
-        }
-        assert_eq!(
-            *order.lock().unwrap(),
-            vec![0, 1, 2],
-            "not first come, first served"
-        );
-    }
-
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn no_more_than_the_turns_work_at_once() {
-        let state = state(2);
-        let held = hold_turns(&state, 2).await;
-        let order = Arc::new(Mutex::new(Vec::new()));
-        let running = Arc::new(AtomicUsize::new(0));
-        let mut waiting = Vec::new();
-        for i in 0..6 {
-            waiting.push(queue(&state, i, &order, &running).await);
-        }
-        for (release, task) in held {
-            release.send(()).unwrap();
-            task.await.unwrap();
-        }
         let mut most = 0;
         for w in waiting {
             most = most.max(w.await.unwrap());
         }
+        let order = order.lock().unwrap().clone();
+        (order, most)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn work_waits_for_a_turn_first_come_first_served() {
+        let (order, most) = queued(1, 3).await;
+        assert_eq!(most, 1, "two at work with one turn");
+        assert_eq!(order, vec![0, 1, 2], "not first come, first served");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn no_more_than_the_turns_work_at_once() {
+        let (order, most) = queued(2, 6).await;
         assert!(most <= 2, "{most} at work at once with 2 turns");
-        assert_eq!(order.lock().unwrap().len(), 6);
+        assert_eq!(order.len(), 6);
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
