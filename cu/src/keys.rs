@@ -109,14 +109,29 @@ impl Namespace {
         format!("{}/events/*", self.control())
     }
 
-    /// A CU's liveliness token (present while the CU runs).
+    /// A CU's liveliness token (present while the CU runs): `<namespace>/@dyknow/cu/*/<cu>`.
+    ///
+    /// The `*` chunk is deliberate. A Zenoh router forwarding a declaration to another router
+    /// maps the declaration's non-wild prefix to a numeric id on that link and keeps the
+    /// mapping, on both ends, for as long as the link lives. A key of its own per CU
+    /// (`.../cu/<cu>`) therefore cost ~3 kB in the executor and the manager for every CU ever
+    /// started (a crash storm starts thousands), and made each declaration slower as the
+    /// mappings piled up; behind the `*` every CU shares one mapping (`cu/examples/zenoh_key_growth.rs`,
+    /// docs/reliability.md, guarantee 3). The key still names exactly one CU: `*` matches one
+    /// chunk, and CU names are single chunks.
     pub fn cu_token(&self, cu: &str) -> String {
-        format!("{}/cu/{cu}", self.control())
+        format!("{}/cu/*/{cu}", self.control())
     }
 
-    /// A process CU's control queryable, which its executor queries.
+    /// The liveliness key expression matching every CU's token.
+    pub fn cu_tokens(&self) -> String {
+        format!("{}/cu/*/*", self.control())
+    }
+
+    /// A process CU's control queryable, which its executor queries:
+    /// `<namespace>/@dyknow/cu-control/*/<cu>` (the `*` as in [`Namespace::cu_token`]).
     pub fn cu_control(&self, cu: &str) -> String {
-        format!("{}/cu-control/{cu}", self.control())
+        format!("{}/cu-control/*/{cu}", self.control())
     }
 }
 
@@ -169,5 +184,27 @@ mod tests {
         let ns = Namespace::default();
         assert_eq!(ns.executor_token("local"), "dyknow/@dyknow/executor/local");
         assert!(ns.cu_control("cu-1").starts_with("dyknow/@dyknow/"));
+    }
+
+    #[test]
+    fn a_cu_key_names_one_cu_behind_a_shared_prefix() {
+        use zenoh::key_expr::KeyExpr;
+        let ns = Namespace::default();
+        let key = |k: String| KeyExpr::try_from(k).unwrap();
+        let (one, other) = (key(ns.cu_token("cu-1")), key(ns.cu_token("cu-12")));
+        assert_eq!(one.as_str(), "dyknow/@dyknow/cu/*/cu-1");
+        assert!(one.intersects(&one));
+        assert!(
+            !one.intersects(&other),
+            "a CU's token must not match another CU's"
+        );
+        assert!(key(ns.cu_tokens()).includes(&one));
+        assert!(!key(ns.cu_control("cu-1")).intersects(&key(ns.cu_control("cu-12"))));
+        assert!(!key(ns.cu_control("cu-1")).intersects(&one));
+        // The non-wild prefix, which Zenoh's routers map per link, is the same for every CU.
+        assert_eq!(
+            one.as_str().split("/*").next(),
+            other.as_str().split("/*").next()
+        );
     }
 }

@@ -166,7 +166,7 @@ fn acl(names: &[&str]) -> String {
         "liveliness_token", "declare_liveliness_subscriber", "liveliness_query""#;
     let mut rules = format!(
         r#"{{ id: "streams", messages: [{all}], flows: ["ingress", "egress"], permission: "allow",
-             key_exprs: ["dyknow/channel/**", "dyknow/@dyknow/cu/*", "dyknow/@dyknow/cu-control/*"] }},
+             key_exprs: ["dyknow/channel/**", "dyknow/@dyknow/cu/*/*", "dyknow/@dyknow/cu-control/*/*"] }},
            {{ id: "from-manager", messages: [{all}], flows: ["egress"], permission: "allow",
              key_exprs: ["dyknow/@dyknow/**"] }},
            {{ id: "ask", messages: ["declare_subscriber", "query", "declare_liveliness_subscriber",
