@@ -30,6 +30,7 @@
 
 mod error;
 pub mod keys;
+mod pins;
 mod process;
 pub mod protocol;
 mod sample;
@@ -39,6 +40,7 @@ mod unit;
 
 pub use error::{CuError, KeyError};
 pub use keys::Namespace;
+pub use pins::{KEPT as KEPT_KEYS, pinned_key};
 pub use process::{ProcessEnv, client_config, client_config_file, run_process};
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};

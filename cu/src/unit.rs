@@ -306,7 +306,10 @@ impl Unit {
                 if inputs.get(port).is_some_and(|b| b.channel == channel) {
                     return Ok(());
                 }
-                let key = shared.namespace.channel(channel)?;
+                let key = crate::pins::pinned_key(
+                    &shared.session,
+                    zenoh::key_expr::KeyExpr::try_from(shared.namespace.channel(channel)?)?,
+                )?;
                 let weak: Weak<Shared> = Arc::downgrade(shared);
                 let name: Arc<str> = Arc::from(port);
                 let subscriber = shared
@@ -359,7 +362,10 @@ impl Unit {
                 {
                     return Ok(());
                 }
-                let key = shared.namespace.channel(channel)?;
+                let key = crate::pins::pinned_key(
+                    &shared.session,
+                    zenoh::key_expr::KeyExpr::try_from(shared.namespace.channel(channel)?)?,
+                )?;
                 Some(
                     shared
                         .session

@@ -37,6 +37,9 @@ use crate::candidates::Candidates;
 use crate::ids::{Channel, Cid, Qid, Tid};
 use crate::model::Environment;
 
+mod reroute;
+use reroute::Reroute;
+
 /// An estimated cost (Def. 34): targets left unsatisfied first (the relaxation), then the
 /// labour plus horizon × upkeep.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -719,6 +722,8 @@ impl Dfs {
 /// own end proves nothing (its neighbourhood is not the whole space).
 struct Probes<'a> {
     search: Search<'a>,
+    /// Rerouting's local search, which proposes every other round's neighbourhood.
+    reroute: Reroute,
     dfs: Dfs,
     backtracks: u64,
     limit: u64,
@@ -733,7 +738,26 @@ impl<'a> Probes<'a> {
         let mut search = search.clone();
         let mut dfs = main.clone();
         while dfs.undo(&mut search) {}
+        let roots = search.nodes.len();
+        let reroute = Reroute::new(
+            search.own.clone(),
+            search.further_cost.clone(),
+            search
+                .for_input
+                .iter()
+                .map(|inputs| {
+                    inputs
+                        .iter()
+                        .map(|statics| statics.iter().map(|s| (s.tid, s.port)).collect())
+                        .collect()
+                })
+                .collect(),
+            search.ports_target.clone(),
+            search.channel_of.clone(),
+            search.node_tids[1..roots].to_vec(),
+        );
         Self {
+            reroute,
             dfs: Dfs::root(&search),
             roots: search.nodes.len(),
             search,
@@ -747,11 +771,35 @@ impl<'a> Probes<'a> {
     fn run(&mut self, best: &mut Best, expansions: &mut u64) {
         if self.search.guide.is_none() {
             self.round += 1;
-            self.search.guide = best
-                .nodes
-                .as_deref()
-                .map(|nodes| Guide::around(nodes, &best.node_tids, self.roots, self.round));
-            self.search.perturbation = Some(Perturbation::new(self.round));
+            // Odd rounds reroute first: a cheaper whole graph, when rerouting finds one, is
+            // the round's neighbourhood (built as it is); else the round frees a few targets.
+            let rerouted = if self.round % 2 == 1 {
+                if let Some(nodes) = best.nodes.as_deref()
+                    && self.reroute.wants(best.cost)
+                {
+                    let tids = &best.node_tids;
+                    let targets: Vec<Option<(usize, usize)>> = nodes[0]
+                        .inputs
+                        .iter()
+                        .map(|l| l.map(|l| (tids[l.node], l.port)))
+                        .collect();
+                    let inputs = nodes.iter().enumerate().skip(1).flat_map(|(n, node)| {
+                        node.inputs.iter().enumerate().filter_map(move |(i, l)| {
+                            l.map(|l| (tids[n], i, (tids[l.node], l.port)))
+                        })
+                    });
+                    self.reroute.adopt(best.cost, inputs, &targets);
+                }
+                self.reroute.improve(REROUTE_MOVES, best.cost)
+            } else {
+                None
+            };
+            self.search.perturbation = rerouted.is_none().then(|| Perturbation::new(self.round));
+            self.search.guide = rerouted.or_else(|| {
+                best.nodes
+                    .as_deref()
+                    .map(|nodes| Guide::around(nodes, &best.node_tids, self.roots, self.round))
+            });
         }
         let ended = loop {
             match self.dfs.step(&mut self.search, best) {
@@ -769,6 +817,9 @@ impl<'a> Probes<'a> {
         }
     }
 }
+
+/// Rerouting moves per odd probe round (each reroutes one to a few targets).
+const REROUTE_MOVES: u32 = 16;
 
 /// A neighbourhood of a graph (one probe round): the provider each job keeps, keyed by the
 /// consumer (a target, or a transformation's input); jobs not listed choose freely.

@@ -206,6 +206,11 @@ pub fn executor(service: &Service, name: &str) -> Killed {
 
 /// A stand-alone executor connected to the Zenoh endpoint `connect`, with `args`.
 pub fn executor_with(connect: &str, name: &str, args: &[&str]) -> Killed {
+    executor_keeping(connect, name, args).0
+}
+
+/// [`executor_with`], keeping the last lines the executor writes (for a failure's message).
+pub fn executor_keeping(connect: &str, name: &str, args: &[&str]) -> (Killed, Tail) {
     let dir = std::path::Path::new(BIN).parent().unwrap();
     let path = format!(
         "{}:{}",
@@ -221,8 +226,8 @@ pub fn executor_with(connect: &str, name: &str, args: &[&str]) -> Killed {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for_line(&mut child, "connected to");
-    Killed(child)
+    let (_, tail) = wait_for_line_keeping(&mut child, "connected to");
+    (Killed(child), tail)
 }
 
 impl Drop for Killed {
@@ -409,6 +414,11 @@ impl Listener {
             rx,
             _subscriber: subscriber,
         }
+    }
+
+    /// The next sample, if one arrives within `wait`.
+    pub fn within(&self, wait: Duration) -> Option<(Instant, Sample)> {
+        self.rx.recv_timeout(wait).ok()
     }
 
     /// The samples that arrived and were not taken yet, without waiting.
