@@ -26,22 +26,9 @@ fn rss_kb() -> u64 {
 }
 
 fn router(listen: &[String], connect: &[String]) -> zenoh::Session {
-    let mut config = zenoh::Config::default();
-    let json = |v: &[String]| serde_json::to_string(v).unwrap();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &json(listen))
-        .unwrap();
-    config
-        .insert_json5("connect/endpoints", &json(connect))
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("scouting/gossip/enabled", "false")
-        .unwrap();
-    zenoh::open(config).wait().unwrap()
+    zenoh::open(dyknow_cu::router_config(listen, connect).unwrap())
+        .wait()
+        .unwrap()
 }
 
 fn main() {

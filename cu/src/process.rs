@@ -111,6 +111,19 @@ pub fn client_config_file(
     client_config_from(base, endpoints)
 }
 
+/// A Zenoh router configuration listening on `listen` and connecting to `connect`, scouting
+/// off: a router of its own on loopback, as tests, benchmarks and examples start one.
+pub fn router_config(listen: &[String], connect: &[String]) -> Result<zenoh::Config, CuError> {
+    let json = |v: &dyn erased::Json| v.json();
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", &json(&"router"))?;
+    config.insert_json5("listen/endpoints", &json(&listen))?;
+    config.insert_json5("connect/endpoints", &json(&connect))?;
+    config.insert_json5("scouting/multicast/enabled", "false")?;
+    config.insert_json5("scouting/gossip/enabled", "false")?;
+    Ok(config)
+}
+
 fn client_config_from(
     mut config: zenoh::Config,
     endpoints: &[String],

@@ -10,23 +10,8 @@ use std::time::Duration;
 use dyknow_cu::zenoh::{self, Wait};
 
 fn router(listen: &str, connect: &[&str]) -> zenoh::Session {
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{listen}\"]"))
-        .unwrap();
-    config
-        .insert_json5(
-            "connect/endpoints",
-            &serde_json::to_string(connect).unwrap(),
-        )
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("scouting/gossip/enabled", "false")
-        .unwrap();
+    let connect: Vec<String> = connect.iter().map(|c| (*c).to_owned()).collect();
+    let config = dyknow_cu::router_config(&[listen.to_owned()], &connect).unwrap();
     zenoh::open(config).wait().unwrap()
 }
 

@@ -77,18 +77,9 @@ fn free_port() -> u16 {
 }
 
 fn router(endpoint: &str) -> zenoh::Session {
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").unwrap();
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    config
-        .insert_json5("scouting/gossip/enabled", "false")
-        .unwrap();
-    zenoh::open(config).wait().unwrap()
+    zenoh::open(dyknow_cu::router_config(&[endpoint.to_owned()], &[]).unwrap())
+        .wait()
+        .unwrap()
 }
 
 /// A source and a sink on the ends of one chain.

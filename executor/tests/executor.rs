@@ -24,17 +24,7 @@ fn free_port() -> u16 {
 /// A router session listening on a fresh loopback port; returns it and its endpoint.
 fn session() -> (zenoh::Session, String) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut config = zenoh::Config::default();
-    config.insert_json5("mode", "\"router\"").expect("mode");
-    config
-        .insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .expect("listen");
-    config
-        .insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    config
-        .insert_json5("scouting/gossip/enabled", "false")
-        .expect("gossip");
+    let config = dyknow_cu::router_config(std::slice::from_ref(&endpoint), &[]).expect("a config");
     (zenoh::open(config).wait().expect("a session"), endpoint)
 }
 

@@ -37,15 +37,8 @@ fn free_port() -> u16 {
 /// The manager's router session and an executor's client session connected to it.
 fn sessions() -> (zenoh::Session, zenoh::Session) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut router = zenoh::Config::default();
-    for (key, value) in [
-        ("mode", "\"router\"".to_owned()),
-        ("listen/endpoints", format!("[\"{endpoint}\"]")),
-        ("scouting/multicast/enabled", "false".to_owned()),
-        ("scouting/gossip/enabled", "false".to_owned()),
-    ] {
-        router.insert_json5(key, &value).expect("a router config");
-    }
+    let router =
+        dyknow_cu::router_config(std::slice::from_ref(&endpoint), &[]).expect("a router config");
     let router = zenoh::open(router).wait().expect("a router");
     let client = dyknow_cu::client_config(&[endpoint]).expect("a client config");
     let client = zenoh::open(client).wait().expect("a client");
