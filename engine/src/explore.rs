@@ -774,21 +774,8 @@ impl<'a> Probes<'a> {
             // Odd rounds reroute first: a cheaper whole graph, when rerouting finds one, is
             // the round's neighbourhood (built as it is); else the round frees a few targets.
             let rerouted = if self.round % 2 == 1 {
-                if let Some(nodes) = best.nodes.as_deref()
-                    && self.reroute.wants(best.cost)
-                {
-                    let tids = &best.node_tids;
-                    let targets: Vec<Option<(usize, usize)>> = nodes[0]
-                        .inputs
-                        .iter()
-                        .map(|l| l.map(|l| (tids[l.node], l.port)))
-                        .collect();
-                    let inputs = nodes.iter().enumerate().skip(1).flat_map(|(n, node)| {
-                        node.inputs.iter().enumerate().filter_map(move |(i, l)| {
-                            l.map(|l| (tids[n], i, (tids[l.node], l.port)))
-                        })
-                    });
-                    self.reroute.adopt(best.cost, inputs, &targets);
+                if let Some(nodes) = best.nodes.as_deref() {
+                    self.reroute.adopt(best.cost, nodes, &best.node_tids);
                 }
                 self.reroute.improve(REROUTE_MOVES, best.cost)
             } else {

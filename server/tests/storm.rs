@@ -273,13 +273,11 @@ fn a_crash_storm_is_coalesced_and_repaired_within_one_review() {
             .and_then(|g| g["inputs"]["in"].as_str().map(str::to_owned));
         let upstream = guard_in.as_deref().map(|c| Listener::new(&fresh, c));
         let on_target = again.within(Duration::from_secs(10)).is_some();
-        let on_input =
-            upstream.and_then(|u| u.within(Duration::from_secs(10)).is_some().then_some(()));
+        let on_input = upstream.is_some_and(|u| u.within(Duration::from_secs(10)).is_some());
         panic!(
             "no sample on /storm{i} for 30 s after the storm; a fresh session's subscriber got \
-             one: {on_target}; on the guard's input ({guard_in:?}): {}; the guard: {guard:?}; \
+             one: {on_target}; on the guard's input ({guard_in:?}): {on_input}; the guard: {guard:?}; \
              the counter: {:?}; the environment: {}; the executor's last lines: {:?}",
-            on_input.is_some(),
             service.cu_of(&format!("counter{i}")),
             service.get("/environment"),
             executor_tail.lock().unwrap(),

@@ -21,7 +21,7 @@
 //! builds and costs itself. A graph whose wiring the search rejects (a cycle, a channel clash
 //! the cost model here does not see) is simply not found.
 
-use super::{Cost, Guide, splitmix};
+use super::{Cost, Guide, Link, PlanNode, splitmix};
 
 /// The configuration problem as rerouting sees it, and its current and cheapest graphs.
 #[derive(Clone)]
@@ -159,26 +159,23 @@ impl Reroute {
         reroute
     }
 
-    /// Whether a graph of this cost is cheaper than the cheapest here (then [`Self::adopt`] it).
-    pub(super) fn wants(&self, cost: Cost) -> bool {
-        cost.below(self.best)
-    }
-
-    /// Starts again from a graph (the search's best): each input's and target's provider as
-    /// (transformation, out port), when `cost` is cheaper than the cheapest graph here.
-    pub(super) fn adopt(
-        &mut self,
-        cost: Cost,
-        inputs: impl IntoIterator<Item = (usize, usize, (usize, usize))>,
-        targets: &[Option<(usize, usize)>],
-    ) {
+    /// Starts again from a plan (the search's best: `nodes`, each node's transformation in
+    /// `tids`) when `cost` is cheaper than the cheapest graph here.
+    pub(super) fn adopt(&mut self, cost: Cost, nodes: &[PlanNode], tids: &[usize]) {
         if !cost.below(self.best) {
             return;
         }
-        for (t, i, provider) in inputs {
-            self.feeds[self.start[t] + i] = Some(provider);
+        let link = |l: Option<Link>| l.map(|l| (tids[l.node], l.port));
+        for (n, node) in nodes.iter().enumerate().skip(1) {
+            for (i, l) in node.inputs.iter().enumerate() {
+                if let Some(provider) = link(*l) {
+                    self.feeds[self.start[tids[n]] + i] = Some(provider);
+                }
+            }
         }
-        self.fed.copy_from_slice(targets);
+        for (fed, l) in self.fed.iter_mut().zip(&nodes[0].inputs) {
+            *fed = link(*l);
+        }
         self.cost = self.evaluate();
         self.stale = 0;
         if self.cost.below(self.best) {
