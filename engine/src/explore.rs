@@ -111,7 +111,8 @@ pub struct ProbeOptions {
     /// e.g. for its first solution, never copies its state for one).
     pub after: u64,
     /// The main search and the probes take turns: the main search for this many backtracks,
-    /// then the probes for as long as that took (half the time each).
+    /// then the probes: up to three times the main search's time in all while they keep
+    /// finding cheaper graphs, a third of it once they stop.
     pub every: u64,
     /// Backtracks of one probe round before the next round (another neighbourhood).
     pub limit: u64,
@@ -516,6 +517,7 @@ pub fn explore(
     let root_bound = search.lower_bound(&main.jobs, Cost::INFINITE);
     let mut since = Instant::now();
     let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
+    let mut last_gain = 0u64;
     // Lines 9–40.
     loop {
         match main.step(&mut search, &mut best) {
@@ -546,10 +548,20 @@ pub fn explore(
             // dive may overshoot; the next turn then waits), and never past the deadline.
             main_time += since.elapsed();
             let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit));
-            while probe_time < main_time && deadline.is_none_or(|d| Instant::now() < d) {
+            // While the probes keep finding cheaper graphs they take three quarters of the
+            // time, once they stop a quarter (the main search's proof then comes sooner).
+            let fresh = probes.round < last_gain + GAIN_WINDOW;
+            let share = if fresh { 3.0 } else { 1.0 / 3.0 };
+            while probe_time.as_secs_f64() < share * main_time.as_secs_f64()
+                && deadline.is_none_or(|d| Instant::now() < d)
+            {
                 let turn = Instant::now();
+                let before = best.cost;
                 probes.run(&mut best, &mut expansions);
                 probe_time += turn.elapsed();
+                if best.cost.below(before) {
+                    last_gain = probes.round;
+                }
             }
             since = Instant::now();
         }
@@ -712,8 +724,9 @@ impl Dfs {
 /// decisions for as long as it cannot prove them optimal, so on large libraries its any-time
 /// cost stops improving. In any-time mode, once the main search has backtracked
 /// [`ProbeOptions::after`] times, a second search on its own copy of the plan takes turns with
-/// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run for as
-/// long as those took. Each of their rounds frees a few targets chosen from a seed: the jobs of
+/// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run until
+/// their time in all is three times the main search's while they keep finding cheaper graphs
+/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. Each of their rounds frees a few targets chosen from a seed: the jobs of
 /// the best graph that serve only other targets keep their provider ([`Guide`]), the freed ones
 /// choose among all theirs (in an order perturbed by the seed), and Algorithm 4 searches that
 /// neighbourhood, pruning by cost against the one best cost, for at most
@@ -804,6 +817,10 @@ impl<'a> Probes<'a> {
         }
     }
 }
+
+/// How recently (probe rounds) the probes must have found a cheaper graph to keep the larger
+/// share of the time.
+const GAIN_WINDOW: u64 = 64;
 
 /// Rerouting moves per odd probe round (each reroutes one to a few targets).
 const REROUTE_MOVES: u32 = 16;

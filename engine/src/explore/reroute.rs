@@ -44,6 +44,16 @@ pub(super) struct Reroute {
     /// fixpoint).
     order: Vec<usize>,
     sweeps: bool,
+    /// The transformations whose inputs each one may feed, and each one's place in `order`.
+    consumers: Vec<Vec<usize>>,
+    position: Vec<usize>,
+    /// Whether the programme is computed on demand and patched after each target is
+    /// rerouted, rather than run whole for each (the same values: see `demand` and
+    /// `program_patched`; off only in a test that checks it, and when the table has cycles).
+    patch: bool,
+    /// The programme's values computed in this generation (on demand).
+    stamp: Vec<u32>,
+    generation: u32,
     /// The current graph: each input's provider (meaningful for transformations in the
     /// graph only) and each target's.
     feeds: Vec<Option<(usize, usize)>>,
@@ -57,6 +67,9 @@ pub(super) struct Reroute {
     random: u64,
     /// Moves since the current graph last got cheaper.
     stale: u32,
+    /// What the current move changed: (index, link before), inputs' indices first, then the
+    /// targets' after them.
+    undo: Vec<(usize, Option<(usize, usize)>)>,
     /// Scratch: reroute costs, their choices, membership in the graph, colours of the cycle
     /// check, (transformation, port, channel) triples of the targets fed.
     value: Vec<f64>,
@@ -125,6 +138,10 @@ impl Reroute {
             }
             order.extend((0..n).filter(|t| !placed[*t]));
         }
+        let mut position = vec![0; n];
+        for (k, t) in order.iter().enumerate() {
+            position[*t] = k;
+        }
         let inputs = for_input.len();
         let targets = for_target.len();
         let mut reroute = Self {
@@ -137,6 +154,11 @@ impl Reroute {
             fixed,
             order,
             sweeps,
+            consumers,
+            position,
+            patch: !sweeps,
+            stamp: vec![0; n],
+            generation: 0,
             feeds: vec![None; inputs],
             fed: vec![None; targets],
             cost: Cost::INFINITE,
@@ -146,6 +168,7 @@ impl Reroute {
             proposed: Cost::INFINITE,
             random: 0x5eed,
             stale: 0,
+            undo: Vec::new(),
             value: vec![0.0; n],
             choice: vec![None; inputs],
             member: vec![false; n],
@@ -209,7 +232,7 @@ impl Reroute {
         if targets == 0 {
             return;
         }
-        let (feeds, fed, cost) = (self.feeds.clone(), self.fed.clone(), self.cost);
+        let cost = self.cost;
         let r = self.next();
         let kick = self.stale >= KICK_AFTER;
         let mut ripped: Vec<usize> = Vec::new();
@@ -240,12 +263,7 @@ impl Reroute {
                 .collect();
             if let Some(&f) = nodes.get((self.next() % nodes.len().max(1) as u64) as usize) {
                 forbidden = Some(f);
-                for q in 0..targets {
-                    self.closure(Some(q));
-                    if self.member[f] {
-                        ripped.push(q);
-                    }
-                }
+                self.users(f, &mut ripped);
             }
         }
         if ripped.is_empty() {
@@ -257,10 +275,11 @@ impl Reroute {
             ripped.swap(k, j);
         }
         let noise = [0.0, 0.05, 0.15, 0.3][(self.next() % 4) as usize];
+        self.undo.clear();
         self.rip_up_and_reroute(&ripped, forbidden, noise);
         let after = self.evaluate();
         if kick || !cost.below(after) {
-            if after.below(self.cost) {
+            if after.below(cost) {
                 self.stale = 0;
             } else {
                 self.stale += 1;
@@ -270,10 +289,60 @@ impl Reroute {
                 self.remember();
             }
         } else {
-            self.feeds = feeds;
-            self.fed = fed;
+            // Undone, latest change first.
+            while let Some((k, link)) = self.undo.pop() {
+                match k.checked_sub(self.feeds.len()) {
+                    None => self.feeds[k] = link,
+                    Some(q) => self.fed[q] = link,
+                }
+            }
             self.stale += 1;
         }
+    }
+
+    /// The targets whose graph uses `f`, into `ripped`: one pass over the members, providers
+    /// first, when the table is acyclic; a closure per target otherwise.
+    fn users(&mut self, f: usize, ripped: &mut Vec<usize>) {
+        if self.sweeps {
+            for q in 0..self.fed.len() {
+                self.closure(Some(q));
+                if self.member[f] {
+                    ripped.push(q);
+                }
+            }
+            return;
+        }
+        // `colour` as scratch: 1 when the transformation's graph reaches `f`.
+        self.colour.fill(0);
+        for k in 0..self.order.len() {
+            let t = self.order[k];
+            if !self.member[t] {
+                continue;
+            }
+            let reaches = t == f
+                || self.feeds[self.start[t]..self.start[t + 1]]
+                    .iter()
+                    .flatten()
+                    .any(|(p, _)| self.colour[*p] == 1);
+            self.colour[t] = u8::from(reaches);
+        }
+        for (q, link) in self.fed.iter().enumerate() {
+            if link.is_some_and(|(t, _)| self.colour[t] == 1) {
+                ripped.push(q);
+            }
+        }
+    }
+
+    /// Feeds input `i` (of the flat arrays) from `link`, remembering what it read before.
+    fn set_feed(&mut self, i: usize, link: Option<(usize, usize)>) {
+        self.undo
+            .push((i, std::mem::replace(&mut self.feeds[i], link)));
+    }
+
+    /// Feeds target `q` from `link`, remembering what it read before.
+    fn set_fed(&mut self, q: usize, link: Option<(usize, usize)>) {
+        let before = std::mem::replace(&mut self.fed[q], link);
+        self.undo.push((self.feeds.len() + q, before));
     }
 
     /// Unfeeds `ripped`, then feeds each in turn along its cheapest completion given what the
@@ -281,12 +350,37 @@ impl Reroute {
     /// `1 + noise`.
     fn rip_up_and_reroute(&mut self, ripped: &[usize], forbidden: Option<usize>, noise: f64) {
         for &q in ripped {
-            self.fed[q] = None;
+            self.set_fed(q, None);
         }
         let seed = self.next();
-        for &q in ripped {
-            self.closure(None);
+        self.closure(None);
+        if self.patch {
+            self.generation = self.generation.wrapping_add(1);
+            if self.generation == 0 {
+                self.stamp.fill(0);
+                self.generation = 1;
+            }
+        } else {
             self.program(forbidden, noise, seed);
+        }
+        let mut added = Vec::new();
+        for (k, &q) in ripped.iter().enumerate() {
+            if k > 0 {
+                // What the last target's route added costs nothing now.
+                if self.patch {
+                    self.program_patched(&added, forbidden, noise, seed);
+                } else {
+                    self.closure(None);
+                    self.program(forbidden, noise, seed);
+                }
+            }
+            if self.patch {
+                for k in 0..self.for_target[q].len() {
+                    let t = self.for_target[q][k].0;
+                    self.demand(t, forbidden, noise, seed);
+                }
+            }
+            added.clear();
             // The cheapest out port: a node in the graph whose port feeds another channel
             // needs a further node (its inputs read what the first reads).
             let mut pick: Option<((usize, usize), f64)> = None;
@@ -300,15 +394,16 @@ impl Reroute {
                 }
             }
             let Some((link, _)) = pick else { continue };
-            self.fed[q] = Some(link);
+            self.set_fed(q, Some(link));
             // Wire the new transformations along the programme's choices.
             let mut stack = vec![link.0];
             while let Some(t) = stack.pop() {
                 if std::mem::replace(&mut self.member[t], true) {
                     continue;
                 }
+                added.push(t);
                 for i in self.start[t]..self.start[t + 1] {
-                    self.feeds[i] = self.choice[i];
+                    self.set_feed(i, self.choice[i]);
                     if let Some((p, _)) = self.choice[i] {
                         stack.push(p);
                     }
@@ -320,36 +415,12 @@ impl Reroute {
     /// The reroute cost of every transformation given the graph's members (free), and the
     /// cheapest provider of each input.
     fn program(&mut self, forbidden: Option<usize>, noise: f64, seed: u64) {
-        for t in 0..self.own.len() {
-            self.value[t] = f64::INFINITY;
-        }
+        self.value.fill(f64::INFINITY);
         loop {
             let mut changed = false;
             for k in 0..self.order.len() {
                 let t = self.order[k];
-                let v = if self.member[t] {
-                    0.0
-                } else if Some(t) == forbidden {
-                    f64::INFINITY
-                } else {
-                    let mut v = self.own[t];
-                    if noise > 0.0 {
-                        let z = splitmix(seed ^ t as u64);
-                        v *= 1.0 + noise * (z >> 11) as f64 / (1u64 << 53) as f64;
-                    }
-                    for i in self.start[t]..self.start[t + 1] {
-                        let mut cheapest: Option<((usize, usize), f64)> = None;
-                        for &(p, port) in &self.for_input[i] {
-                            let c = self.value[p];
-                            if p != t && c.is_finite() && cheapest.is_none_or(|(_, b)| c < b) {
-                                cheapest = Some(((p, port), c));
-                            }
-                        }
-                        self.choice[i] = cheapest.map(|(l, _)| l);
-                        v += cheapest.map_or(f64::INFINITY, |(_, c)| c);
-                    }
-                    v
-                };
+                let v = self.reroute_cost(t, forbidden, noise, seed);
                 if v < self.value[t] {
                     self.value[t] = v;
                     changed = true;
@@ -359,6 +430,116 @@ impl Reroute {
                 break;
             }
         }
+    }
+
+    /// The programme after the transformations `added` joined the graph, when the candidate
+    /// table is acyclic: their values drop to nothing, and only what was computed in this
+    /// generation and reads from them (transitively, while values drop) is computed again,
+    /// providers first. Values only drop, and every transformation computed again sees its
+    /// providers' final values, so the values and choices are those a whole programme would
+    /// compute (what was not computed yet will be, on demand, from the new values).
+    fn program_patched(
+        &mut self,
+        added: &[usize],
+        forbidden: Option<usize>,
+        noise: f64,
+        seed: u64,
+    ) {
+        use std::cmp::Reverse;
+        use std::collections::BinaryHeap;
+        let mut queue: BinaryHeap<Reverse<usize>> = BinaryHeap::new();
+        let now = self.generation;
+        for &t in added {
+            self.value[t] = 0.0;
+            self.stamp[t] = now;
+            for &c in &self.consumers[t] {
+                if self.stamp[c] == now {
+                    queue.push(Reverse(self.position[c]));
+                }
+            }
+        }
+        let mut last = usize::MAX;
+        while let Some(Reverse(k)) = queue.pop() {
+            if k == last {
+                continue; // Queued by several providers.
+            }
+            last = k;
+            let t = self.order[k];
+            let v = self.reroute_cost(t, forbidden, noise, seed);
+            if v < self.value[t] {
+                self.value[t] = v;
+                for &c in &self.consumers[t] {
+                    if self.stamp[c] == now {
+                        queue.push(Reverse(self.position[c]));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The programme's value of `root` and of what it needs (its providers, transitively,
+    /// down to the graph's members), computed once per generation, providers first (the
+    /// table is acyclic here). A transformation computed is one whose providers all are, so
+    /// the values and choices are those the whole programme computes.
+    fn demand(&mut self, root: usize, forbidden: Option<usize>, noise: f64, seed: u64) {
+        let now = self.generation;
+        let mut stack = vec![(root, false)];
+        while let Some((t, ready)) = stack.pop() {
+            if self.stamp[t] == now {
+                continue;
+            }
+            if ready || self.member[t] || Some(t) == forbidden {
+                self.value[t] = self.reroute_cost(t, forbidden, noise, seed);
+                self.stamp[t] = now;
+                continue;
+            }
+            stack.push((t, true));
+            for i in self.start[t]..self.start[t + 1] {
+                // A member feeds the input for nothing: nothing else need be computed.
+                if self.for_input[i].iter().any(|(p, _)| self.member[*p]) {
+                    continue;
+                }
+                for &(p, _) in &self.for_input[i] {
+                    if self.stamp[p] != now {
+                        stack.push((p, false));
+                    }
+                }
+            }
+        }
+    }
+
+    /// One transformation's reroute cost given its providers' (nothing for a member), and
+    /// the cheapest provider of each of its inputs.
+    fn reroute_cost(&mut self, t: usize, forbidden: Option<usize>, noise: f64, seed: u64) -> f64 {
+        if self.member[t] {
+            return 0.0;
+        }
+        if Some(t) == forbidden {
+            return f64::INFINITY;
+        }
+        let mut v = self.own[t];
+        if noise > 0.0 {
+            let z = splitmix(seed ^ t as u64);
+            v *= 1.0 + noise * (z >> 11) as f64 / (1u64 << 53) as f64;
+        }
+        for i in self.start[t]..self.start[t + 1] {
+            let mut cheapest: Option<((usize, usize), f64)> = None;
+            for &(p, port) in &self.for_input[i] {
+                let c = if self.member[p] {
+                    0.0
+                } else if !self.patch || self.stamp[p] == self.generation {
+                    self.value[p]
+                } else {
+                    continue; // Not computed: a member feeds this input.
+                };
+                if p != t && c.is_finite() && cheapest.is_none_or(|(_, b)| c < b) {
+                    cheapest = Some(((p, port), c));
+                }
+            }
+            self.choice[i] = cheapest.map(|(l, _)| l);
+            v += cheapest.map_or(f64::INFINITY, |(_, c)| c);
+        }
+        v
     }
 
     /// Marks the graph's members: what the fixed transformations and the targets fed (only
@@ -403,7 +584,8 @@ impl Reroute {
                 return Cost::INFINITE;
             }
         }
-        if self.cyclic() {
+        // An acyclic candidate table wires no cycle.
+        if self.sweeps && self.cyclic() {
             return Cost::INFINITE;
         }
         // Further nodes: a port feeding k channels needs k - 1 of them; a node's further nodes
@@ -518,7 +700,15 @@ mod tests {
     /// transformations reading one or two tags of the level below; targets on channels of
     /// their own want top-level tags.
     fn layered(seed: u64, targets: usize) -> Reroute {
-        let (levels, tags, alts) = (3, 2, 2);
+        layered_sized(seed, (3, 2, 2), targets)
+    }
+
+    /// [`layered`] with `levels` levels of `tags` tags, `alts` producers each.
+    fn layered_sized(
+        seed: u64,
+        (levels, tags, alts): (usize, usize, usize),
+        targets: usize,
+    ) -> Reroute {
         let mut random = seed;
         let mut next = || {
             random = splitmix(random);
@@ -602,6 +792,64 @@ mod tests {
             }
             if k == pick.len() {
                 return best;
+            }
+        }
+    }
+
+    /// A move's time at 2,000 transformations × 50 targets, patched and whole programme, which
+    /// must end at the same graph (prints the times; ignored as a measurement):
+    /// `cargo test --release -p dyknow-engine --lib speed -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn speed() {
+        const MOVES: u32 = 5_000;
+        let mut patched = layered_sized(1, (5, 133, 3), 50);
+        let mut whole = patched.clone();
+        whole.patch = false;
+        let first = patched.best();
+        let time = |r: &mut Reroute| {
+            let start = std::time::Instant::now();
+            r.improve(MOVES, Cost::INFINITE);
+            start.elapsed() / MOVES
+        };
+        let (fast, slow) = (time(&mut patched), time(&mut whole));
+        eprintln!(
+            "per move: patched {fast:?}, whole {slow:?}; cost {first:?} -> {:?}",
+            patched.best()
+        );
+        assert_eq!(patched.best, whole.best);
+        assert_eq!(patched.best_feeds, whole.best_feeds);
+    }
+
+    #[test]
+    fn the_patched_programme_routes_as_the_whole_one_does() {
+        for seed in 0..24 {
+            let mut patched = layered_sized(seed, (4, 5, 3), 2 + seed as usize % 7);
+            let mut whole = patched.clone();
+            whole.patch = false;
+            for _ in 0..20 {
+                patched.improve(10, Cost::INFINITE);
+                whole.improve(10, Cost::INFINITE);
+                assert_eq!(patched.feeds, whole.feeds, "seed {seed}");
+                assert_eq!(patched.fed, whole.fed, "seed {seed}");
+                assert_eq!(patched.best, whole.best, "seed {seed}");
+                // The users of each node: one pass, as a closure per target finds them.
+                patched.closure(None);
+                let members: Vec<usize> = (0..patched.own.len())
+                    .filter(|t| patched.member[*t])
+                    .collect();
+                for f in members {
+                    let mut one_pass = Vec::new();
+                    patched.closure(None);
+                    patched.users(f, &mut one_pass);
+                    let by_closure: Vec<usize> = (0..patched.fed.len())
+                        .filter(|q| {
+                            patched.closure(Some(*q));
+                            patched.member[f]
+                        })
+                        .collect();
+                    assert_eq!(one_pass, by_closure, "seed {seed}, node {f}");
+                }
             }
         }
     }
