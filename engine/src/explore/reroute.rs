@@ -21,6 +21,8 @@
 //! builds and costs itself. A graph whose wiring the search rejects (a cycle, a channel clash
 //! the cost model here does not see) is simply not found.
 
+use std::time::Instant;
+
 use super::{Cost, Guide, Link, PlanNode, splitmix};
 
 /// The configuration problem as rerouting sees it, and its current and cheapest graphs.
@@ -208,10 +210,19 @@ impl Reroute {
         self.proposed = self.best;
     }
 
-    /// Runs `moves` moves; returns a neighbourhood for a probe round when the cheapest graph
-    /// found is cheaper than both `bound` (the search's best cost) and the last one proposed.
-    pub(super) fn improve(&mut self, moves: u32, bound: Cost) -> Option<Guide> {
-        for _ in 0..moves {
+    /// Runs `moves` moves (fewer when `deadline` passes first: it is read every 16 moves);
+    /// returns a neighbourhood for a probe round when the cheapest graph found is cheaper than
+    /// both `bound` (the search's best cost) and the last one proposed.
+    pub(super) fn improve(
+        &mut self,
+        moves: u32,
+        bound: Cost,
+        deadline: Option<Instant>,
+    ) -> Option<Guide> {
+        for k in 0..moves {
+            if k % 16 == 15 && deadline.is_some_and(|d| Instant::now() >= d) {
+                break;
+            }
             self.step();
         }
         (self.best.below(bound) && self.best.below(self.proposed)).then(|| {
@@ -809,7 +820,7 @@ mod tests {
         let first = patched.best();
         let time = |r: &mut Reroute| {
             let start = std::time::Instant::now();
-            r.improve(MOVES, Cost::INFINITE);
+            r.improve(MOVES, Cost::INFINITE, None);
             start.elapsed() / MOVES
         };
         let (fast, slow) = (time(&mut patched), time(&mut whole));
@@ -822,14 +833,24 @@ mod tests {
     }
 
     #[test]
+    fn a_passed_deadline_ends_the_moves() {
+        let mut late = layered(3, 4);
+        let mut fifteen = late.clone();
+        late.improve(1_000_000, Cost::INFINITE, Some(Instant::now()));
+        fifteen.improve(15, Cost::INFINITE, None);
+        assert_eq!(late.random, fifteen.random, "15 moves, then the deadline");
+        assert_eq!(late.feeds, fifteen.feeds);
+    }
+
+    #[test]
     fn the_patched_programme_routes_as_the_whole_one_does() {
         for seed in 0..24 {
             let mut patched = layered_sized(seed, (4, 5, 3), 2 + seed as usize % 7);
             let mut whole = patched.clone();
             whole.patch = false;
             for _ in 0..20 {
-                patched.improve(10, Cost::INFINITE);
-                whole.improve(10, Cost::INFINITE);
+                patched.improve(10, Cost::INFINITE, None);
+                whole.improve(10, Cost::INFINITE, None);
                 assert_eq!(patched.feeds, whole.feeds, "seed {seed}");
                 assert_eq!(patched.fed, whole.fed, "seed {seed}");
                 assert_eq!(patched.best, whole.best, "seed {seed}");
@@ -862,7 +883,7 @@ mod tests {
             let mut r = layered(seed, 1 + (seed % 3) as usize);
             let optimum = optimum(&r);
             let first = r.best();
-            r.improve(400, Cost::INFINITE);
+            r.improve(400, Cost::INFINITE, None);
             let found = r.best();
             assert_eq!(found.unsatisfied, 0);
             // Never below the optimum (the cost model is the brute force's), never worse than
@@ -885,7 +906,9 @@ mod tests {
     #[test]
     fn a_guide_keeps_every_job_of_the_cheapest_graph_and_is_proposed_once() {
         let mut r = layered(7, 2);
-        let guide = r.improve(100, Cost::INFINITE).expect("a first proposal");
+        let guide = r
+            .improve(100, Cost::INFINITE, None)
+            .expect("a first proposal");
         for q in 0..2 {
             assert_eq!(guide.kept(usize::MAX, q), Some(r.best_fed[q]));
         }
@@ -905,8 +928,8 @@ mod tests {
         }
         // The same graph is not proposed twice, and never when the search has one as cheap.
         let best = r.best();
-        let again = r.improve(100, Cost::INFINITE);
+        let again = r.improve(100, Cost::INFINITE, None);
         assert!(again.is_none() || r.best().below(best));
-        assert!(r.improve(0, r.best()).is_none());
+        assert!(r.improve(0, r.best(), None).is_none());
     }
 }
