@@ -727,7 +727,8 @@ impl Dfs {
 /// [`ProbeOptions::after`] times, a second search on its own copy of the plan takes turns with
 /// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run until
 /// their time in all is three times the main search's while they keep finding cheaper graphs
-/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. Each of their rounds frees a few targets chosen from a seed: the jobs of
+/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. Each of their
+/// rounds frees a few targets chosen from a seed: the jobs of
 /// the best graph that serve only other targets keep their provider ([`Guide`]), the freed ones
 /// choose among all theirs (in an order perturbed by the seed), and Algorithm 4 searches that
 /// neighbourhood, pruning by cost against the one best cost, for at most

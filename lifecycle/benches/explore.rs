@@ -479,21 +479,21 @@ fn row(
     let _ = out.flush();
 }
 
-fn main() {
-    let quick = std::env::var("BENCH_QUICK").is_ok();
-    // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently (e.g. short, when iterating).
-    let cap = Duration::from_secs(
-        std::env::var("EXPLORE_CAP_SECONDS")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(if quick { 2 } else { 10 }),
-    );
-    // `EXPLORE_CPSAT_SECONDS=N` caps CP-SAT differently (e.g. short, when iterating on
-    // EXPLORE with `EXPLORE_ONLY`; the published gaps are against the 60 s reference).
-    let cpsat_seconds = std::env::var("EXPLORE_CPSAT_SECONDS")
+/// The whole seconds in environment variable `name`, else `default`.
+fn seconds(name: &str, default: u64) -> u64 {
+    std::env::var(name)
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(if quick { 10 } else { 60 });
+        .unwrap_or(default)
+}
+
+fn main() {
+    let quick = std::env::var("BENCH_QUICK").is_ok();
+    // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently, `EXPLORE_CPSAT_SECONDS=N`
+    // CP-SAT (e.g. short, when iterating on EXPLORE with `EXPLORE_ONLY`; the published gaps
+    // are against the 60 s reference).
+    let cap = Duration::from_secs(seconds("EXPLORE_CAP_SECONDS", if quick { 2 } else { 10 }));
+    let cpsat_seconds = seconds("EXPLORE_CPSAT_SECONDS", if quick { 10 } else { 60 });
     let dir = tempfile::tempdir().unwrap();
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "# DyKnow reconfiguration benchmark\n");
