@@ -10,6 +10,12 @@
 //!    fan-out (tags consumed by several transformations). Time to a proven optimum (capped),
 //!    and the any-time cost gap to the best known cost at 10, 100 and 1,000 ms.
 //!
+//! Settings for iterating (environment): `EXPLORE_ONLY=layered-2000x50,…` runs only these
+//! rows; `EXPLORE_CAP_SECONDS`, `EXPLORE_CPSAT_SECONDS` cap the proof and CP-SAT (10 and 60 s);
+//! `EXPLORE_AT=10,100,1000` sets the any-time columns (ms); `EXPLORE_SEED=k` generates the
+//! layered instances from another seed (0 is the published one); `EXPLORE_INSTANCES=DIR` keeps
+//! each instance as JSON.
+//!
 //! EXPLORE has no published peer to run side by side (the thesis' implementation is not
 //! available); the brute-force optimum of `engine/tests/brute_force.rs` is the reference for
 //! correctness on small environments, and the best known cost is the reference here.
@@ -415,7 +421,7 @@ fn row(
     // First solution: the smallest timeout (backtracking stops as soon as one exists).
     let first = run(Some(Duration::ZERO));
     let full = run(Some(cap));
-    let at: Vec<_> = [10u64, 100, 1000]
+    let at: Vec<_> = any_time_millis()
         .iter()
         .map(|t| run(Some(Duration::from_millis(*t))))
         .collect();
@@ -479,12 +485,35 @@ fn row(
     let _ = out.flush();
 }
 
-/// The whole seconds in environment variable `name`, else `default`.
-fn seconds(name: &str, default: u64) -> u64 {
+/// The whole number in environment variable `name`, else `default`.
+fn number(name: &str, default: u64) -> u64 {
     std::env::var(name)
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(default)
+}
+
+/// The any-time columns' timeouts in milliseconds: `EXPLORE_AT=10,100,1000` (the default;
+/// other times show how long an instance takes to come within a gap).
+fn any_time_millis() -> [u64; 3] {
+    match std::env::var("EXPLORE_AT") {
+        Err(_) => [10, 100, 1000],
+        Ok(v) => {
+            let given: Vec<u64> = v.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+            given.try_into().unwrap_or_else(|_| {
+                panic!("EXPLORE_AT takes three times in milliseconds, e.g. 10,100,1000")
+            })
+        }
+    }
+}
+
+/// Milliseconds with a thousands separator.
+fn grouped(ms: u64) -> String {
+    if ms >= 1000 {
+        format!("{},{:03}", ms / 1000, ms % 1000)
+    } else {
+        ms.to_string()
+    }
 }
 
 fn main() {
@@ -492,8 +521,8 @@ fn main() {
     // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently, `EXPLORE_CPSAT_SECONDS=N`
     // CP-SAT (e.g. short, when iterating on EXPLORE with `EXPLORE_ONLY`; the published gaps
     // are against the 60 s reference).
-    let cap = Duration::from_secs(seconds("EXPLORE_CAP_SECONDS", if quick { 2 } else { 10 }));
-    let cpsat_seconds = seconds("EXPLORE_CPSAT_SECONDS", if quick { 10 } else { 60 });
+    let cap = Duration::from_secs(number("EXPLORE_CAP_SECONDS", if quick { 2 } else { 10 }));
+    let cpsat_seconds = number("EXPLORE_CPSAT_SECONDS", if quick { 10 } else { 60 });
     let dir = tempfile::tempdir().unwrap();
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "# DyKnow reconfiguration benchmark\n");
@@ -511,9 +540,10 @@ fn main() {
         "\n## Generated environments against CP-SAT (horizon 10; EXPLORE's proof capped at {} s, CP-SAT's at {cpsat_seconds} s, 2 workers)\n",
         cap.as_secs()
     );
+    let [a, b, c] = any_time_millis().map(grouped);
     let _ = writeln!(
         out,
-        "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | CP-SAT (status, time) | gap to CP-SAT at 10 ms | at 100 ms | at 1,000 ms |"
+        "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | CP-SAT (status, time) | gap to CP-SAT at {a} ms | at {b} ms | at {c} ms |"
     );
     let _ = writeln!(
         out,
@@ -532,7 +562,7 @@ fn main() {
         ]
     };
     for &(n, q) in layered {
-        let instance = generated(n, q, 0x5eed + n as u64);
+        let instance = generated(n, q, 0x5eed + n as u64 + number("EXPLORE_SEED", 0));
         row(&mut out, "layered", (n, q), instance, cap, cpsat_seconds);
     }
     let trees: &[(usize, usize)] = if quick {

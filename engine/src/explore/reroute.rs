@@ -79,10 +79,17 @@ pub(super) struct Reroute {
     member: Vec<bool>,
     colour: Vec<u8>,
     ports: Vec<(usize, usize, usize)>,
+    /// Kicks since the cheapest graph last got cheaper, and its cost at the last kick.
+    failed_kicks: u32,
+    best_at_kick: Option<Cost>,
 }
 
 /// Moves without progress before a kick.
 const KICK_AFTER: u32 = 64;
+
+/// The share of the targets a kick rips up (each with probability numerator / denominator),
+/// by the number of kicks in a row that found nothing cheaper before it, modulo 4.
+const KICK_SHARES: [(u64, u64); 4] = [(1, 3), (1, 2), (2, 3), (1, 1)];
 
 impl Reroute {
     /// The problem: `own`, `further`, the providers of each transformation's inputs and of each
@@ -176,6 +183,8 @@ impl Reroute {
             member: vec![false; n],
             colour: vec![0; n],
             ports: Vec::new(),
+            failed_kicks: 0,
+            best_at_kick: None,
         };
         // Start from every target rerouted in turn, nothing kept.
         reroute.rip_up_and_reroute(&(0..targets).collect::<Vec<_>>(), None, 0.0);
@@ -249,11 +258,20 @@ impl Reroute {
         let mut ripped: Vec<usize> = Vec::new();
         let mut forbidden = None;
         if kick {
-            // A third of the targets, from the cheapest graph found.
+            // Targets of the cheapest graph found.
             self.feeds.clone_from(&self.best_feeds);
             self.fed.clone_from(&self.best_fed);
+            // A third, a half, two thirds, then every target: each kick after one that found
+            // nothing cheaper rips up more (and the fifth starts again at a third).
+            if self.best_at_kick == Some(self.best) {
+                self.failed_kicks += 1;
+            } else {
+                self.failed_kicks = 0;
+            }
+            self.best_at_kick = Some(self.best);
+            let (num, den) = KICK_SHARES[(self.failed_kicks % 4) as usize];
             for q in 0..targets {
-                if self.next().is_multiple_of(3) {
+                if self.next() % den < num {
                     ripped.push(q);
                 }
             }
@@ -830,6 +848,40 @@ mod tests {
         );
         assert_eq!(patched.best, whole.best);
         assert_eq!(patched.best_feeds, whole.best_feeds);
+    }
+
+    /// Each kick after one that found nothing cheaper rips up more of the cheapest graph's
+    /// targets: a third, a half, two thirds, every one, then a third again.
+    #[test]
+    fn kicks_grow_while_they_find_nothing_cheaper() {
+        let ripped = |failed: u32, again: bool| {
+            let mut r = layered(5, 30);
+            r.stale = KICK_AFTER;
+            r.failed_kicks = failed;
+            r.best_at_kick = again.then_some(r.best);
+            r.step();
+            let targets: std::collections::HashSet<usize> = r
+                .undo
+                .iter()
+                .filter_map(|(k, _)| k.checked_sub(r.feeds.len()))
+                .collect();
+            (targets.len(), r.failed_kicks)
+        };
+        let (first, after) = ripped(0, false);
+        assert!((1..30).contains(&first), "a third: {first} of 30");
+        assert_eq!(after, 0);
+        let (second, after) = ripped(0, true);
+        assert!((1..30).contains(&second), "a half: {second} of 30");
+        assert_eq!(after, 1, "a kick after one that found nothing cheaper");
+        assert_eq!(ripped(2, true), (30, 3), "the fourth rips up every target");
+        let (fifth, after) = ripped(3, true);
+        assert!(fifth < 30, "the fifth a third again: {fifth}");
+        assert_eq!(after, 4);
+        assert_eq!(
+            ripped(2, false),
+            (first, 0),
+            "a cheaper graph since the last kick resets"
+        );
     }
 
     #[test]
