@@ -391,8 +391,8 @@ fn fmt_cost(c: dyknow_engine::Cost) -> String {
     }
 }
 
-/// One instance: EXPLORE (first solution, proof capped at `cap`, any-time at 10/100/1,000 ms,
-/// its root bound) beside CP-SAT's optimum, as a table row.
+/// One instance: EXPLORE (first solution, proof capped at `cap`, any-time at the timeouts
+/// `at_ms`, its root bound) beside CP-SAT's optimum, as a table row.
 fn row(
     out: &mut impl Write,
     family: &str,
@@ -400,6 +400,7 @@ fn row(
     (env, candidates): (Environment, Candidates),
     cap: Duration,
     cpsat_seconds: u64,
+    at_ms: [u64; 3],
 ) {
     // `EXPLORE_ONLY=layered-500x20,…` runs only these rows.
     if let Ok(only) = std::env::var("EXPLORE_ONLY")
@@ -421,7 +422,7 @@ fn row(
     // First solution: the smallest timeout (backtracking stops as soon as one exists).
     let first = run(Some(Duration::ZERO));
     let full = run(Some(cap));
-    let at: Vec<_> = any_time_millis()
+    let at: Vec<_> = at_ms
         .iter()
         .map(|t| run(Some(Duration::from_millis(*t))))
         .collect();
@@ -540,7 +541,9 @@ fn main() {
         "\n## Generated environments against CP-SAT (horizon 10; EXPLORE's proof capped at {} s, CP-SAT's at {cpsat_seconds} s, 2 workers)\n",
         cap.as_secs()
     );
-    let [a, b, c] = any_time_millis().map(grouped);
+    let at_ms = any_time_millis();
+    let seed = number("EXPLORE_SEED", 0);
+    let [a, b, c] = at_ms.map(grouped);
     let _ = writeln!(
         out,
         "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | CP-SAT (status, time) | gap to CP-SAT at {a} ms | at {b} ms | at {c} ms |"
@@ -562,8 +565,16 @@ fn main() {
         ]
     };
     for &(n, q) in layered {
-        let instance = generated(n, q, 0x5eed + n as u64 + number("EXPLORE_SEED", 0));
-        row(&mut out, "layered", (n, q), instance, cap, cpsat_seconds);
+        let instance = generated(n, q, 0x5eed + n as u64 + seed);
+        row(
+            &mut out,
+            "layered",
+            (n, q),
+            instance,
+            cap,
+            cpsat_seconds,
+            at_ms,
+        );
     }
     let trees: &[(usize, usize)] = if quick {
         &[(100, 1), (200, 10)]
@@ -571,6 +582,14 @@ fn main() {
         &[(100, 1), (200, 10), (2000, 50), (10000, 50)]
     };
     for &(n, q) in trees {
-        row(&mut out, "tree", (n, q), tree(n, q), cap, cpsat_seconds);
+        row(
+            &mut out,
+            "tree",
+            (n, q),
+            tree(n, q),
+            cap,
+            cpsat_seconds,
+            at_ms,
+        );
     }
 }
