@@ -16,8 +16,8 @@
 //!   ([`Search::further_choices`]);
 //! - the any-time extension (Ch. 4.3.3): past the timeout, backtracking stops once a solution
 //!   exists, and the result says whether optimality was proven; with a timeout, *probes*
-//!   (a large-neighbourhood search around the best graph, taking turns with the main search
-//!   and sharing its best cost) look for cheaper graphs outside its first top-level decisions
+//!   (a large-neighbourhood search around the best graph, taking turns with the main search,
+//!   and a second one on a thread of its own, all sharing one best graph) look for cheaper graphs outside its first top-level decisions
 //!   ([`ProbeOptions`]; the main search stays exhaustive);
 //! - the pragmatic relaxation (Def. 33): when enabled, a target may be left unsatisfied, at a
 //!   cost that exceeds every real cost (lexicographically), so all targets are satisfied
@@ -28,7 +28,8 @@
 //!   completion, so the optimum is never pruned (the brute-force property test checks both).
 
 use std::cmp::Ordering;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering as AtomicOrdering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use rustc_hash::FxHashMap;
@@ -110,10 +111,13 @@ pub struct ProbeOptions {
     /// Backtracks of the main search before the first probe (so a search that ends at once,
     /// e.g. for its first solution, never copies its state for one).
     pub after: u64,
-    /// The main search and the probes take turns: the main search for this many backtracks,
-    /// then the probes: up to three times the main search's time in all while they keep
-    /// finding cheaper graphs, a third of it once they stop.
+    /// The main search and the probes on its thread take turns: the main search for this many
+    /// backtracks, then the probes: up to three times the main search's time in all while
+    /// they keep finding cheaper graphs, a third of it once they stop.
     pub every: u64,
+    /// Further probes, each on a thread of its own beside the main search, with seeds of its
+    /// own, from the time the probes start until the main search ends or the deadline passes.
+    pub threads: usize,
     /// Backtracks of one probe round before the next round (another neighbourhood).
     pub limit: u64,
 }
@@ -123,6 +127,7 @@ impl Default for ProbeOptions {
         Self {
             after: 16,
             every: 16,
+            threads: 1,
             limit: 64,
         }
     }
@@ -501,9 +506,8 @@ pub fn explore(
     // Protected CUs are paid for whatever the plan: a constant.
     let constant = protected_upkeep(env, options);
     let deadline = options.timeout.map(|t| start + t);
-    // Any-time mode only: the probes' own copy of the search, made when they start.
+    // Any-time mode only: the probes search on a thread of their own once they start.
     let probing = options.probes.filter(|_| deadline.is_some());
-    let mut probes: Option<Probes<'_>> = None;
     // Lines 2–7: registry, open jobs, trace, best trace, best cost, root.
     let mut main = Dfs::root(&search);
     let mut best = Best {
@@ -515,58 +519,96 @@ pub fn explore(
     let mut proven_optimal = true;
     let mut steps = 0u64;
     let root_bound = search.lower_bound(&main.jobs, Cost::INFINITE);
-    let mut since = Instant::now();
-    let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
-    let mut last_gain = 0u64;
+    let shared = Shared::default();
     // Lines 9–40.
-    loop {
-        match main.step(&mut search, &mut best) {
-            Step::Expanded => {
-                expansions += 1;
-                continue;
-            }
-            Step::Exhausted => break, // Line 38.
-            Step::Backtracked => {}
-        }
-        // Line 24, with the any-time guard of Ch. 4.3.3.
-        steps += 1;
-        if steps.is_multiple_of(16)
-            && best.nodes.is_some()
-            && deadline.is_some_and(|d| Instant::now() >= d)
-        {
-            // `step` has undone a choice already: even with the trace empty, the root's job
-            // has choices left (an exhausted search ended above, with its proof).
-            proven_optimal = false;
-            break;
-        }
-        if let Some(p) = probing
-            && best.nodes.is_some()
-            && steps >= p.after
-            && steps.is_multiple_of(p.every.max(1))
-        {
-            // The probes run while they have had less time in all than their share of the
-            // main search's (one dive may overshoot; the next turn then waits), and never past
-            // the deadline.
-            main_time += since.elapsed();
-            let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit));
-            // While the probes keep finding cheaper graphs they take three quarters of the
-            // time, once they stop a quarter (the main search's proof then comes sooner).
-            let fresh = probes.round < last_gain + GAIN_WINDOW;
-            let share = if fresh { 3.0 } else { 1.0 / 3.0 };
-            while probe_time.as_secs_f64() < share * main_time.as_secs_f64()
-                && deadline.is_none_or(|d| Instant::now() < d)
-            {
-                let turn = Instant::now();
-                let before = best.cost;
-                probes.run(&mut best, &mut expansions, deadline);
-                probe_time += turn.elapsed();
-                if best.cost.below(before) {
-                    last_gain = probes.round;
+    std::thread::scope(|scope| {
+        let mut probes: Option<Probes<'_>> = None;
+        let mut beside: Vec<std::thread::ScopedJoinHandle<'_, u64>> = Vec::new();
+        let (mut seen, mut spawned) = (0u64, false);
+        let mut since = Instant::now();
+        let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
+        let mut last_gain = 0u64;
+        let halt = || deadline.is_some_and(|d| Instant::now() >= d);
+        loop {
+            let before = best.cost;
+            match main.step(&mut search, &mut best) {
+                Step::Expanded => {
+                    expansions += 1;
+                    continue;
                 }
+                Step::Exhausted => break, // Line 38.
+                Step::Backtracked => {}
             }
-            since = Instant::now();
+            // The other threads' cheaper graphs prune the main search; its own go to them.
+            if !beside.is_empty() {
+                shared.exchange(before, &mut best, &mut seen);
+            }
+            // Line 24, with the any-time guard of Ch. 4.3.3.
+            steps += 1;
+            if steps.is_multiple_of(16) && best.nodes.is_some() && halt() {
+                // `step` has undone a choice already: even with the trace empty, the root's
+                // job has choices left (an exhausted search ended above, with its proof).
+                proven_optimal = false;
+                break;
+            }
+            if let Some(p) = probing
+                && best.nodes.is_some()
+                && steps >= p.after
+                && steps.is_multiple_of(p.every.max(1))
+            {
+                // The probes run while they have had less time in all than their share of
+                // the main search's (one dive may overshoot; the next turn then waits), and
+                // never past the deadline.
+                main_time += since.elapsed();
+                let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit, 0));
+                // Further probes, each with seeds of its own, on threads of their own, from
+                // the first turn. One that cannot start leaves the others to it.
+                if !spawned {
+                    spawned = true;
+                    if p.threads > 0 {
+                        shared.publish(&best, &mut seen);
+                    }
+                    for k in 1..=p.threads as u64 {
+                        let shared = &shared;
+                        let theirs = Probes::new(&search, &main, p.limit, k);
+                        let theirs = move || theirs.search(shared, deadline);
+                        beside.extend(
+                            std::thread::Builder::new()
+                                .name(format!("explore-probes-{k}"))
+                                .spawn_scoped(scope, theirs)
+                                .ok(),
+                        );
+                    }
+                }
+                // While they keep finding cheaper graphs the probes take three quarters of the
+                // time, once they stop a quarter (the main search's proof then comes sooner).
+                let fresh = probes.round < last_gain + GAIN_WINDOW;
+                let share = if fresh { 3.0 } else { 1.0 / 3.0 };
+                while probe_time.as_secs_f64() < share * main_time.as_secs_f64() && !halt() {
+                    let turn = Instant::now();
+                    let before = best.cost;
+                    probes.run(&mut best, &mut expansions, &halt);
+                    probe_time += turn.elapsed();
+                    if best.cost.below(before) {
+                        last_gain = probes.round;
+                    }
+                    if !beside.is_empty() {
+                        shared.exchange(before, &mut best, &mut seen);
+                    }
+                }
+                since = Instant::now();
+            }
         }
-    }
+        shared.stop.store(true, AtomicOrdering::Relaxed);
+        for handle in beside.drain(..) {
+            match handle.join() {
+                Ok(theirs) => expansions += theirs,
+                Err(panic) => std::panic::resume_unwind(panic),
+            }
+            // The cheapest of the bests (the main search's proof covers them all).
+            shared.refresh(&mut best, &mut seen);
+        }
+    });
     let plan = best.nodes.map(|nodes| Plan {
         nodes,
         targets: search.targets.clone(),
@@ -595,11 +637,75 @@ pub fn explore(
 }
 
 /// The cheapest complete graph found so far (Alg. 4's best trace and best cost).
+#[derive(Clone)]
 struct Best {
     cost: Cost,
     nodes: Option<Vec<PlanNode>>,
     /// The transformation (index) of each of its nodes (`usize::MAX` for the root).
     node_tids: Vec<usize>,
+}
+
+/// The best graph the main search's thread and the probes' threads share.
+struct Shared {
+    best: Mutex<Best>,
+    /// Bumped, under the lock, on every cheaper graph published: a thread copies `best` only
+    /// when it changed since it last looked (an atomic load per backtrack otherwise).
+    version: AtomicU64,
+    /// Set when the main search ends (its proof or the deadline): the probes stop.
+    stop: AtomicBool,
+}
+
+impl Default for Shared {
+    fn default() -> Self {
+        Self {
+            best: Mutex::new(Best {
+                cost: Cost::INFINITE,
+                nodes: None,
+                node_tids: Vec::new(),
+            }),
+            version: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
+        }
+    }
+}
+
+impl Shared {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Best> {
+        // A panicking thread is resumed by `explore`; the graph it left is whole.
+        self.best.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Publishes `best` when it is cheaper than the shared one; `seen` is the caller's view.
+    fn publish(&self, best: &Best, seen: &mut u64) {
+        let mut shared = self.lock();
+        if best.cost.below(shared.cost) {
+            shared.clone_from(best);
+            *seen = self.version.fetch_add(1, AtomicOrdering::AcqRel) + 1;
+        }
+    }
+
+    /// After a step that began at cost `before`: publishes `best` if the step made it cheaper,
+    /// else takes the shared graph if it is cheaper.
+    fn exchange(&self, before: Cost, best: &mut Best, seen: &mut u64) {
+        if best.cost.below(before) {
+            self.publish(best, seen);
+        } else {
+            self.refresh(best, seen);
+        }
+    }
+
+    /// Takes the shared graph into `best` when another thread published a cheaper one since
+    /// the caller last looked.
+    fn refresh(&self, best: &mut Best, seen: &mut u64) {
+        if self.version.load(AtomicOrdering::Acquire) == *seen {
+            return;
+        }
+        let shared = self.lock();
+        *seen = self.version.load(AtomicOrdering::Acquire);
+        if shared.cost.below(best.cost) {
+            best.clone_from(&shared);
+        }
+    }
 }
 
 /// What one step of the depth-first search did.
@@ -727,8 +833,11 @@ impl Dfs {
 /// [`ProbeOptions::after`] times, a second search on its own copy of the plan takes turns with
 /// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run until
 /// their time in all is three times the main search's while they keep finding cheaper graphs
-/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. Each of their
-/// rounds frees a few targets chosen from a seed: the jobs of
+/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. From then on,
+/// [`ProbeOptions::threads`] further probes, with seeds of their own, also run on threads of
+/// their own until the main search ends or the deadline passes; all share one best graph
+/// ([`Shared`]), each taking the others' cheaper graphs at its next backtrack or turn. Each
+/// round frees a few targets chosen from a seed: the jobs of
 /// the best graph that serve only other targets keep their provider ([`Guide`]), the freed ones
 /// choose among all theirs (in an order perturbed by the seed), and Algorithm 4 searches that
 /// neighbourhood, pruning by cost against the one best cost, for at most
@@ -745,14 +854,22 @@ struct Probes<'a> {
     round: u64,
     /// The nodes at the root (the root and the protected CUs).
     roots: usize,
+    /// Added to the round to seed it (see `run`).
+    salt: u64,
 }
 
 impl<'a> Probes<'a> {
     /// The probes' copy of the search, taken back to the root from the main search's state.
-    fn new(search: &Search<'a>, main: &Dfs, limit: u64) -> Self {
+    /// Probes `k` (0 on the main search's thread) take seeds of their own.
+    fn new(search: &Search<'a>, main: &Dfs, limit: u64, k: u64) -> Self {
         let mut search = search.clone();
         let mut dfs = main.clone();
         while dfs.undo(&mut search) {}
+        Self::at_root(search, limit, k)
+    }
+
+    /// Probes on a search at its root.
+    fn at_root(search: Search<'a>, limit: u64, k: u64) -> Self {
         let roots = search.nodes.len();
         let reroute = Reroute::new(
             search.own.clone(),
@@ -771,8 +888,10 @@ impl<'a> Probes<'a> {
             search.channel_of.clone(),
             search.node_tids[1..roots].to_vec(),
         );
+        let salt = k.wrapping_mul(12 << 32);
         Self {
-            reroute,
+            reroute: reroute.reseeded(salt),
+            salt,
             dfs: Dfs::root(&search),
             roots: search.nodes.len(),
             search,
@@ -782,8 +901,29 @@ impl<'a> Probes<'a> {
         }
     }
 
+    /// Further probes' thread: turns until the main search ends or the deadline passes, taking
+    /// the others' cheaper graphs and publishing their own after each; returns their
+    /// expansions.
+    fn search(mut self, shared: &Shared, deadline: Option<Instant>) -> u64 {
+        let (mut best, mut seen) = {
+            let best = shared.lock();
+            (best.clone(), shared.version.load(AtomicOrdering::Acquire))
+        };
+        let halt = || {
+            shared.stop.load(AtomicOrdering::Relaxed)
+                || deadline.is_some_and(|d| Instant::now() >= d)
+        };
+        let mut expansions = 0;
+        while !halt() {
+            let before = best.cost;
+            self.run(&mut best, &mut expansions, &halt);
+            shared.exchange(before, &mut best, &mut seen);
+        }
+        expansions
+    }
+
     /// One turn: steps up to the next backtrack, starting a round when none is under way.
-    fn run(&mut self, best: &mut Best, expansions: &mut u64, deadline: Option<Instant>) {
+    fn run(&mut self, best: &mut Best, expansions: &mut u64, halt: &dyn Fn() -> bool) {
         if self.search.guide.is_none() {
             self.round += 1;
             // Odd rounds reroute first: a cheaper whole graph, when rerouting finds one, is
@@ -792,15 +932,18 @@ impl<'a> Probes<'a> {
                 if let Some(nodes) = best.nodes.as_deref() {
                     self.reroute.adopt(best.cost, nodes, &best.node_tids);
                 }
-                self.reroute.improve(REROUTE_MOVES, best.cost, deadline)
+                self.reroute.improve(REROUTE_MOVES, best.cost, halt)
             } else {
                 None
             };
-            self.search.perturbation = rerouted.is_none().then(|| Perturbation::new(self.round));
+            // The seeds of probes k are offset by k × 12 × 2³²: the round's parity, and its
+            // residues modulo 3 and 4, choose what the round does, and stay the same.
+            let seed = self.round.wrapping_add(self.salt);
+            self.search.perturbation = rerouted.is_none().then(|| Perturbation::new(seed));
             self.search.guide = rerouted.or_else(|| {
                 best.nodes
                     .as_deref()
-                    .map(|nodes| Guide::around(nodes, &best.node_tids, self.roots, self.round))
+                    .map(|nodes| Guide::around(nodes, &best.node_tids, self.roots, seed))
             });
         }
         let ended = loop {
@@ -1917,7 +2060,7 @@ impl<'a> Search<'a> {
 
 #[cfg(test)]
 mod tests {
-    use super::{Guide, Link, NodeKind, PlanNode, assignment, matching};
+    use super::{Best, Cost, Guide, Link, NodeKind, PlanNode, Shared, assignment, matching};
 
     /// A graph of three targets: target q is fed by a chain of its own (tids 2q, 2q + 1), and
     /// targets 1 and 2 share a source (tid 6).
@@ -1988,6 +2131,44 @@ mod tests {
             freed_counts.len() > 1,
             "rounds free different numbers of targets"
         );
+    }
+
+    #[test]
+    fn the_shared_best_takes_only_cheaper_graphs_and_each_thread_sees_them_once() {
+        let (nodes, tids) = graph();
+        let graph_at = |value: f64| Best {
+            cost: Cost {
+                unsatisfied: 0,
+                value,
+            },
+            nodes: Some(nodes.clone()),
+            node_tids: tids.clone(),
+        };
+        let shared = Shared::default();
+        let (mut main_seen, mut probes_seen) = (0, 0);
+        let mut main = graph_at(10.0);
+        shared.publish(&main, &mut main_seen);
+        assert_eq!(main_seen, 1, "its own graph is seen already");
+        let mut probes = graph_at(12.0);
+        shared.refresh(&mut probes, &mut probes_seen);
+        assert_eq!((probes.cost.value, probes_seen), (10.0, 1));
+        // A dearer graph is not published; a cheaper one is, and reaches the other thread.
+        shared.publish(&graph_at(11.0), &mut probes_seen);
+        assert_eq!((shared.lock().cost.value, probes_seen), (10.0, 1));
+        probes.cost.value = 9.0;
+        probes.node_tids = vec![7];
+        shared.publish(&probes, &mut probes_seen);
+        assert_eq!(probes_seen, 2);
+        shared.refresh(&mut main, &mut main_seen);
+        assert_eq!(
+            (main.cost.value, main.node_tids.as_slice(), main_seen),
+            (9.0, &[7][..], 2)
+        );
+        // A thread cheaper than what was published keeps its own.
+        let mut cheaper = graph_at(8.0);
+        let mut cheaper_seen = 0;
+        shared.refresh(&mut cheaper, &mut cheaper_seen);
+        assert_eq!((cheaper.cost.value, cheaper_seen), (8.0, 2));
     }
     use proptest::prelude::*;
 

@@ -291,17 +291,18 @@ proptest! {
 
     /// With a timeout of 1 to 50 ms the any-time probes search beside the main search, here
     /// from its first backtrack, taking turns every 1 to 3 of its backtracks, in rounds of 1 to
-    /// 5 backtracks. Proven or not, the plan is valid and never cheaper than the optimum; when
+    /// 5 backtracks, with 0 to 2 further probes on threads of their own. Proven or not, the plan is valid and never cheaper than the optimum; when
     /// the search says it proved the optimum, it is the optimum.
     #[test]
     fn explore_with_probes_is_optimal_when_proven(
         (tfs, targets) in case(), every in 1u64..4, limit in 1u64..6, ms in 1u64..50,
+        threads in 0usize..3,
     ) {
         let (env, candidates) = build(&tfs, &targets);
         let options = ExploreOptions {
             horizon: H,
             timeout: Some(std::time::Duration::from_millis(ms)),
-            probes: Some(ProbeOptions { after: 0, every, limit }),
+            probes: Some(ProbeOptions { after: 0, every, threads, limit }),
             ..ExploreOptions::default()
         };
         let exploration = explore(&env, &candidates, &options);

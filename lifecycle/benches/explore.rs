@@ -13,8 +13,8 @@
 //! Settings for iterating (environment): `EXPLORE_ONLY=layered-2000x50,…` runs only these
 //! rows; `EXPLORE_CAP_SECONDS`, `EXPLORE_CPSAT_SECONDS` cap the proof and CP-SAT (10 and 60 s);
 //! `EXPLORE_AT=10,100,1000` sets the any-time columns (ms); `EXPLORE_SEED=k` generates the
-//! layered instances from another seed (0 is the published one); `EXPLORE_INSTANCES=DIR` keeps
-//! each instance as JSON.
+//! layered instances from another seed (0 is the published one); `EXPLORE_THREADS=n` sets the
+//! probes' further threads (1 by default); `EXPLORE_INSTANCES=DIR` keeps each instance as JSON.
 //!
 //! EXPLORE has no published peer to run side by side (the thesis' implementation is not
 //! available); the brute-force optimum of `engine/tests/brute_force.rs` is the reference for
@@ -25,7 +25,7 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use dyknow_engine::{
-    Candidates, Environment, ExploreOptions, Ids, Target, Transformation, explore,
+    Candidates, Environment, ExploreOptions, Ids, ProbeOptions, Target, Transformation, explore,
 };
 use dyknow_store::model;
 use dyknow_store::{EnvironmentPart, InputFormat, KnowledgeBase};
@@ -409,12 +409,18 @@ fn row(
         return;
     }
     let options = ExploreOptions::default();
+    // `EXPLORE_THREADS=n`: the probes' further threads (`ProbeOptions::threads`).
+    let threads = number("EXPLORE_THREADS", ProbeOptions::default().threads as u64);
     let run = |timeout: Option<Duration>| {
         explore(
             &env,
             &candidates,
             &ExploreOptions {
                 timeout,
+                probes: Some(ProbeOptions {
+                    threads: usize::try_from(threads).unwrap(),
+                    ..ProbeOptions::default()
+                }),
                 ..ExploreOptions::default()
             },
         )

@@ -11,7 +11,7 @@ use std::time::Duration;
 use dyknow_engine::{
     Action, Cause, ChangeSet, ChangeSetStatus, Channel, Cid, Compiled, ComputationUnit, CostKind,
     CostSummary, CuOutcome, CuOutcomeState, Environment, ExploreOptions, Ids, Invalidity, Learned,
-    Tid,
+    ProbeOptions, Tid,
 };
 use dyknow_store::model::{self, CuSnapshot, Loaded, SpecCache};
 use dyknow_store::spec::TransformationSpec;
@@ -37,6 +37,9 @@ pub struct Settings {
     /// configuration lock, so this also bounds how long Spawn, Destroy and crash reports wait.
     /// `None`: until optimality is proven.
     pub explore_timeout: Option<Duration>,
+    /// Further any-time probes a review's EXPLORE runs on threads of their own beside the
+    /// main search (`ProbeOptions::threads`; with a timeout only). 0: one thread per review.
+    pub explore_threads: usize,
     /// Crashes the executors detect start a review at once, but not sooner than this after the
     /// last review started: a burst of crashes (a crash storm) is repaired by one review per
     /// spacing, not one per crash. Other perturbations, and crashes clients report, are not
@@ -57,6 +60,7 @@ impl Default for Settings {
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
             explore_timeout: Some(Duration::from_secs(1)),
+            explore_threads: ProbeOptions::default().threads,
             review_spacing: Duration::from_millis(100),
             history_limit: DEFAULT_HISTORY_LIMIT,
         }
@@ -692,6 +696,10 @@ impl Manager {
             horizon: self.settings.horizon,
             timeout: self.settings.explore_timeout,
             prefer,
+            probes: Some(ProbeOptions {
+                threads: self.settings.explore_threads,
+                ..ProbeOptions::default()
+            }),
             ..ExploreOptions::default()
         };
         let mut ids = configuration.ids.clone();

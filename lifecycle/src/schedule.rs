@@ -254,6 +254,7 @@ mod tests {
             horizon: 10.0,
             time_unit: Duration::from_secs(1),
             explore_timeout: None,
+            explore_threads: 1,
             review_spacing: Duration::from_millis(100),
             history_limit: 0,
         })

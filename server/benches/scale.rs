@@ -16,7 +16,8 @@
 //! is distinct (values). Targets want the last streams, so a configuration is a few chains of
 //! depth log₄(N/2) sharing their roots.
 //!
-//! `cargo bench -p dyknow-server --bench scale -- [--sizes 100,200,…] [--targets 1,50] [--repeat N]`
+//! `cargo bench -p dyknow-server --bench scale -- [--sizes 100,200,…] [--targets 1,50] [--repeat N]
+//! [--serve-args "--explore-threads 0 …"]` (the last: further flags for `dyknow serve`).
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -56,6 +57,11 @@ impl Service {
             .arg(format!("127.0.0.1:{port}"))
             .arg("--data")
             .arg(data)
+            .args(
+                arg("--serve-args")
+                    .iter()
+                    .flat_map(|a| a.split_whitespace()),
+            )
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

@@ -201,6 +201,12 @@ pub struct ServeArgs {
     /// optimality is proven. Spawn, Destroy and crash reports wait for a running review.
     #[arg(long, value_name = "MS", default_value_t = 1000)]
     pub explore_timeout_ms: u64,
+    /// Further threads a review's search runs beside its own while it has time left (more
+    /// any-time search in the same timeout; docs/engine.md, "Any-time probes"). 0: one thread
+    /// per review. At most 64.
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u8).range(0..=64))]
+    pub explore_threads: u8,
     /// Crashes the executors detect start a review at once, but not sooner than this many
     /// milliseconds after the last review started: a crash storm is repaired by one review per
     /// interval, not one per crash (docs/reliability.md). 0: a review per crash. At most 10 s.
@@ -858,6 +864,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             time_unit: Duration::from_secs_f64(args.time_unit),
             explore_timeout: (args.explore_timeout_ms > 0)
                 .then(|| Duration::from_millis(args.explore_timeout_ms)),
+            explore_threads: usize::from(args.explore_threads),
             review_spacing: Duration::from_millis(args.review_spacing_ms),
             history_limit: args.history_limit,
         },

@@ -355,6 +355,18 @@ fn start_up_refusals() {
     assert_eq!(out.status.code(), Some(2));
     let out = Command::new(BIN).args(["frobnicate"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
+    for threads in ["65", "-1", "two"] {
+        let out = Command::new(BIN)
+            .args([
+                "serve",
+                "--in-memory",
+                &format!("--explore-threads={threads}"),
+            ])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "--explore-threads {threads}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--explore-threads"));
+    }
     // A second server on the same store is refused with a clear error.
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().to_str().unwrap();

@@ -21,8 +21,6 @@
 //! builds and costs itself. A graph whose wiring the search rejects (a cycle, a channel clash
 //! the cost model here does not see) is simply not found.
 
-use std::time::Instant;
-
 use super::{Cost, Guide, Link, PlanNode, splitmix};
 
 /// The configuration problem as rerouting sees it, and its current and cheapest graphs.
@@ -219,17 +217,25 @@ impl Reroute {
         self.proposed = self.best;
     }
 
-    /// Runs `moves` moves (fewer when `deadline` passes first: it is read every 16 moves);
+    /// The same search with its random moves seeded from `salt` too (0 keeps the seed).
+    pub(super) fn reseeded(mut self, salt: u64) -> Self {
+        if salt != 0 {
+            self.random = splitmix(self.random ^ salt);
+        }
+        self
+    }
+
+    /// Runs `moves` moves (fewer when `halt` says so first: it is asked every 16 moves);
     /// returns a neighbourhood for a probe round when the cheapest graph found is cheaper than
     /// both `bound` (the search's best cost) and the last one proposed.
     pub(super) fn improve(
         &mut self,
         moves: u32,
         bound: Cost,
-        deadline: Option<Instant>,
+        halt: &dyn Fn() -> bool,
     ) -> Option<Guide> {
         for k in 0..moves {
-            if k % 16 == 15 && deadline.is_some_and(|d| Instant::now() >= d) {
+            if k % 16 == 15 && halt() {
                 break;
             }
             self.step();
@@ -838,7 +844,7 @@ mod tests {
         let first = patched.best();
         let time = |r: &mut Reroute| {
             let start = std::time::Instant::now();
-            r.improve(MOVES, Cost::INFINITE, None);
+            r.improve(MOVES, Cost::INFINITE, &|| false);
             start.elapsed() / MOVES
         };
         let (fast, slow) = (time(&mut patched), time(&mut whole));
@@ -885,12 +891,35 @@ mod tests {
     }
 
     #[test]
-    fn a_passed_deadline_ends_the_moves() {
+    fn reseeded_searches_move_differently_and_reach_the_same_optimum() {
+        for seed in 0..8 {
+            let r = layered(seed, 4);
+            assert_eq!(
+                r.clone().reseeded(0).random,
+                r.random,
+                "salt 0 keeps the seed"
+            );
+            let (mut a, mut b) = (r.clone().reseeded(12 << 32), r.clone().reseeded(24 << 32));
+            assert_ne!(a.random, b.random);
+            a.improve(400, Cost::INFINITE, &|| false);
+            b.improve(400, Cost::INFINITE, &|| false);
+            let optimum = optimum(&r);
+            for found in [a.best().value, b.best().value] {
+                assert!(
+                    (found - optimum).abs() < 1e-9,
+                    "seed {seed}: {found} vs {optimum}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_halt_ends_the_moves() {
         let mut late = layered(3, 4);
         let mut fifteen = late.clone();
-        late.improve(1_000_000, Cost::INFINITE, Some(Instant::now()));
-        fifteen.improve(15, Cost::INFINITE, None);
-        assert_eq!(late.random, fifteen.random, "15 moves, then the deadline");
+        late.improve(1_000_000, Cost::INFINITE, &|| true);
+        fifteen.improve(15, Cost::INFINITE, &|| false);
+        assert_eq!(late.random, fifteen.random, "15 moves, then the halt");
         assert_eq!(late.feeds, fifteen.feeds);
     }
 
@@ -901,8 +930,8 @@ mod tests {
             let mut whole = patched.clone();
             whole.patch = false;
             for _ in 0..20 {
-                patched.improve(10, Cost::INFINITE, None);
-                whole.improve(10, Cost::INFINITE, None);
+                patched.improve(10, Cost::INFINITE, &|| false);
+                whole.improve(10, Cost::INFINITE, &|| false);
                 assert_eq!(patched.feeds, whole.feeds, "seed {seed}");
                 assert_eq!(patched.fed, whole.fed, "seed {seed}");
                 assert_eq!(patched.best, whole.best, "seed {seed}");
@@ -935,7 +964,7 @@ mod tests {
             let mut r = layered(seed, 1 + (seed % 3) as usize);
             let optimum = optimum(&r);
             let first = r.best();
-            r.improve(400, Cost::INFINITE, None);
+            r.improve(400, Cost::INFINITE, &|| false);
             let found = r.best();
             assert_eq!(found.unsatisfied, 0);
             // Never below the optimum (the cost model is the brute force's), never worse than
@@ -959,7 +988,7 @@ mod tests {
     fn a_guide_keeps_every_job_of_the_cheapest_graph_and_is_proposed_once() {
         let mut r = layered(7, 2);
         let guide = r
-            .improve(100, Cost::INFINITE, None)
+            .improve(100, Cost::INFINITE, &|| false)
             .expect("a first proposal");
         for q in 0..2 {
             assert_eq!(guide.kept(usize::MAX, q), Some(r.best_fed[q]));
@@ -980,8 +1009,8 @@ mod tests {
         }
         // The same graph is not proposed twice, and never when the search has one as cheap.
         let best = r.best();
-        let again = r.improve(100, Cost::INFINITE, None);
+        let again = r.improve(100, Cost::INFINITE, &|| false);
         assert!(again.is_none() || r.best().below(best));
-        assert!(r.improve(0, r.best(), None).is_none());
+        assert!(r.improve(0, r.best(), &|| false).is_none());
     }
 }
