@@ -17,8 +17,9 @@
 //! - the any-time extension (Ch. 4.3.3): past the timeout, backtracking stops once a solution
 //!   exists, and the result says whether optimality was proven; with a timeout, *probes*
 //!   (a large-neighbourhood search around the best graph, taking turns with the main search,
-//!   and a second one on a thread of its own, all sharing one best graph) look for cheaper graphs outside its first top-level decisions
-//!   ([`ProbeOptions`]; the main search stays exhaustive);
+//!   and a second one on a thread of its own, all sharing one best graph) look for cheaper
+//!   graphs outside its first top-level decisions ([`ProbeOptions`]; the main search stays
+//!   exhaustive);
 //! - the pragmatic relaxation (Def. 33): when enabled, a target may be left unsatisfied, at a
 //!   cost that exceeds every real cost (lexicographically), so all targets are satisfied
 //!   whenever that is possible, and as many as possible otherwise;
@@ -506,15 +507,11 @@ pub fn explore(
     // Protected CUs are paid for whatever the plan: a constant.
     let constant = protected_upkeep(env, options);
     let deadline = options.timeout.map(|t| start + t);
-    // Any-time mode only: the probes search on a thread of their own once they start.
+    // Any-time mode only: the probes, and further probes on threads of their own.
     let probing = options.probes.filter(|_| deadline.is_some());
     // Lines 2–7: registry, open jobs, trace, best trace, best cost, root.
     let mut main = Dfs::root(&search);
-    let mut best = Best {
-        cost: Cost::INFINITE,
-        nodes: None,
-        node_tids: Vec::new(),
-    };
+    let mut best = Best::NONE;
     let mut expansions = 0u64;
     let mut proven_optimal = true;
     let mut steps = 0u64;
@@ -524,7 +521,7 @@ pub fn explore(
     std::thread::scope(|scope| {
         let mut probes: Option<Probes<'_>> = None;
         let mut beside: Vec<std::thread::ScopedJoinHandle<'_, u64>> = Vec::new();
-        let (mut seen, mut spawned) = (0u64, false);
+        let mut seen = 0u64;
         let mut since = Instant::now();
         let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
         let mut last_gain = 0u64;
@@ -560,11 +557,9 @@ pub fn explore(
                 // the main search's (one dive may overshoot; the next turn then waits), and
                 // never past the deadline.
                 main_time += since.elapsed();
-                let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit, 0));
-                // Further probes, each with seeds of its own, on threads of their own, from
-                // the first turn. One that cannot start leaves the others to it.
-                if !spawned {
-                    spawned = true;
+                // At the first turn, further probes start too, each with seeds of its own, on
+                // threads of their own. One that cannot start leaves the others to it.
+                if probes.is_none() {
                     if p.threads > 0 {
                         shared.publish(&best, &mut seen);
                     }
@@ -580,6 +575,7 @@ pub fn explore(
                         );
                     }
                 }
+                let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit, 0));
                 // While they keep finding cheaper graphs the probes take three quarters of the
                 // time, once they stop a quarter (the main search's proof then comes sooner).
                 let fresh = probes.round < last_gain + GAIN_WINDOW;
@@ -655,14 +651,19 @@ struct Shared {
     stop: AtomicBool,
 }
 
+impl Best {
+    /// No graph yet, at the seed's ∞.
+    const NONE: Self = Self {
+        cost: Cost::INFINITE,
+        nodes: None,
+        node_tids: Vec::new(),
+    };
+}
+
 impl Default for Shared {
     fn default() -> Self {
         Self {
-            best: Mutex::new(Best {
-                cost: Cost::INFINITE,
-                nodes: None,
-                node_tids: Vec::new(),
-            }),
+            best: Mutex::new(Best::NONE),
             version: AtomicU64::new(0),
             stop: AtomicBool::new(false),
         }
@@ -865,11 +866,6 @@ impl<'a> Probes<'a> {
         let mut search = search.clone();
         let mut dfs = main.clone();
         while dfs.undo(&mut search) {}
-        Self::at_root(search, limit, k)
-    }
-
-    /// Probes on a search at its root.
-    fn at_root(search: Search<'a>, limit: u64, k: u64) -> Self {
         let roots = search.nodes.len();
         let reroute = Reroute::new(
             search.own.clone(),
