@@ -267,6 +267,9 @@ struct Search<'a> {
     /// The probes' neighbourhood: providers their jobs keep (none in the main search).
     guide: Option<Guide>,
     tids: Vec<Tid>,
+    /// Each transformation's position in the whole library: what the probes' random draws
+    /// are keyed by (the search leaves out what no plan can use, see [`relevant`]).
+    keys: Arc<[u64]>,
     in_counts: Vec<usize>,
     cus: Vec<Cid>,
     targets: Vec<Qid>,
@@ -886,7 +889,7 @@ impl<'a> Probes<'a> {
         );
         let salt = k.wrapping_mul(12 << 32);
         Self {
-            reroute: reroute.reseeded(salt),
+            reroute: reroute.keyed(search.keys.to_vec()).reseeded(salt),
             salt,
             dfs: Dfs::root(&search),
             roots: search.nodes.len(),
@@ -1060,10 +1063,9 @@ impl Perturbation {
         }
     }
 
-    fn factor(self, job: Job, tid: usize) -> f64 {
-        let z = splitmix(
-            splitmix(self.seed ^ ((job.node as u64) << 32 | job.input as u64)) ^ tid as u64,
-        );
+    /// The factor for choosing transformation `key` (its [`Search::keys`] entry) for `job`.
+    fn factor(self, job: Job, key: u64) -> f64 {
+        let z = splitmix(splitmix(self.seed ^ ((job.node as u64) << 32 | job.input as u64)) ^ key);
         1.0 + self.amplitude * (z >> 11) as f64 / (1u64 << 53) as f64
     }
 }
@@ -1084,6 +1086,55 @@ pub fn lower_bound(env: &Environment, candidates: &Candidates, options: &Explore
     })
 }
 
+/// The transformations a plan of `env` can use, in library order: those that can feed a
+/// target, or an input of a CU (the candidate table's closure backwards from them), with
+/// those of the CUs. A plan's nodes feed the root or the protected CUs, so no other
+/// transformation can be in one: with a library of thousands and a few targets, leaving them
+/// out of the search saves the set-up work that grows with the library, and changes nothing
+/// it finds.
+fn relevant(env: &Environment, candidates: &Candidates) -> (Vec<Tid>, Vec<u64>) {
+    fn reach<'e>(
+        env: &'e Environment,
+        tid: &Tid,
+        seen: &mut std::collections::BTreeSet<&'e Tid>,
+        stack: &mut Vec<&'e Tid>,
+    ) {
+        if let Some((tid, _)) = env.library.get_key_value(tid)
+            && seen.insert(tid)
+        {
+            stack.push(tid);
+        }
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    let mut stack = Vec::new();
+    for q in env.targets.keys() {
+        for p in candidates.for_target(q) {
+            reach(env, &p.tid, &mut seen, &mut stack);
+        }
+    }
+    for cu in env.cus.values() {
+        reach(env, &cu.tid, &mut seen, &mut stack);
+    }
+    while let Some(t) = stack.pop() {
+        for i in 0..env.library[t].inputs.len() {
+            for p in candidates.for_input(t, i) {
+                reach(env, &p.tid, &mut seen, &mut stack);
+            }
+        }
+    }
+    // Each one's position in the whole library: what the probes' random draws are keyed by,
+    // so that they do not depend on what was left out.
+    let mut keys = Vec::with_capacity(seen.len());
+    let mut wanted = seen.iter().peekable();
+    for (k, tid) in env.library.keys().enumerate() {
+        if wanted.peek().is_some_and(|w| **w == tid) {
+            keys.push(k as u64);
+            wanted.next();
+        }
+    }
+    (seen.into_iter().cloned().collect(), keys)
+}
+
 /// The upkeep of protected CUs over the horizon: paid whatever the plan.
 fn protected_upkeep(env: &Environment, options: &ExploreOptions) -> f64 {
     options.horizon
@@ -1097,7 +1148,7 @@ fn protected_upkeep(env: &Environment, options: &ExploreOptions) -> f64 {
 
 impl<'a> Search<'a> {
     fn new(env: &Environment, candidates: &Candidates, options: &'a ExploreOptions) -> Self {
-        let tids: Vec<Tid> = env.library.keys().cloned().collect();
+        let (tids, keys) = relevant(env, candidates);
         let tid_index: FxHashMap<Tid, usize> = tids
             .iter()
             .enumerate()
@@ -1317,6 +1368,7 @@ impl<'a> Search<'a> {
             perturbation: None,
             guide: None,
             tids,
+            keys: keys.into(),
             in_counts,
             cus,
             targets,
@@ -1838,7 +1890,7 @@ impl<'a> Search<'a> {
             let estimate = cost + below;
             let estimate = self
                 .perturbation
-                .map_or(estimate, |p| estimate * p.factor(job, tid));
+                .map_or(estimate, |p| estimate * p.factor(job, self.keys[tid]));
             (existing.is_none() && self.preferred[tid], estimate)
         };
         out[reused..].sort_by(|a, b| {
@@ -2057,6 +2109,68 @@ impl<'a> Search<'a> {
 #[cfg(test)]
 mod tests {
     use super::{Best, Cost, Guide, Link, NodeKind, PlanNode, Shared, assignment, matching};
+
+    /// The search's universe: what can feed a target, or an input of a CU, backwards through
+    /// the candidate table, and the CUs' transformations; keyed by library position.
+    #[test]
+    fn the_search_leaves_out_what_no_plan_can_use() {
+        use crate::{Candidates, ComputationUnit, Environment, Target, Transformation};
+        // (tid, in tag, out tag): a chain s → m feeds the target (tag B); x feeds only
+        // `orphan`, which nothing wants; `kept` has a CU, and y feeds its input.
+        let library = [
+            ("kept", Some("Y"), "W"),
+            ("m", Some("A"), "B"),
+            ("orphan", Some("X"), "Z"),
+            ("s", None, "A"),
+            ("x", None, "X"),
+            ("y", None, "Y"),
+        ];
+        let mut env = Environment::default();
+        for (tid, input, _) in library {
+            env.library.insert(
+                tid.into(),
+                Transformation {
+                    tid: tid.into(),
+                    inputs: input.iter().map(|_| "in".to_owned()).collect(),
+                    outputs: vec!["out".into()],
+                    labour: 1.0,
+                    upkeep: 1.0,
+                },
+            );
+        }
+        env.targets.insert(
+            "q".into(),
+            Target {
+                qid: "q".into(),
+                channel: "/q".into(),
+            },
+        );
+        env.cus.insert(
+            "c".into(),
+            ComputationUnit {
+                cid: "c".into(),
+                tid: "kept".into(),
+                inputs: [("in".to_owned(), None)].into(),
+                outputs: [("out".to_owned(), None)].into(),
+                protected: false,
+            },
+        );
+        let tag = |tid: &str, input: bool| {
+            let (_, i, o) = library.iter().find(|(t, _, _)| *t == tid).unwrap();
+            if input { i.unwrap() } else { o }
+        };
+        let candidates = Candidates::from_tags(
+            &env,
+            |tid, _| vec![tag(tid, true)],
+            |tid, _| vec![tag(tid, false)],
+            |_| vec!["B"],
+            |i: &&str, o: &&str| i == o,
+        );
+        let (tids, keys) = super::relevant(&env, &candidates);
+        let tids: Vec<&str> = tids.iter().map(|t| t.as_str()).collect();
+        assert_eq!(tids, ["kept", "m", "s", "y"]);
+        assert_eq!(keys, [0, 1, 3, 5], "positions in the whole library");
+    }
 
     /// A graph of three targets: target q is fed by a chain of its own (tids 2q, 2q + 1), and
     /// targets 1 and 2 share a source (tid 6).

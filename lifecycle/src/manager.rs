@@ -6,7 +6,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use dyknow_engine::{
     Action, Cause, ChangeSet, ChangeSetStatus, Channel, Cid, Compiled, ComputationUnit, CostKind,
@@ -691,7 +691,9 @@ impl Manager {
         causes: &[Cause],
         prefer: Vec<Tid>,
     ) -> Result<Option<Arc<ChangeSet>>, LifecycleError> {
+        let started = Instant::now();
         let loaded = self.load()?;
+        let loaded_at = Instant::now();
         let options = ExploreOptions {
             horizon: self.settings.horizon,
             timeout: self.settings.explore_timeout,
@@ -704,6 +706,7 @@ impl Manager {
         };
         let mut ids = configuration.ids.clone();
         let reviewed = dyknow_engine::review(&loaded.env, &loaded.candidates, &options, &mut ids);
+        let searched_at = Instant::now();
         if reviewed.compiled.actions.is_empty() {
             return Ok(None);
         }
@@ -731,6 +734,14 @@ impl Manager {
             reviewed.after,
             Reconciled::default(),
         )?;
+        let ms = |from: Instant, to: Instant| to.duration_since(from).as_secs_f64() * 1e3;
+        tracing::debug!(
+            "{}: read {:.1} ms, search {:.1} ms, applied and recorded {:.1} ms",
+            committed.change_set.id,
+            ms(started, loaded_at),
+            ms(loaded_at, searched_at),
+            ms(searched_at, Instant::now()),
+        );
         Ok(Some(committed.change_set))
     }
 

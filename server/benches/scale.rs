@@ -17,7 +17,9 @@
 //! depth log₄(N/2) sharing their roots.
 //!
 //! `cargo bench -p dyknow-server --bench scale -- [--sizes 100,200,…] [--targets 1,50] [--repeat N]
-//! [--serve-args "--explore-threads 0 …"]` (the last: further flags for `dyknow serve`).
+//! [--serve-args "--explore-threads 0 …"]` (the last: further flags for `dyknow serve`). With
+//! `SCALE_SERVICE_LOG=1` the service's log goes to the bench's stderr: with
+//! `RUST_LOG=dyknow_lifecycle=debug,info` it gives each review's read, search and write time.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -67,7 +69,14 @@ impl Service {
             .spawn()
             .unwrap();
         let lines = BufReader::new(child.stderr.take().unwrap()).lines();
-        std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
+        let show = std::env::var_os("SCALE_SERVICE_LOG").is_some();
+        std::thread::spawn(move || {
+            for line in lines.map_while(Result::ok) {
+                if show {
+                    eprintln!("{line}");
+                }
+            }
+        });
         let base = format!("http://127.0.0.1:{port}");
         let service = Self { child, base };
         let agent = agent();

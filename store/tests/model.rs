@@ -284,3 +284,267 @@ fn a_kept_cache_follows_every_write() {
     assert!(now.env.library.contains_key("tid4"));
     same(&now, &fresh());
 }
+
+/// The environment log lists the environment graphs each write touched, never a spec's, and
+/// the spec log never an environment graph.
+#[test]
+fn the_environment_log_lists_the_environment_graphs_written_since_a_generation() {
+    let kb = example_12();
+    let (start, none) = kb.environment_changes_since(kb.environment_generation());
+    assert_eq!(none, Some(BTreeSet::new()));
+    let cu = EnvironmentPart::Cu(dyknow_engine::Cid::new("c"));
+    let history = EnvironmentPart::History;
+    let triple = |s: &str| {
+        oxigraph::model::Triple::new(
+            oxigraph::model::NamedNode::new_unchecked(format!("urn:test:{s}")),
+            oxigraph::model::NamedNode::new_unchecked("urn:test:p"),
+            oxigraph::model::Literal::new_simple_literal("o"),
+        )
+    };
+    kb.set_environment(&[(history.clone(), vec![triple("h")])])
+        .unwrap();
+    let spec_generation = kb.spec_generation();
+    kb.set_environment(&[(cu.clone(), vec![triple("c")])])
+        .unwrap();
+    load_specs(&kb, &["example-12.ttl"]);
+    let (now, since_start) = kb.environment_changes_since(start);
+    assert_eq!(now, start + 2, "the spec write is not an environment write");
+    assert_eq!(
+        since_start,
+        Some(BTreeSet::from([history.graph(), cu.graph()]))
+    );
+    assert_eq!(
+        kb.environment_changes_since(start + 1).1,
+        Some(BTreeSet::from([cu.graph()]))
+    );
+    let (_, specs) = kb.spec_changes_since(spec_generation);
+    assert!(
+        specs
+            .unwrap()
+            .iter()
+            .all(|g| !g.as_str().contains("environment")),
+        "environment graphs are not in the spec log"
+    );
+}
+
+/// The kept cache's CUs are patched, not read again: after any sequence of writes (CUs
+/// written, rewritten and removed, other environment graphs written, transformation specs
+/// removed, posted back, and re-posted under another IRI), read at random points in between,
+/// it gives the CUs a fresh read gives.
+mod patched_cus {
+    use super::*;
+    use dyknow_engine::{Cid, ComputationUnit, Tid};
+    use dyknow_store::spec::SpecKind;
+    use proptest::prelude::*;
+
+    #[derive(Debug, Clone)]
+    enum Op {
+        /// A CU `cu{name}` of `tid{tid}`, its ports bound to channels from `bind`.
+        Write {
+            name: u8,
+            tid: u8,
+            bind: u8,
+        },
+        Remove {
+            name: u8,
+        },
+        /// An environment graph with no CU in it.
+        History {
+            n: u8,
+        },
+        RemoveSpec {
+            tid: u8,
+        },
+        /// Example 12's specs posted again (blank-node transformations: new IRIs).
+        PostAll,
+        /// `tid{tid}` posted under a named IRI, `ex:named{tid}-{variant}`.
+        PostNamed {
+            tid: u8,
+            variant: u8,
+        },
+    }
+
+    fn op() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            4 => (0..5u8, 1..6u8, any::<u8>()).prop_map(|(name, tid, bind)| Op::Write { name, tid, bind }),
+            2 => (0..5u8).prop_map(|name| Op::Remove { name }),
+            1 => any::<u8>().prop_map(|n| Op::History { n }),
+            1 => (1..6u8).prop_map(|tid| Op::RemoveSpec { tid }),
+            1 => Just(Op::PostAll),
+            1 => (1..6u8, 0..2u8).prop_map(|(tid, variant)| Op::PostNamed { tid, variant }),
+        ]
+    }
+
+    fn named_spec(tid: u8, variant: u8) -> String {
+        let (inputs, tag) = if tid <= 2 {
+            (
+                "dyknow:hasInPort [ a dyknow:InPort ; dyknow:hasName \"in\" ;
+                    dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription ex:A ] ] ;",
+                "B",
+            )
+        } else {
+            ("", "E")
+        };
+        format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+             @prefix ex: <http://example.org/ex12#> .
+             ex:named{tid}-{variant} a dyknow:Transformation ; rdfs:label \"tid{tid}\" ; {inputs}
+               dyknow:hasOutPort [ a dyknow:OutPort ; dyknow:hasName \"out\" ;
+                 dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription ex:{tag} ] ] ;
+               dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] ,
+                 [ a dyknow:UpkeepCostModel ; dyknow:hasValue 2.0 ] ."
+        )
+    }
+
+    fn apply(kb: &KnowledgeBase, op: &Op) {
+        match op {
+            Op::Write { name, tid, bind } => {
+                let loaded = model::load(kb).unwrap();
+                let mut env = loaded.env.clone();
+                let Some(cu) = cu(&env, *name, *tid, *bind) else {
+                    return;
+                };
+                env.cus.insert(cu.cid.clone(), cu.clone());
+                let triples = model::cu_triples(&cu, &env, &loaded.iris);
+                // A CU subscribed to its own channel is refused (nothing written): the cache
+                // must not change either.
+                let _ = kb.set_environment(&[(EnvironmentPart::Cu(cu.cid.clone()), triples)]);
+            }
+            Op::Remove { name } => kb
+                .set_environment(&[(
+                    EnvironmentPart::Cu(Cid::new(format!("cu{name}"))),
+                    Vec::new(),
+                )])
+                .unwrap(),
+            Op::History { n } => kb
+                .set_environment(&[(
+                    EnvironmentPart::History,
+                    model::history_triples([format!("name{n}").as_str()]),
+                )])
+                .unwrap(),
+            Op::RemoveSpec { tid } => {
+                let _ = kb.remove_spec(SpecKind::Transformation, &format!("tid{tid}"));
+            }
+            Op::PostAll => load_specs(kb, &["example-12.ttl"]),
+            Op::PostNamed { tid, variant } => {
+                kb.load_document(named_spec(*tid, *variant).as_bytes(), InputFormat::Turtle)
+                    .unwrap();
+            }
+        }
+    }
+
+    /// A CU `cu{name}` of `tid{tid}` of `env`'s library, its ports bound as `bind` says.
+    fn cu(env: &Environment, name: u8, tid: u8, bind: u8) -> Option<ComputationUnit> {
+        let tid = Tid::new(format!("tid{tid}"));
+        let tf = env.library.get(&tid)?;
+        let channel = |i: u8| !(bind >> i).is_multiple_of(4);
+        Some(ComputationUnit {
+            cid: Cid::new(format!("cu{name}")),
+            tid,
+            inputs: tf
+                .inputs
+                .iter()
+                .map(|p| {
+                    (
+                        p.clone(),
+                        channel(0).then(|| format!("ch{}", bind % 3).into()),
+                    )
+                })
+                .collect(),
+            outputs: tf
+                .outputs
+                .iter()
+                .map(|p| (p.clone(), channel(2).then(|| format!("ch{name}").into())))
+                .collect(),
+            protected: bind.is_multiple_of(5),
+        })
+    }
+
+    type Cus = Vec<(u8, Option<(u8, u8)>)>;
+
+    fn cus(most: usize) -> impl Strategy<Value = Cus> {
+        proptest::collection::vec((0..5u8, proptest::option::of((1..6u8, 0..16u8))), 0..most)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// `model::delta` skips the CUs whose triples cannot have changed: it writes what
+        /// comparing every CU's triples in both environments (`cu_triples`) finds.
+        #[test]
+        fn the_delta_is_what_comparing_every_cus_triples_gives(
+            before in cus(6), changes in cus(3), upkeep in proptest::option::of(1..6u8)
+        ) {
+            let loaded = model::load(&example_12()).unwrap();
+            let env = |cus: &Cus| {
+                let mut env = loaded.env.clone();
+                for (name, spec) in cus {
+                    match spec.and_then(|(tid, bind)| cu(&env, *name, tid, bind)) {
+                        Some(cu) => env.cus.insert(cu.cid.clone(), cu),
+                        None => env.cus.remove(format!("cu{name}").as_str()),
+                    };
+                }
+                env
+            };
+            // The CUs after: those before, a few of them changed, added or removed.
+            let mut after = env(&[before.clone(), changes].concat());
+            let before = env(&before);
+            // A transformation's upkeep estimate moved (learned): its CUs' cost triples change.
+            if let Some(tid) = upkeep
+                && let Some(tf) = after.library.get_mut(format!("tid{tid}").as_str())
+            {
+                tf.upkeep += 1.0;
+            }
+            let delta = model::delta(&before, &after, &loaded.iris);
+            let names: BTreeSet<_> = before.cus.keys().chain(after.cus.keys()).collect();
+            let (mut insert, mut delete, mut parts) = (BTreeSet::new(), BTreeSet::new(), Vec::new());
+            for name in names {
+                let triples = |env: &Environment| -> BTreeSet<String> {
+                    env.cus
+                        .get(name)
+                        .map(|c| model::cu_triples(c, env, &loaded.iris))
+                        .unwrap_or_default()
+                        .iter()
+                        .map(ToString::to_string)
+                        .collect()
+                };
+                let (old, new) = (triples(&before), triples(&after));
+                if old != new {
+                    insert.extend(new.difference(&old).cloned());
+                    delete.extend(old.difference(&new).cloned());
+                    parts.push(EnvironmentPart::Cu(name.clone()));
+                }
+            }
+            let strings = |t: &[oxigraph::model::Triple]| -> BTreeSet<String> {
+                t.iter().map(ToString::to_string).collect()
+            };
+            prop_assert_eq!(strings(&delta.insert), insert);
+            prop_assert_eq!(strings(&delta.delete), delete);
+            prop_assert_eq!(delta.parts.into_iter().map(|(p, _)| p).collect::<Vec<_>>(), parts);
+        }
+
+        #[test]
+        fn a_kept_cache_reads_only_what_changed_and_gives_what_a_fresh_read_does(
+            ops in proptest::collection::vec((op(), any::<bool>()), 1..16)
+        ) {
+            let kb = example_12();
+            let cache = model::SpecCache::default();
+            let _ = cache.load(&kb, None).unwrap();
+            for (op, read) in &ops {
+                apply(&kb, op);
+                if *read {
+                    let fresh = model::load(&kb).unwrap();
+                    prop_assert_eq!(&cache.load(&kb, None).unwrap().env.cus, &fresh.env.cus);
+                    prop_assert_eq!(&cache.cus_now(&kb).unwrap().cus, &fresh.env.cus);
+                }
+            }
+            let fresh = model::load(&kb).unwrap();
+            prop_assert_eq!(&cache.load(&kb, None).unwrap().env.cus, &fresh.env.cus);
+            prop_assert_eq!(
+                &fresh.env.cus,
+                &model::cus_by_query(&kb, &fresh.env.library).unwrap()
+            );
+        }
+    }
+}

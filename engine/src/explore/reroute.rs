@@ -65,6 +65,8 @@ pub(super) struct Reroute {
     best: Cost,
     proposed: Cost,
     random: u64,
+    /// What each transformation's noise is drawn from (its index unless [`Reroute::keyed`]).
+    keys: Vec<u64>,
     /// Moves since the current graph last got cheaper.
     stale: u32,
     /// What the current move changed: (index, link before), inputs' indices first, then the
@@ -174,6 +176,7 @@ impl Reroute {
             best: Cost::INFINITE,
             proposed: Cost::INFINITE,
             random: 0x5eed,
+            keys: (0..n as u64).collect(),
             stale: 0,
             undo: Vec::new(),
             value: vec![0.0; n],
@@ -215,6 +218,15 @@ impl Reroute {
         }
         // The search has this graph already: nothing to propose until a cheaper one.
         self.proposed = self.best;
+    }
+
+    /// The same search with each transformation's noise drawn from `keys` (one per
+    /// transformation) instead of its index: the search's keys, which do not depend on which
+    /// transformations the search left out.
+    pub(super) fn keyed(mut self, keys: Vec<u64>) -> Self {
+        debug_assert_eq!(keys.len(), self.own.len());
+        self.keys = keys;
+        self
     }
 
     /// The same search with its random moves seeded from `salt` too (0 keeps the seed).
@@ -554,7 +566,7 @@ impl Reroute {
         }
         let mut v = self.own[t];
         if noise > 0.0 {
-            let z = splitmix(seed ^ t as u64);
+            let z = splitmix(seed ^ self.keys[t]);
             v *= 1.0 + noise * (z >> 11) as f64 / (1u64 << 53) as f64;
         }
         for i in self.start[t]..self.start[t + 1] {

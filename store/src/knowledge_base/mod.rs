@@ -49,10 +49,14 @@ pub struct KnowledgeBase {
     spec_generation: std::sync::atomic::AtomicU64,
     /// Which graphs each recent bump of `spec_generation` was for: lets readers patch what
     /// they derive from specs instead of deriving it again ([`KnowledgeBase::spec_changes_since`]).
-    spec_log: Mutex<write::SpecLog>,
+    spec_log: Mutex<write::GraphLog>,
     /// Bumped by every write that touches an environment graph (CUs, change sets,
     /// statistics): lets readers cache what they derive from the environment.
     environment_generation: std::sync::atomic::AtomicU64,
+    /// Which environment graphs each recent bump of `environment_generation` was for: lets
+    /// readers of the CUs read again only those written
+    /// ([`KnowledgeBase::environment_changes_since`]).
+    environment_log: Mutex<write::GraphLog>,
     /// RocksDB's memtables, bounded: see [`KnowledgeBase::flush_if_due`].
     flusher: write::Flusher,
 }
@@ -95,6 +99,7 @@ impl KnowledgeBase {
             spec_generation: std::sync::atomic::AtomicU64::new(0),
             spec_log: Mutex::default(),
             environment_generation: std::sync::atomic::AtomicU64::new(0),
+            environment_log: Mutex::default(),
             flusher: write::Flusher::default(),
         };
         kb.refresh_classes()?;
@@ -120,6 +125,7 @@ impl KnowledgeBase {
             spec_generation: std::sync::atomic::AtomicU64::new(0),
             spec_log: Mutex::default(),
             environment_generation: std::sync::atomic::AtomicU64::new(0),
+            environment_log: Mutex::default(),
             flusher: write::Flusher::default(),
         };
         kb.install_builtin_ontologies()?;

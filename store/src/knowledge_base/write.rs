@@ -83,21 +83,22 @@ impl KnowledgeBase {
         // A write that may change a spec or the schema invalidates what readers derived from
         // them. Bumped after the write: a reader that read the old number may cache new data
         // under it (and reload needlessly once), but never old data under the new number.
-        let touched: Vec<NamedNode> = writes
+        let (environment, touched): (Vec<NamedNode>, Vec<NamedNode>) = writes
             .iter()
             .map(|(g, _)| *g)
             .chain(removes.iter().copied())
-            .filter(|g| !is_environment_graph(g.as_str()))
             .cloned()
-            .collect();
-        if writes
-            .iter()
-            .map(|(g, _)| *g)
-            .chain(removes.iter().copied())
-            .any(|g| is_environment_graph(g.as_str()))
-        {
-            self.environment_generation
-                .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            .partition(|g| is_environment_graph(g.as_str()));
+        if !environment.is_empty() {
+            let mut log = self
+                .environment_log
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let generation = self
+                .environment_generation
+                .fetch_add(1, std::sync::atomic::Ordering::SeqCst)
+                + 1;
+            log.record(generation, environment);
         }
         if !touched.is_empty() {
             let mut log = self
@@ -385,6 +386,20 @@ impl KnowledgeBase {
         (now, log.since(since))
     }
 
+    /// The environment generation now and the environment graphs (CUs, change-set records,
+    /// statistics) written or removed since generation `since`, or `None` when the log no
+    /// longer reaches back that far (then everything derived from the environment must be read
+    /// again). As [`KnowledgeBase::spec_changes_since`]: a graph listed may have been written
+    /// back unchanged, or written after the generation returned; read it after this call.
+    pub fn environment_changes_since(&self, since: u64) -> (u64, Option<BTreeSet<NamedNode>>) {
+        let log = self
+            .environment_log
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let now = self.environment_generation();
+        (now, log.since(since))
+    }
+
     /// A number that changes whenever a spec, an extension or an ontology graph is written or
     /// removed (not for environment graphs): what is derived from specs alone may be cached
     /// against it.
@@ -480,23 +495,24 @@ fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
     ))
 }
 
-/// How many graph names the spec log keeps at most (readers further behind derive anew).
-const SPEC_LOG_NAMES: usize = 1 << 16;
+/// How many graph names a graph log keeps at most (readers further behind derive anew).
+const GRAPH_LOG_NAMES: usize = 1 << 16;
 
-/// The recent bumps of the spec generation and the graphs each was for.
+/// The recent bumps of a generation (the specs', the environment's) and the graphs each was
+/// for.
 #[derive(Debug, Default)]
-pub(super) struct SpecLog {
+pub(super) struct GraphLog {
     entries: std::collections::VecDeque<(u64, Vec<NamedNode>)>,
     names: usize,
     /// Generations up to this one are no longer in `entries`.
     floor: u64,
 }
 
-impl SpecLog {
+impl GraphLog {
     pub(super) fn record(&mut self, generation: u64, graphs: Vec<NamedNode>) {
         self.names += graphs.len();
         self.entries.push_back((generation, graphs));
-        while self.names > SPEC_LOG_NAMES {
+        while self.names > GRAPH_LOG_NAMES {
             let Some((dropped, graphs)) = self.entries.pop_front() else {
                 break;
             };
@@ -507,9 +523,10 @@ impl SpecLog {
 
     pub(super) fn since(&self, since: u64) -> Option<BTreeSet<NamedNode>> {
         (since >= self.floor).then(|| {
+            // Recorded in increasing generations: skip the older ones without a scan.
+            let first = self.entries.partition_point(|(g, _)| *g <= since);
             self.entries
-                .iter()
-                .filter(|(g, _)| *g > since)
+                .range(first..)
                 .flat_map(|(_, graphs)| graphs.iter().cloned())
                 .collect()
         })
@@ -526,16 +543,19 @@ mod tests {
 
     #[test]
     fn the_spec_log_answers_since_a_generation_until_it_no_longer_reaches_back() {
-        let mut log = SpecLog::default();
+        let mut log = GraphLog::default();
         log.record(1, vec![graph(1)]);
         log.record(2, vec![graph(2), graph(1)]);
         assert_eq!(log.since(0), Some(BTreeSet::from([graph(1), graph(2)])));
         assert_eq!(log.since(1), Some(BTreeSet::from([graph(1), graph(2)])));
         assert_eq!(log.since(2), Some(BTreeSet::new()));
         // A write of more names than the log keeps pushes the older entries out.
-        log.record(3, (0..SPEC_LOG_NAMES).map(graph).collect());
+        log.record(3, (0..GRAPH_LOG_NAMES).map(graph).collect());
         assert_eq!(log.since(0), None);
-        assert_eq!(log.since(2), Some((0..SPEC_LOG_NAMES).map(graph).collect()));
+        assert_eq!(
+            log.since(2),
+            Some((0..GRAPH_LOG_NAMES).map(graph).collect())
+        );
         log.record(4, vec![graph(7)]);
         assert_eq!(log.since(2), None, "generation 3 was pushed out too");
         assert_eq!(log.since(3), Some(BTreeSet::from([graph(7)])));

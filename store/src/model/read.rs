@@ -1,14 +1,14 @@
 //! Reading the DyKnow model from the knowledge base: the environment ⟨CU, F, T⟩ with the
 //! candidate table, the learned estimates and the recorded change sets.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::sync::{Arc, Mutex, PoisonError, RwLock, TryLockError};
 
 use dyknow_engine::{
     Candidates, ChangeSet, ChangeSetId, Cid, ComputationUnit, CostKind, Environment, Estimate,
     Learned, Provider, Target, Tid, Transformation,
 };
-use oxigraph::model::{NamedNode, Term};
+use oxigraph::model::{NamedNode, NamedOrBlankNode, Term};
 
 use super::candidates::{CandidateIndex, SpecChanges};
 use super::queries;
@@ -106,8 +106,31 @@ fn at_least(a: (u64, u64), b: (u64, u64)) -> bool {
     a.0 >= b.0 && a.1 >= b.1
 }
 
-/// The CUs read at a (spec generation, environment generation).
-type CachedCus = ((u64, u64), BTreeMap<Cid, ComputationUnit>);
+/// The CUs read at a (spec generation, environment generation): the rows of each
+/// environment graph that holds any, and the CUs they make. Patched when the generations
+/// move: only the graphs written since, and those of CUs whose transformation spec changed,
+/// are read again ([`cus_at`]).
+#[derive(Debug)]
+struct CachedCus {
+    key: (u64, u64),
+    graphs: BTreeMap<NamedNode, CuGraph>,
+    cus: BTreeMap<Cid, ComputationUnit>,
+}
+
+/// The CU rows of one environment graph, with what they looked up outside it: the rows
+/// depend on the labels of the transformations their CUs instantiate and on the names of the
+/// ports they bind, found in spec graphs (what a spec change is matched against).
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+struct CuGraph {
+    rows: Vec<CuRow>,
+    /// The nodes looked up in any graph (transformations, ports), found there or not.
+    foreign: HashSet<NamedOrBlankNode>,
+    /// The spec graphs that answered those lookups.
+    sources: BTreeSet<NamedNode>,
+    /// Whether a graph other than a spec's answered one (the inferred graph, an
+    /// extension): read again whenever anything changed.
+    volatile: bool,
+}
 
 /// The cache's content: the spec-derived part of [`Loaded`] at `generation`, and the index
 /// that patches its candidate table.
@@ -363,22 +386,88 @@ impl SpecCache {
     }
 }
 
-/// The CUs cached in `cached` at `key` (spec generation, environment generation), read again
-/// (their unbound ports from `library`) when the key changed.
+/// The CUs cached in `cached` at `key` (spec generation, environment generation), their
+/// unbound ports from `library`. When the key moved, the cache is patched: the environment
+/// graphs written since ([`KnowledgeBase::environment_changes_since`]) and those whose CUs
+/// looked something up in a spec graph written since, or looked up a node such a graph now
+/// describes ([`KnowledgeBase::spec_changes_since`]), are read again; everything is, when a
+/// log no longer reaches back or an extension or ontology changed.
 fn cus_at(
     cached: &mut Option<CachedCus>,
     kb: &KnowledgeBase,
     key: (u64, u64),
     library: &BTreeMap<Tid, Transformation>,
 ) -> Result<BTreeMap<Cid, ComputationUnit>, ModelReadError> {
-    match cached.as_ref() {
-        Some((k, cus)) if *k == key => Ok(cus.clone()),
-        _ => {
-            let cus = cus_of(cu_rows(kb)?, library);
-            *cached = Some((key, cus.clone()));
-            Ok(cus)
+    if let Some(c) = cached.as_ref()
+        && c.key == key
+    {
+        return Ok(c.cus.clone());
+    }
+    let graphs = match cached.take() {
+        Some(mut old) => match stale_graphs(kb, &old)? {
+            Some(stale) => {
+                for g in stale {
+                    match cu_graph(kb, &g)? {
+                        Some(read) => old.graphs.insert(g, read),
+                        None => old.graphs.remove(&g),
+                    };
+                }
+                old.graphs
+            }
+            None => cu_graphs(kb)?,
+        },
+        None => cu_graphs(kb)?,
+    };
+    let cus = cus_of(graphs.values().flat_map(|g| &g.rows), library);
+    *cached = Some(CachedCus {
+        key,
+        graphs,
+        cus: cus.clone(),
+    });
+    Ok(cus)
+}
+
+/// The graphs of `old` to read again: those written since; those whose CUs looked something
+/// up in a spec graph written since, or looked up a node such a graph describes now; and
+/// those with a volatile lookup. `None` when everything must be read again.
+fn stale_graphs(
+    kb: &KnowledgeBase,
+    old: &CachedCus,
+) -> Result<Option<BTreeSet<NamedNode>>, ModelReadError> {
+    let Some(mut stale) = kb.environment_changes_since(old.key.1).1 else {
+        return Ok(None);
+    };
+    let Some(graphs) = kb.spec_changes_since(old.key.0).1 else {
+        return Ok(None);
+    };
+    let mut specs = BTreeSet::new();
+    for graph in graphs {
+        if crate::graphs::spec_of_graph(graph.as_str()).is_some() {
+            specs.insert(graph);
+        } else if !crate::graphs::is_environment_graph(graph.as_str()) {
+            // An extension or ontology: what a CU reads may have changed anywhere.
+            return Ok(None);
         }
     }
+    // What the specs written describe now (a removed one, nothing).
+    let mut described = HashSet::new();
+    for graph in &specs {
+        for quad in kb
+            .store()
+            .quads_for_pattern(None, None, None, Some(graph.as_ref().into()))
+        {
+            described.insert(quad?.subject);
+        }
+    }
+    for (g, read) in &old.graphs {
+        if read.volatile
+            || read.sources.iter().any(|s| specs.contains(s))
+            || read.foreign.iter().any(|n| described.contains(n))
+        {
+            stale.insert(g.clone());
+        }
+    }
+    Ok(Some(stale))
 }
 
 /// A port of a transformation: in (or out), its name, its IRI.
@@ -568,14 +657,71 @@ struct CuRow {
     port: Option<(bool, String, Option<String>)>,
 }
 
-/// The CU rows read straight from the store's indexes: per CU graph (found through the
-/// `rdf:type dyknow:ComputationUnit` index), its own triples, and the names of its ports and
-/// transformation looked up by subject. What [`queries::CUS`] answers, without the joins over
-/// every graph that made it grow with the library (115 ms at 800 transformations and 4 CUs).
-fn cu_rows(kb: &KnowledgeBase) -> Result<Vec<CuRow>, ModelReadError> {
+/// The CU rows of every environment graph, read straight from the store's indexes: per CU
+/// (found through the `rdf:type dyknow:ComputationUnit` index), its own triples, and the
+/// names of its ports and transformation looked up by subject. What [`queries::CUS`] answers,
+/// without the joins over every graph that made it grow with the library (115 ms at 800
+/// transformations and 4 CUs).
+fn cu_graphs(kb: &KnowledgeBase) -> Result<BTreeMap<NamedNode, CuGraph>, ModelReadError> {
+    use dyknow_ontology::vocab::dyknow;
+    use oxigraph::model::GraphName;
+    use oxigraph::model::vocab::rdf;
+
+    let mut graphs: BTreeMap<NamedNode, CuGraph> = BTreeMap::new();
+    for quad in kb.store().quads_for_pattern(
+        None,
+        Some(rdf::TYPE),
+        Some(dyknow::COMPUTATION_UNIT.into()),
+        None,
+    ) {
+        let quad = quad?;
+        let GraphName::NamedNode(g) = quad.graph_name else {
+            continue;
+        };
+        if !crate::graphs::is_environment_graph(g.as_str()) {
+            continue;
+        }
+        let read = graphs.entry(g.clone()).or_default();
+        read_cu(kb, &quad.subject, &g, read)?;
+    }
+    Ok(graphs)
+}
+
+/// The CU rows of environment graph `graph`, `None` when it holds no CU.
+fn cu_graph(kb: &KnowledgeBase, graph: &NamedNode) -> Result<Option<CuGraph>, ModelReadError> {
+    use dyknow_ontology::vocab::dyknow;
+    use oxigraph::model::vocab::rdf;
+
+    if !crate::graphs::is_environment_graph(graph.as_str()) {
+        return Ok(None);
+    }
+    let mut read = None;
+    for quad in kb.store().quads_for_pattern(
+        None,
+        Some(rdf::TYPE),
+        Some(dyknow::COMPUTATION_UNIT.into()),
+        Some(graph.as_ref().into()),
+    ) {
+        read_cu(
+            kb,
+            &quad?.subject,
+            graph,
+            read.get_or_insert_with(CuGraph::default),
+        )?;
+    }
+    Ok(read)
+}
+
+/// Adds the rows of CU `cu`, described in `graph`, to `read`.
+fn read_cu(
+    kb: &KnowledgeBase,
+    cu: &oxigraph::model::NamedOrBlankNode,
+    graph: &NamedNode,
+    read: &mut CuGraph,
+) -> Result<(), ModelReadError> {
     use dyknow_ontology::vocab::{dkros, dyknow};
-    use oxigraph::model::vocab::{rdf, rdfs};
-    use oxigraph::model::{GraphName, GraphNameRef, NamedNodeRef, NamedOrBlankNode};
+    use oxigraph::model::vocab::rdfs;
+    use oxigraph::model::{GraphName, GraphNameRef, NamedNodeRef};
 
     let store = kb.store();
     // The objects of (subject, predicate) in `graph` (any graph when `None`).
@@ -602,96 +748,100 @@ fn cu_rows(kb: &KnowledgeBase) -> Result<Vec<CuRow>, ModelReadError> {
         Term::BlankNode(b) => Some(NamedOrBlankNode::BlankNode(b)),
         Term::Literal(_) => None,
     };
-    let mut rows = Vec::new();
-    for quad in store.quads_for_pattern(
-        None,
-        Some(rdf::TYPE),
-        Some(dyknow::COMPUTATION_UNIT.into()),
-        None,
-    ) {
-        let quad = quad?;
-        let GraphName::NamedNode(g) = &quad.graph_name else {
-            continue;
-        };
-        if !crate::graphs::is_environment_graph(g.as_str()) {
-            continue;
-        }
-        let graph = Some(GraphNameRef::NamedNode(g.as_ref()));
-        let cu = &quad.subject;
-        let names = literals(objects(cu, dyknow::HAS_NAME, graph)?);
-        let protected = literals(objects(cu, dkros::IS_PROTECTED, graph)?)
-            .first()
-            .is_some_and(|v| v == "true" || v == "1");
-        // The CU's port bindings: (in, port node, binding node) per subscription/publication.
-        let mut ports = Vec::new();
-        for (input, link, to_port, on_channel) in [
-            (
-                true,
-                dyknow::HAS_SUBSCRIPTION,
-                dyknow::TO_PORT,
-                dyknow::HAS_CHANNEL,
-            ),
-            (
-                false,
-                dkros::HAS_PUBLICATION,
-                dkros::PUBLISHES_PORT,
-                dkros::ON_CHANNEL,
-            ),
-        ] {
-            for binding in objects(cu, link, graph)?.into_iter().filter_map(node) {
-                let mut channels = Vec::new();
-                for ch in objects(&binding, on_channel, graph)?
-                    .into_iter()
-                    .filter_map(node)
-                {
-                    channels.extend(literals(objects(&ch, dyknow::HAS_CHANNEL_NAME, graph)?));
+    // The objects of (subject, predicate) in any graph, noted as looked up outside the CU's
+    // graph, with the graphs that answered.
+    let mut foreign = |subject: &NamedOrBlankNode,
+                       predicate: NamedNodeRef<'_>|
+     -> Result<Vec<Term>, ModelReadError> {
+        read.foreign.insert(subject.clone());
+        let mut out = Vec::new();
+        for quad in store.quads_for_pattern(Some(subject.as_ref()), Some(predicate), None, None) {
+            let quad = quad?;
+            match quad.graph_name {
+                GraphName::NamedNode(g) if crate::graphs::spec_of_graph(g.as_str()).is_some() => {
+                    read.sources.insert(g);
                 }
-                for port in objects(&binding, to_port, graph)?
-                    .into_iter()
-                    .filter_map(node)
-                {
-                    for name in literals(objects(&port, dyknow::HAS_NAME, None)?) {
-                        if channels.is_empty() {
-                            ports.push((input, name.clone(), None));
-                        }
-                        for channel in &channels {
-                            ports.push((input, name.clone(), Some(channel.clone())));
-                        }
-                    }
-                }
+                _ => read.volatile = true,
             }
+            out.push(quad.object);
         }
-        for tf in objects(cu, dyknow::INSTANCE_OF, graph)? {
-            let label = node(tf.clone())
-                .map(|n| objects(&n, rdfs::LABEL, None).map(literals))
-                .transpose()?
-                .unwrap_or_default();
-            let tids = if label.is_empty() {
-                match &tf {
-                    Term::NamedNode(n) => vec![n.as_str().to_owned()],
-                    Term::Literal(l) => vec![l.value().to_owned()],
-                    Term::BlankNode(_) => Vec::new(),
-                }
-            } else {
-                label
-            };
-            for name in &names {
-                for tid in &tids {
-                    let row = |port| CuRow {
-                        name: name.clone(),
-                        tid: tid.clone(),
-                        protected,
-                        port,
-                    };
-                    if ports.is_empty() {
-                        rows.push(row(None));
+        Ok(out)
+    };
+    let graph = Some(GraphNameRef::NamedNode(graph.as_ref()));
+    let names = literals(objects(cu, dyknow::HAS_NAME, graph)?);
+    let protected = literals(objects(cu, dkros::IS_PROTECTED, graph)?)
+        .first()
+        .is_some_and(|v| v == "true" || v == "1");
+    // The CU's port bindings: (in, port node, binding node) per subscription/publication.
+    let mut ports = Vec::new();
+    for (input, link, to_port, on_channel) in [
+        (
+            true,
+            dyknow::HAS_SUBSCRIPTION,
+            dyknow::TO_PORT,
+            dyknow::HAS_CHANNEL,
+        ),
+        (
+            false,
+            dkros::HAS_PUBLICATION,
+            dkros::PUBLISHES_PORT,
+            dkros::ON_CHANNEL,
+        ),
+    ] {
+        for binding in objects(cu, link, graph)?.into_iter().filter_map(node) {
+            let mut channels = Vec::new();
+            for ch in objects(&binding, on_channel, graph)?
+                .into_iter()
+                .filter_map(node)
+            {
+                channels.extend(literals(objects(&ch, dyknow::HAS_CHANNEL_NAME, graph)?));
+            }
+            for port in objects(&binding, to_port, graph)?
+                .into_iter()
+                .filter_map(node)
+            {
+                for name in literals(foreign(&port, dyknow::HAS_NAME)?) {
+                    if channels.is_empty() {
+                        ports.push((input, name.clone(), None));
                     }
-                    rows.extend(ports.iter().cloned().map(|p| row(Some(p))));
+                    for channel in &channels {
+                        ports.push((input, name.clone(), Some(channel.clone())));
+                    }
                 }
             }
         }
     }
-    Ok(rows)
+    for tf in objects(cu, dyknow::INSTANCE_OF, graph)? {
+        let label = node(tf.clone())
+            .map(|n| foreign(&n, rdfs::LABEL).map(literals))
+            .transpose()?
+            .unwrap_or_default();
+        let tids = if label.is_empty() {
+            match &tf {
+                Term::NamedNode(n) => vec![n.as_str().to_owned()],
+                Term::Literal(l) => vec![l.value().to_owned()],
+                Term::BlankNode(_) => Vec::new(),
+            }
+        } else {
+            label
+        };
+        for name in &names {
+            for tid in &tids {
+                let row = |port| CuRow {
+                    name: name.clone(),
+                    tid: tid.clone(),
+                    protected,
+                    port,
+                };
+                if ports.is_empty() {
+                    read.rows.push(row(None));
+                }
+                read.rows
+                    .extend(ports.iter().cloned().map(|p| row(Some(p))));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The CU rows [`queries::CUS`] answers.
@@ -716,26 +866,26 @@ fn cu_rows_by_query(kb: &KnowledgeBase) -> Result<Vec<CuRow>, ModelReadError> {
 }
 
 /// The CUs of `rows`, each port of its transformation in `library` listed, bound or not.
-fn cus_of(
-    rows: Vec<CuRow>,
+fn cus_of<'a>(
+    rows: impl IntoIterator<Item = &'a CuRow>,
     library: &BTreeMap<Tid, Transformation>,
 ) -> BTreeMap<Cid, ComputationUnit> {
     let mut cus = BTreeMap::new();
     for row in rows {
-        let cid = Cid::new(row.name);
+        let cid = Cid::new(row.name.clone());
         let cu = cus.entry(cid.clone()).or_insert_with(|| ComputationUnit {
             cid,
-            tid: Tid::new(row.tid),
+            tid: Tid::new(row.tid.clone()),
             inputs: BTreeMap::new(),
             outputs: BTreeMap::new(),
             protected: row.protected,
         });
-        if let Some((input, port, channel)) = row.port {
-            let channel = channel.map(Into::into);
-            if input {
-                cu.inputs.insert(port, channel);
+        if let Some((input, port, channel)) = &row.port {
+            let channel = channel.clone().map(Into::into);
+            if *input {
+                cu.inputs.insert(port.clone(), channel);
             } else {
-                cu.outputs.insert(port, channel);
+                cu.outputs.insert(port.clone(), channel);
             }
         }
     }
@@ -758,7 +908,7 @@ pub fn cus_by_query(
     kb: &KnowledgeBase,
     library: &BTreeMap<Tid, Transformation>,
 ) -> Result<BTreeMap<Cid, ComputationUnit>, ModelReadError> {
-    Ok(cus_of(cu_rows_by_query(kb)?, library))
+    Ok(cus_of(&cu_rows_by_query(kb)?, library))
 }
 
 /// The candidate table of `env`'s library and targets ([`queries::CANDIDATES`]).

@@ -34,6 +34,19 @@ fn count(n: impl ToString) -> Literal {
 /// subscription per bound in port (with the CU and out port that publish on the channel, so
 /// the reasoner derives `dependsOn`) and one publication per bound out port.
 pub fn cu_triples(cu: &ComputationUnit, env: &Environment, iris: &Iris) -> Vec<Triple> {
+    cu_triples_with(cu, env, &env.publishers(), iris)
+}
+
+/// The publishers of each channel in an environment ([`Environment::publishers`]).
+type Publishers<'a> = BTreeMap<&'a str, Vec<(&'a str, &'a str)>>;
+
+/// [`cu_triples`] with the environment's publishers computed once for all its CUs.
+fn cu_triples_with(
+    cu: &ComputationUnit,
+    env: &Environment,
+    publishers: &Publishers<'_>,
+    iris: &Iris,
+) -> Vec<Triple> {
     let me = cu_resource(&cu.cid);
     let mut out = vec![
         Triple::new(me.clone(), rdf::TYPE, dyknow::COMPUTATION_UNIT),
@@ -68,7 +81,6 @@ pub fn cu_triples(cu: &ComputationUnit, env: &Environment, iris: &Iris) -> Vec<T
         ));
         out.push(Triple::new(cost, dyknow::HAS_VALUE, double(tf.upkeep)));
     }
-    let publishers = env.publishers();
     for (port, channel) in &cu.inputs {
         let Some(channel) = channel else { continue };
         let s = NamedNode::new_unchecked(format!("{}/in/{}", me.as_str(), encode(port)));
@@ -168,18 +180,38 @@ fn ntriples(triples: &[Triple]) -> String {
 pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
     let mut out = Delta::default();
     let names: BTreeSet<_> = before.cus.keys().chain(after.cus.keys()).collect();
+    let (publishers_before, publishers_after) = (before.publishers(), after.publishers());
+    // What `cu_triples_with` reads of a CU's environment: its transformation's upkeep, and
+    // the first publisher of each channel it subscribes to.
+    let upkeep = |env: &Environment, cu: &ComputationUnit| {
+        env.library.get(&cu.tid).map(|t| t.upkeep.to_bits())
+    };
+    let same = |b: &ComputationUnit, a: &ComputationUnit| {
+        b == a
+            && upkeep(before, b) == upkeep(after, a)
+            && a.inputs.values().flatten().all(|ch| {
+                first_publisher(before, &publishers_before, ch.as_str())
+                    == first_publisher(after, &publishers_after, ch.as_str())
+            })
+    };
     for name in names {
+        // Unchanged, and so is all it reads: the same triples, not worth writing out.
+        if let (Some(b), Some(a)) = (before.cus.get(name), after.cus.get(name))
+            && same(b, a)
+        {
+            continue;
+        }
         let old: HashSet<Triple> = before
             .cus
             .get(name)
-            .map(|c| cu_triples(c, before, iris))
+            .map(|c| cu_triples_with(c, before, &publishers_before, iris))
             .unwrap_or_default()
             .into_iter()
             .collect();
         let new: Vec<Triple> = after
             .cus
             .get(name)
-            .map(|c| cu_triples(c, after, iris))
+            .map(|c| cu_triples_with(c, after, &publishers_after, iris))
             .unwrap_or_default();
         let new_set: HashSet<Triple> = new.iter().cloned().collect();
         if old == new_set {
@@ -192,6 +224,17 @@ pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
     out.delete.sort_by_cached_key(ToString::to_string);
     out.insert.sort_by_cached_key(ToString::to_string);
     out
+}
+
+/// The CU that a subscription to `channel` is written as coming from (the first publisher),
+/// with its port and transformation (whose port IRI is written).
+fn first_publisher<'a>(
+    env: &'a Environment,
+    publishers: &Publishers<'a>,
+    channel: &str,
+) -> Option<(&'a str, &'a str, Option<&'a str>)> {
+    let &(cu, port) = publishers.get(channel)?.first()?;
+    Some((cu, port, env.cus.get(cu).map(|c| c.tid.as_str())))
 }
 
 /// Splits triples into those describing computation units (each CU, its subscriptions,
