@@ -428,8 +428,9 @@ fn cus_at(
 }
 
 /// The graphs of `old` to read again: those written since; those whose CUs looked something
-/// up in a spec graph written since, or looked up a node such a graph describes now; and
-/// those with a volatile lookup. `None` when everything must be read again.
+/// up in a spec graph written since, or looked up a node that a graph written since (a
+/// spec's, or the environment's) describes now; and those with a volatile lookup. `None` when
+/// everything must be read again.
 fn stale_graphs(
     kb: &KnowledgeBase,
     old: &CachedCus,
@@ -449,9 +450,11 @@ fn stale_graphs(
             return Ok(None);
         }
     }
-    // What the specs written describe now (a removed one, nothing).
+    // What the graphs written describe now (a removed one, nothing). An environment graph
+    // may describe a node a CU looked up elsewhere: its triples, and what the reasoner infers
+    // from them about the same subject (a `hasName` from a sub-property).
     let mut described = HashSet::new();
-    for graph in &specs {
+    for graph in specs.iter().chain(&stale) {
         for quad in kb
             .store()
             .quads_for_pattern(None, None, None, Some(graph.as_ref().into()))
