@@ -89,28 +89,12 @@ impl KnowledgeBase {
             .chain(removes.iter().copied())
             .cloned()
             .partition(|g| is_environment_graph(g.as_str()));
-        if !environment.is_empty() {
-            let mut log = self
-                .environment_log
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            let generation = self
-                .environment_generation
-                .fetch_add(1, std::sync::atomic::Ordering::SeqCst)
-                + 1;
-            log.record(generation, environment);
-        }
-        if !touched.is_empty() {
-            let mut log = self
-                .spec_log
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            let generation = self
-                .spec_generation
-                .fetch_add(1, std::sync::atomic::Ordering::SeqCst)
-                + 1;
-            log.record(generation, touched);
-        }
+        bump(
+            &self.environment_generation,
+            &self.environment_log,
+            environment,
+        );
+        bump(&self.spec_generation, &self.spec_log, touched);
         result
     }
 
@@ -378,12 +362,7 @@ impl KnowledgeBase {
     /// everything derived from specs must be derived again). A graph listed may have been
     /// written back unchanged; its content must be read after this call.
     pub fn spec_changes_since(&self, since: u64) -> (u64, Option<BTreeSet<NamedNode>>) {
-        let log = self
-            .spec_log
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let now = self.spec_generation();
-        (now, log.since(since))
+        changes_since(&self.spec_generation, &self.spec_log, since)
     }
 
     /// The environment generation now and the environment graphs (CUs, change-set records,
@@ -392,12 +371,7 @@ impl KnowledgeBase {
     /// again). As [`KnowledgeBase::spec_changes_since`]: a graph listed may have been written
     /// back unchanged, or written after the generation returned; read it after this call.
     pub fn environment_changes_since(&self, since: u64) -> (u64, Option<BTreeSet<NamedNode>>) {
-        let log = self
-            .environment_log
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let now = self.environment_generation();
-        (now, log.since(since))
+        changes_since(&self.environment_generation, &self.environment_log, since)
     }
 
     /// A number that changes whenever a spec, an extension or an ontology graph is written or
@@ -493,6 +467,37 @@ fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
             })
             .collect(),
     ))
+}
+
+/// Bumps `generation` and logs `graphs` under it, when there are any. Under the log's lock, so
+/// the log's generations increase ([`GraphLog::since`] relies on it).
+fn bump(
+    generation: &std::sync::atomic::AtomicU64,
+    log: &std::sync::Mutex<GraphLog>,
+    graphs: Vec<NamedNode>,
+) {
+    if graphs.is_empty() {
+        return;
+    }
+    let mut log = log
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let now = generation.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+    log.record(now, graphs);
+}
+
+/// The generation now and what `log` has since `since`, read under the log's lock (so no bump
+/// lands between the two).
+fn changes_since(
+    generation: &std::sync::atomic::AtomicU64,
+    log: &std::sync::Mutex<GraphLog>,
+    since: u64,
+) -> (u64, Option<BTreeSet<NamedNode>>) {
+    let log = log
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let now = generation.load(std::sync::atomic::Ordering::SeqCst);
+    (now, log.since(since))
 }
 
 /// How many graph names a graph log keeps at most (readers further behind derive anew).
