@@ -108,8 +108,7 @@ fn at_least(a: (u64, u64), b: (u64, u64)) -> bool {
 
 /// The CUs read at a (spec generation, environment generation): the rows of each
 /// environment graph that holds any, and the CUs they make. Patched when the generations
-/// move: only the graphs written since, and those of CUs whose transformation spec changed,
-/// are read again ([`cus_at`]).
+/// move: only the graphs [`stale_graphs`] names are read again ([`cus_at`]).
 #[derive(Debug)]
 struct CachedCus {
     key: (u64, u64),
@@ -387,11 +386,10 @@ impl SpecCache {
 }
 
 /// The CUs cached in `cached` at `key` (spec generation, environment generation), their
-/// unbound ports from `library`. When the key moved, the cache is patched: the environment
-/// graphs written since ([`KnowledgeBase::environment_changes_since`]) and those whose CUs
-/// looked something up in a spec graph written since, or looked up a node such a graph now
-/// describes ([`KnowledgeBase::spec_changes_since`]), are read again; everything is, when a
-/// log no longer reaches back or an extension or ontology changed.
+/// unbound ports from `library`. When the key moved, the cache is patched: only the graphs
+/// [`stale_graphs`] names are read again (from the logs of
+/// [`KnowledgeBase::environment_changes_since`] and [`KnowledgeBase::spec_changes_since`]);
+/// everything is, when a log no longer reaches back or an extension or ontology changed.
 fn cus_at(
     cached: &mut Option<CachedCus>,
     kb: &KnowledgeBase,

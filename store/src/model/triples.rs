@@ -96,8 +96,7 @@ fn cu_triples_with(
             channel_iri(channel.as_str()),
         ));
         out.extend(channel_triples(channel.as_str()));
-        if let Some((from, from_port)) = publishers.get(channel.as_str()).and_then(|p| p.first()) {
-            let from_cu = &env.cus[*from];
+        if let Some((from_cu, from_port)) = first_publisher(env, publishers, channel.as_str()) {
             out.push(Triple::new(
                 s.clone(),
                 dyknow::FROM_CU,
@@ -105,7 +104,7 @@ fn cu_triples_with(
             ));
             if let Some(p) = iris
                 .out_ports
-                .get(&(from_cu.tid.clone(), (*from_port).to_owned()))
+                .get(&(from_cu.tid.clone(), from_port.to_owned()))
             {
                 out.push(Triple::new(s.clone(), dyknow::FROM_PORT, p.clone()));
             }
@@ -190,8 +189,12 @@ pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
         b == a
             && upkeep(before, b) == upkeep(after, a)
             && a.inputs.values().flatten().all(|ch| {
-                first_publisher(before, &publishers_before, ch.as_str())
-                    == first_publisher(after, &publishers_after, ch.as_str())
+                // The publisher's name, port and transformation: what the subscription writes.
+                let written = |env, publishers| {
+                    first_publisher(env, publishers, ch.as_str())
+                        .map(|(cu, port)| (&cu.cid, port, &cu.tid))
+                };
+                written(before, &publishers_before) == written(after, &publishers_after)
             })
     };
     for name in names {
@@ -227,14 +230,14 @@ pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
 }
 
 /// The CU that a subscription to `channel` is written as coming from (the first publisher),
-/// with its port and transformation (whose port IRI is written).
+/// with its out port.
 fn first_publisher<'a>(
     env: &'a Environment,
     publishers: &Publishers<'a>,
     channel: &str,
-) -> Option<(&'a str, &'a str, Option<&'a str>)> {
+) -> Option<(&'a ComputationUnit, &'a str)> {
     let &(cu, port) = publishers.get(channel)?.first()?;
-    Some((cu, port, env.cus.get(cu).map(|c| c.tid.as_str())))
+    Some((env.cus.get(cu)?, port))
 }
 
 /// Splits triples into those describing computation units (each CU, its subscriptions,
