@@ -16,6 +16,17 @@
 //! layered instances from another seed (0 is the published one); `EXPLORE_THREADS=n` sets the
 //! probes' further threads (1 by default); `EXPLORE_INSTANCES=DIR` keeps each instance as JSON.
 //!
+//! 3. `EXPLORE_SEEDS=0-7` (or `0,3,5`) runs instead issue 18's any-time and proof bars over
+//!    generated instances: for each seed, layered 200 × 10 (time to the proof, capped at
+//!    `EXPLORE_CAP_SECONDS`, default 1) and 500 × 20, 1,000 × 30, 2,000 × 50 (absolute costs
+//!    at the `EXPLORE_AT` marks, default 100,300,1000, and after the capped search), each
+//!    against the cheapest cost known for that instance in `benches/explore-best-known.csv`
+//!    (any run's, CP-SAT's included when `PEER_PYTHON` is set, unless `EXPLORE_CPSAT_SECONDS=0`);
+//!    then the mean gap and the number of instances more than 1 % above it at each mark, and
+//!    for 200 × 10 the root bounds: EXPLORE's and (with `PEER_PYTHON`) the LP relaxation's of
+//!    `benches/peers/lp_explore.py`. A cheaper cost than the file's
+//!    is marked `new best`; `EXPLORE_BEST_KNOWN=update` writes it to the file.
+//!
 //! EXPLORE has no published peer to run side by side (the thesis' implementation is not
 //! available); the brute-force optimum of `engine/tests/brute_force.rs` is the reference for
 //! correctness on small environments, and the best known cost is the reference here.
@@ -524,6 +535,10 @@ fn grouped(ms: u64) -> String {
 }
 
 fn main() {
+    if let Ok(seeds) = std::env::var("EXPLORE_SEEDS") {
+        seeds_table(&parse_seeds(&seeds));
+        return;
+    }
     let quick = std::env::var("BENCH_QUICK").is_ok();
     // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently, `EXPLORE_CPSAT_SECONDS=N`
     // CP-SAT (e.g. short, when iterating on EXPLORE with `EXPLORE_ONLY`; the published gaps
@@ -597,5 +612,360 @@ fn main() {
             cpsat_seconds,
             at_ms,
         );
+    }
+}
+
+/// `0-7` or `0,3,5`.
+fn parse_seeds(text: &str) -> Vec<u64> {
+    let bad = || panic!("EXPLORE_SEEDS takes a range or a list of seeds, e.g. 0-7 or 0,3,5");
+    if let Some((a, b)) = text.split_once('-') {
+        let (a, b): (u64, u64) = (
+            a.trim().parse().unwrap_or_else(|_| bad()),
+            b.trim().parse().unwrap_or_else(|_| bad()),
+        );
+        return (a..=b).collect();
+    }
+    let seeds: Vec<u64> = text
+        .split(',')
+        .map(|x| x.trim().parse().unwrap_or_else(|_| bad()))
+        .collect();
+    if seeds.is_empty() {
+        bad();
+    }
+    seeds
+}
+
+/// The cheapest cost known for each generated instance: (seed, "NxQ") → (cost, where it came
+/// from), from `benches/explore-best-known.csv` (`seed,instance,cost,source`).
+struct BestKnown {
+    path: std::path::PathBuf,
+    costs: std::collections::BTreeMap<(u64, String), (f64, String)>,
+}
+
+impl BestKnown {
+    fn read() -> Self {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../benches/explore-best-known.csv");
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let costs = text
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+            .filter_map(|l| {
+                let mut cells = l.splitn(4, ',');
+                let seed = cells.next()?.trim().parse().ok()?;
+                let instance = cells.next()?.trim().to_owned();
+                let cost = cells.next()?.trim().parse().ok()?;
+                let source = cells.next().unwrap_or("").trim().to_owned();
+                Some(((seed, instance), (cost, source)))
+            })
+            .collect();
+        Self { path, costs }
+    }
+
+    fn get(&self, seed: u64, instance: &str) -> Option<f64> {
+        self.costs.get(&(seed, instance.to_owned())).map(|c| c.0)
+    }
+
+    /// Keeps `cost` when it is cheaper than the known one; whether it was.
+    fn offer(&mut self, seed: u64, instance: &str, cost: f64, source: &str) -> bool {
+        let key = (seed, instance.to_owned());
+        let cheaper = self.costs.get(&key).is_none_or(|(c, _)| cost < *c - 1e-9);
+        if cheaper {
+            self.costs.insert(key, (cost, source.to_owned()));
+        }
+        cheaper
+    }
+
+    fn write(&self) {
+        let mut text = String::from(
+            "# The cheapest cost known for each generated layered instance of\n\
+             # lifecycle/benches/explore.rs (EXPLORE_SEED=seed), from any run: the reference of\n\
+             # EXPLORE_SEEDS=... (see docs/benchmarks.md). Written by EXPLORE_BEST_KNOWN=update.\n\
+             # seed,instance,cost,source\n",
+        );
+        for ((seed, instance), (cost, source)) in &self.costs {
+            text.push_str(&format!("{seed},{instance},{cost:.6},{source}\n"));
+        }
+        std::fs::write(&self.path, text).unwrap();
+    }
+}
+
+/// A 200 × 10 instance's proof: its time (`None`: not within the cap), the cost found, and
+/// the bounds at the root (EXPLORE's, the LP relaxation's when a peer Python is set).
+struct Proof {
+    seed: u64,
+    proven: Option<Duration>,
+    cost: dyknow_engine::Cost,
+    root: f64,
+    lp: Option<Result<f64, String>>,
+}
+
+/// The LP relaxation's bound of `instance` (`benches/peers/lp_explore.py`, OR-Tools' GLOP).
+fn lp_bound(instance: &str) -> Result<f64, String> {
+    use std::process::{Command, Stdio};
+    let python = std::env::var("PEER_PYTHON").map_err(|_| "PEER_PYTHON unset".to_owned())?;
+    let script = format!(
+        "{}/../benches/peers/lp_explore.py",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut child = Command::new(python)
+        .arg(script)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| e.to_string())?;
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(instance.as_bytes())
+        .map_err(|e| e.to_string())?;
+    let output = child.wait_with_output().map_err(|e| e.to_string())?;
+    let v: serde_json::Value = serde_json::from_slice(&output.stdout).map_err(|_| {
+        String::from_utf8_lossy(&output.stderr)
+            .lines()
+            .last()
+            .unwrap_or("failed")
+            .to_owned()
+    })?;
+    v["bound"].as_f64().ok_or(format!("no bound: {v}"))
+}
+
+/// Issue 18's any-time and proof bars over the generated instances of `seeds` (see the module
+/// documentation, 3).
+fn seeds_table(seeds: &[u64]) {
+    let cap = Duration::from_secs(number("EXPLORE_CAP_SECONDS", 1));
+    let cpsat_seconds = number("EXPLORE_CPSAT_SECONDS", 60);
+    let at_ms = match std::env::var("EXPLORE_AT") {
+        Ok(_) => any_time_millis(),
+        Err(_) => [100, 300, 1000],
+    };
+    let update = std::env::var("EXPLORE_BEST_KNOWN").is_ok_and(|v| v == "update");
+    let mut best = BestKnown::read();
+    let mut out = std::io::stdout().lock();
+    let threads = usize::try_from(number(
+        "EXPLORE_THREADS",
+        ProbeOptions::default().threads as u64,
+    ))
+    .unwrap();
+    let run = |env: &Environment, candidates: &Candidates, timeout: Duration| {
+        explore(
+            env,
+            candidates,
+            &ExploreOptions {
+                timeout: Some(timeout),
+                probes: Some(ProbeOptions {
+                    threads,
+                    ..ProbeOptions::default()
+                }),
+                ..ExploreOptions::default()
+            },
+        )
+    };
+    let [a, b, c] = at_ms.map(grouped);
+    let _ = writeln!(
+        out,
+        "# EXPLORE over generated instances (seeds {seeds:?}; proof and search capped at {} s{})\n",
+        cap.as_secs(),
+        if std::env::var("PEER_PYTHON").is_ok() && cpsat_seconds > 0 {
+            format!(", CP-SAT at {cpsat_seconds} s")
+        } else {
+            String::new()
+        }
+    );
+    let _ = writeln!(
+        out,
+        "| seed | instance | best known | {a} ms | {b} ms | {c} ms | capped search | CP-SAT |"
+    );
+    let _ = writeln!(out, "| --- | --- | --- | --- | --- | --- | --- | --- |");
+    let mut gaps: Vec<[f64; 3]> = Vec::new();
+    let mut proofs: Vec<Proof> = Vec::new();
+    let mut new_best = 0;
+    for &seed in seeds {
+        // 200 × 10: the proof.
+        let (env, candidates) = generated(200, 10, 0x5eed + 200 + seed);
+        let full = run(&env, &candidates, cap);
+        let root = dyknow_engine::lower_bound(&env, &candidates, &ExploreOptions::default());
+        let lp = std::env::var("PEER_PYTHON")
+            .ok()
+            .map(|_| lp_bound(&instance(&env, &candidates, &ExploreOptions::default())));
+        proofs.push(Proof {
+            seed,
+            proven: full.proven_optimal.then_some(full.elapsed),
+            cost: full.cost,
+            root: root.value,
+            lp,
+        });
+        if full.plan.is_some()
+            && full.cost.unsatisfied == 0
+            && best
+                .get(seed, "200x10")
+                .is_none_or(|k| full.cost.value < k - 1e-9)
+        {
+            new_best += 1;
+            if update {
+                best.offer(seed, "200x10", full.cost.value, "EXPLORE");
+            }
+        }
+        for (n, q) in [(500, 20), (1000, 30), (2000, 50)] {
+            let name = format!("{n}x{q}");
+            let (env, candidates) = generated(n, q, 0x5eed + n as u64 + seed);
+            let at: Vec<_> = at_ms
+                .iter()
+                .map(|t| run(&env, &candidates, Duration::from_millis(*t)))
+                .collect();
+            let full = run(&env, &candidates, cap);
+            let reference =
+                (std::env::var("PEER_PYTHON").is_ok() && cpsat_seconds > 0).then(|| {
+                    let json = instance(&env, &candidates, &ExploreOptions::default());
+                    cpsat(&json, cpsat_seconds)
+                });
+            // Every cost of this run that satisfies every target.
+            let mut found: Vec<(f64, &str)> = at
+                .iter()
+                .chain([&full])
+                .filter(|e| e.plan.is_some() && e.cost.unsatisfied == 0)
+                .map(|e| (e.cost.value, "EXPLORE"))
+                .collect();
+            if let Some(Ok(r)) = &reference
+                && r.unsatisfied == 0
+            {
+                found.push((r.cost, "CP-SAT"));
+            }
+            let known = best.get(seed, &name);
+            let cheapest = found
+                .iter()
+                .copied()
+                .fold(None::<(f64, &str)>, |m, f| match m {
+                    Some(m) if m.0 <= f.0 => Some(m),
+                    _ => Some(f),
+                });
+            let mut marked = false;
+            if let Some((cost, source)) = cheapest
+                && known.is_none_or(|k| cost < k - 1e-9)
+            {
+                marked = true;
+                new_best += 1;
+                if update {
+                    best.offer(seed, &name, cost, source);
+                }
+            }
+            let reference_cost = match (known, cheapest) {
+                (Some(k), Some((c, _))) => k.min(c),
+                (Some(k), None) => k,
+                (None, Some((c, _))) => c,
+                (None, None) => f64::NAN,
+            };
+            let cell = |e: &dyknow_engine::Exploration| {
+                if e.plan.is_none() || e.cost.unsatisfied > 0 {
+                    return fmt_cost(e.cost);
+                }
+                format!(
+                    "{:.2} ({:.2} %)",
+                    e.cost.value,
+                    100.0 * (e.cost.value / reference_cost - 1.0)
+                )
+            };
+            let g: Vec<f64> = at
+                .iter()
+                .map(|e| {
+                    if e.plan.is_none() || e.cost.unsatisfied > 0 {
+                        f64::INFINITY
+                    } else {
+                        100.0 * (e.cost.value / reference_cost - 1.0)
+                    }
+                })
+                .collect();
+            gaps.push([g[0], g[1], g[2]]);
+            let reference_cell = match &reference {
+                None => "not run".to_owned(),
+                Some(Ok(r)) => format!(
+                    "{} ({})",
+                    fmt_cost(dyknow_engine::Cost {
+                        unsatisfied: r.unsatisfied,
+                        value: r.cost
+                    }),
+                    r.status.to_lowercase()
+                ),
+                Some(Err(e)) => format!("n/a ({e})"),
+            };
+            let _ = writeln!(
+                out,
+                "| {seed} | {n} × {q} | {}{} | {} | {} | {} | {} | {reference_cell} |",
+                known.map_or("none".to_owned(), |k| format!("{k:.2}")),
+                if marked { " (new best)" } else { "" },
+                cell(&at[0]),
+                cell(&at[1]),
+                cell(&at[2]),
+                cell(&full),
+            );
+            let _ = out.flush();
+        }
+    }
+    let count = gaps.len() as f64;
+    let mean = |i: usize| gaps.iter().map(|g| g[i]).sum::<f64>() / count;
+    let over = |i: usize| gaps.iter().filter(|g| g[i] > 1.0).count();
+    let _ = writeln!(
+        out,
+        "\n| | {a} ms | {b} ms | {c} ms |\n| --- | --- | --- | --- |\n| mean gap to the best known | {:.2} % | {:.2} % | {:.2} % |\n| instances more than 1 % above it (of {}) | {} | {} | {} |",
+        mean(0),
+        mean(1),
+        mean(2),
+        gaps.len(),
+        over(0),
+        over(1),
+        over(2),
+    );
+    // The proofs, with how far below the optimum (or the best known) the bounds start.
+    let _ = writeln!(
+        out,
+        "\n| seed | 200 × 10: proven optimal | cost | best known | EXPLORE's root bound | LP bound (`benches/peers/lp_explore.py`) |\n| --- | --- | --- | --- | --- | --- |"
+    );
+    for p in &proofs {
+        let known = best.get(p.seed, "200x10");
+        let below = |b: f64| {
+            known.map_or(String::new(), |k| {
+                format!(" ({:.1} % below)", 100.0 * (1.0 - b / k))
+            })
+        };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {:.2}{} | {} |",
+            p.seed,
+            p.proven
+                .map_or(format!("not within {} s", cap.as_secs()), ms),
+            fmt_cost(p.cost),
+            known.map_or("none".to_owned(), |k| format!("{k:.2}")),
+            p.root,
+            below(p.root),
+            match &p.lp {
+                None => "not run".to_owned(),
+                Some(Ok(b)) => format!("{b:.2}{}", below(*b)),
+                Some(Err(e)) => format!("n/a ({e})"),
+            }
+        );
+    }
+    let _ = writeln!(
+        out,
+        "\n200 × 10 proven optimal within {} s: {} of {}",
+        cap.as_secs(),
+        proofs.iter().filter(|p| p.proven.is_some()).count(),
+        proofs.len(),
+    );
+    if new_best > 0 {
+        if update {
+            best.write();
+            let _ = writeln!(
+                out,
+                "\n{new_best} cheaper costs than the best known: written to {}",
+                best.path.display()
+            );
+        } else {
+            let _ = writeln!(
+                out,
+                "\n{new_best} cheaper costs than the best known (EXPLORE_BEST_KNOWN=update writes them)"
+            );
+        }
     }
 }
