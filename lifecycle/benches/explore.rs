@@ -354,17 +354,16 @@ struct Reference {
     seconds: f64,
 }
 
-/// Solves `instance` with the CP-SAT reference (`PEER_PYTHON`, set by `benches/run.sh`, with
-/// OR-Tools installed), within `seconds`.
-fn cpsat(instance: &str, seconds: u64) -> Result<Reference, String> {
+/// Runs `benches/peers/<script>` with `args` under `PEER_PYTHON` (set by `benches/run.sh`,
+/// with OR-Tools installed), `instance` on its standard input; its one JSON line, or why
+/// there is none (the last line of its standard error).
+fn peer(script: &str, args: &[&str], instance: &str) -> Result<serde_json::Value, String> {
     use std::process::{Command, Stdio};
     let python = std::env::var("PEER_PYTHON").map_err(|_| "PEER_PYTHON unset".to_owned())?;
-    let script = format!(
-        "{}/../benches/peers/cpsat_explore.py",
-        env!("CARGO_MANIFEST_DIR")
-    );
+    let script = format!("{}/../benches/peers/{script}", env!("CARGO_MANIFEST_DIR"));
     let mut child = Command::new(python)
-        .args([script, seconds.to_string(), "2".to_owned()])
+        .arg(script)
+        .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -377,14 +376,23 @@ fn cpsat(instance: &str, seconds: u64) -> Result<Reference, String> {
         .write_all(instance.as_bytes())
         .map_err(|e| e.to_string())?;
     let output = child.wait_with_output().map_err(|e| e.to_string())?;
-    if !output.status.success() {
-        return Err(String::from_utf8_lossy(&output.stderr)
+    let failed = || {
+        String::from_utf8_lossy(&output.stderr)
             .lines()
             .last()
             .unwrap_or("failed")
-            .to_owned());
+            .to_owned()
+    };
+    if !output.status.success() {
+        return Err(failed());
     }
-    let v: serde_json::Value = serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())?;
+    serde_json::from_slice(&output.stdout).map_err(|_| failed())
+}
+
+/// Solves `instance` with the CP-SAT reference (`benches/peers/cpsat_explore.py`), within
+/// `seconds`.
+fn cpsat(instance: &str, seconds: u64) -> Result<Reference, String> {
+    let v = peer("cpsat_explore.py", &[&seconds.to_string(), "2"], instance)?;
     Ok(Reference {
         cost: v["cost"].as_f64().ok_or(format!("no solution: {v}"))?,
         unsatisfied: v["unsatisfied"].as_u64().unwrap_or(0) as u32,
@@ -702,33 +710,7 @@ struct Proof {
 
 /// The LP relaxation's bound of `instance` (`benches/peers/lp_explore.py`, OR-Tools' GLOP).
 fn lp_bound(instance: &str) -> Result<f64, String> {
-    use std::process::{Command, Stdio};
-    let python = std::env::var("PEER_PYTHON").map_err(|_| "PEER_PYTHON unset".to_owned())?;
-    let script = format!(
-        "{}/../benches/peers/lp_explore.py",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let mut child = Command::new(python)
-        .arg(script)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .map_err(|e| e.to_string())?;
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(instance.as_bytes())
-        .map_err(|e| e.to_string())?;
-    let output = child.wait_with_output().map_err(|e| e.to_string())?;
-    let v: serde_json::Value = serde_json::from_slice(&output.stdout).map_err(|_| {
-        String::from_utf8_lossy(&output.stderr)
-            .lines()
-            .last()
-            .unwrap_or("failed")
-            .to_owned()
-    })?;
+    let v = peer("lp_explore.py", &[], instance)?;
     v["bound"].as_f64().ok_or(format!("no bound: {v}"))
 }
 
