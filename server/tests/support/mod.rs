@@ -462,19 +462,29 @@ pub fn kill_and_repair(service: &Service, cu: &str, pid: u64) -> Instant {
 }
 
 pub fn crash_change_set(service: &Service, cu: &str) -> Value {
-    eventually(
-        "a change set repairing the crash",
-        Duration::from_secs(30),
-        || {
-            service.change_sets().into_iter().find(|c| {
-                c["cause"]["kind"] == "cu-crashed"
-                    && (c["cause"]["cu"] == cu
-                        || c["cause"]["also"]
-                            .as_array()
-                            .is_some_and(|also| also.iter().any(|a| a == cu)))
-            })
-        },
-    )
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let all = service.change_sets();
+        if let Some(c) = all.iter().find(|c| {
+            c["cause"]["kind"] == "cu-crashed"
+                && (c["cause"]["cu"] == cu
+                    || c["cause"]["also"]
+                        .as_array()
+                        .is_some_and(|also| also.iter().any(|a| a == cu)))
+        }) {
+            return c.clone();
+        }
+        // On a timeout, say what was recorded instead (each change set's id, cause, actions).
+        assert!(
+            Instant::now() < deadline,
+            "timed out waiting for a change set repairing the crash of {cu}; recorded: {}",
+            all.iter()
+                .map(|c| format!("{} {} {}", c["id"], c["cause"], c["actions"]))
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
 }
 
 /// The direct children of a process.
