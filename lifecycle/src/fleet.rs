@@ -42,12 +42,21 @@ pub enum FleetEvent {
         /// The CUs it runs.
         cus: Vec<ReportedCu>,
     },
-    /// A CU crashed (reported by its executor, or its executor vanished).
+    /// A CU crashed (reported by its executor).
     Crashed {
         /// The CU.
         cu: Cid,
         /// Why.
         reason: String,
+    },
+    /// An executor vanished: the CUs placed on it crashed, all at once. One event, so that
+    /// the manager records every crash before a review can start, and one review repairs
+    /// them all, its cause naming each.
+    Vanished {
+        /// The executor.
+        executor: String,
+        /// The CUs placed on it.
+        cus: Vec<Cid>,
     },
     /// The labour of a CU that now runs, in CPU ms.
     Labour {
@@ -348,10 +357,10 @@ impl Inner {
             }
             lost
         };
-        for cu in lost {
-            let _ = self.events.send(FleetEvent::Crashed {
-                cu,
-                reason: format!("its executor {name} vanished"),
+        if !lost.is_empty() {
+            let _ = self.events.send(FleetEvent::Vanished {
+                executor: name.to_owned(),
+                cus: lost,
             });
         }
         let _ = self.events.send(FleetEvent::ExecutorsChanged);

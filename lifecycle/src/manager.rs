@@ -468,19 +468,35 @@ impl Manager {
     /// review, with the crash as its cause, tries its transformation first. The schedule learns
     /// of it under the configuration lock, so a review waiting for the lock sees it.
     fn remove_crashed(&self, cid: &Cid) -> Result<(), LifecycleError> {
+        if self.remove_all_crashed(std::slice::from_ref(cid))? == 0 {
+            return Err(LifecycleError::UnknownCu(cid.clone()));
+        }
+        Ok(())
+    }
+
+    /// [`Manager::remove_crashed`] for CUs that crashed together (their executor vanished):
+    /// one write, and every crash recorded before a review can take the configuration lock,
+    /// so that one review repairs them all and its cause names each. Those the model does not
+    /// have are skipped; returns how many it had.
+    fn remove_all_crashed(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
         let _configuration = lock(&self.configuration);
         let loaded = self.load()?;
-        let Some(cu) = loaded.env.cus.get(cid) else {
-            return Err(LifecycleError::UnknownCu(cid.clone()));
-        };
         let mut after = loaded.env.clone();
-        after.cus.remove(cid);
+        let removed: Vec<(Cid, Tid)> = cids
+            .iter()
+            .filter_map(|cid| after.cus.remove(cid).map(|cu| (cid.clone(), cu.tid)))
+            .collect();
+        if removed.is_empty() {
+            return Ok(0);
+        }
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
         self.set_environment(&delta.parts)?;
         let mut schedule = lock(&self.schedule);
-        schedule.prefer(cu.tid.clone());
-        schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
-        Ok(())
+        for (cid, tid) in &removed {
+            schedule.prefer(tid.clone());
+            schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
+        }
+        Ok(removed.len())
     }
 
     /// Spawn: a CU of a transformation with its ports unbound, recorded as a change set
@@ -1064,7 +1080,8 @@ impl Manager {
     /// What the manager does with one event of its fleet (the executors' protocol, from
     /// [`crate::Fleet`]): an executor that appeared is reconciled, a change in the executors
     /// present starts a review, a crash is a perturbation (that of a CU the model does not
-    /// have is ignored), and a measured cost comes back as an observation, to be recorded in
+    /// have is ignored; the CUs of a vanished executor crash together, in one write), and a
+    /// measured cost comes back as an observation, to be recorded in
     /// batches with [`Manager::observe_all`] (upkeep as CPU ms per time unit; none for an
     /// interval that is not positive). Nothing an executor sends makes it panic.
     pub fn handle(&self, event: FleetEvent) -> Result<Option<Observation>, LifecycleError> {
@@ -1079,6 +1096,14 @@ impl Manager {
                     Ok(()) => self.wake.notify_one(),
                     Err(LifecycleError::UnknownCu(_)) => {}
                     Err(e) => return Err(e),
+                }
+            }
+            FleetEvent::Vanished { executor, cus } => {
+                for cu in &cus {
+                    tracing::warn!("{cu} crashed: its executor {executor} vanished");
+                }
+                if self.remove_all_crashed(&cus)? > 0 {
+                    self.wake.notify_one();
                 }
             }
             FleetEvent::Labour {

@@ -553,6 +553,45 @@ fn an_event_about_a_cu_on_another_executor_is_ignored() {
 }
 
 #[test]
+fn the_cus_of_a_vanished_executor_crash_together_and_one_review_names_them_all() {
+    use dyknow_lifecycle::FleetEvent;
+    let manager = Manager::new(example_12(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager.review().unwrap();
+    let cus: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
+    assert!(cus.len() >= 2, "{cus:?}");
+    let lost = cus[..2].to_vec();
+    // One event for every CU placed on the executor (one the model lacks is skipped).
+    let mut placed = lost.clone();
+    placed.push("no-such-cu".into());
+    let vanished = FleetEvent::Vanished {
+        executor: "x".into(),
+        cus: placed,
+    };
+    assert_eq!(manager.handle(vanished).unwrap(), None);
+    // Both left the model at once: a review that starts now sees every crash, and is due.
+    let env = manager.load().unwrap().env;
+    assert!(lost.iter().all(|cu| !env.cus.contains_key(cu)), "{env:?}");
+    assert!(manager.status().review_pending);
+    let repair = manager.review().unwrap().expect("a repair");
+    let Cause::CuCrashed { cu, also } = &repair.cause else {
+        panic!("{:?}", repair.cause);
+    };
+    let named: BTreeSet<&Cid> = std::iter::once(cu).chain(also).collect();
+    assert_eq!(named, lost.iter().collect(), "{:?}", repair.cause);
+    let loaded = manager.load().unwrap();
+    assert!(loaded.env.invalidities(&loaded.candidates).is_empty());
+    // Nothing the model lacks: nothing happens.
+    let unknown = FleetEvent::Vanished {
+        executor: "x".into(),
+        cus: vec!["no-such-cu".into()],
+    };
+    let before = manager.change_sets(None).len();
+    assert_eq!(manager.handle(unknown).unwrap(), None);
+    assert!(manager.review().unwrap().is_none());
+    assert_eq!(manager.change_sets(None).len(), before);
+}
+
+#[test]
 fn what_executors_send_is_handled_without_trusting_it() {
     use dyknow_lifecycle::{FleetEvent, Observation};
     let manager = Manager::new(example_12(), Arc::new(ModelOnly), Settings::default()).unwrap();
