@@ -410,6 +410,28 @@ fn fmt_cost(c: dyknow_engine::Cost) -> String {
     }
 }
 
+/// EXPLORE with its any-time probes, within `timeout`; `EXPLORE_THREADS=n` sets the probes'
+/// further threads (`ProbeOptions::threads`).
+fn explore_within(
+    env: &Environment,
+    candidates: &Candidates,
+    timeout: Option<Duration>,
+) -> dyknow_engine::Exploration {
+    let threads = number("EXPLORE_THREADS", ProbeOptions::default().threads as u64);
+    explore(
+        env,
+        candidates,
+        &ExploreOptions {
+            timeout,
+            probes: Some(ProbeOptions {
+                threads: usize::try_from(threads).unwrap(),
+                ..ProbeOptions::default()
+            }),
+            ..ExploreOptions::default()
+        },
+    )
+}
+
 /// One instance: EXPLORE (first solution, proof capped at `cap`, any-time at the timeouts
 /// `at_ms`, its root bound) beside CP-SAT's optimum, as a table row.
 fn row(
@@ -428,22 +450,7 @@ fn row(
         return;
     }
     let options = ExploreOptions::default();
-    // `EXPLORE_THREADS=n`: the probes' further threads (`ProbeOptions::threads`).
-    let threads = number("EXPLORE_THREADS", ProbeOptions::default().threads as u64);
-    let run = |timeout: Option<Duration>| {
-        explore(
-            &env,
-            &candidates,
-            &ExploreOptions {
-                timeout,
-                probes: Some(ProbeOptions {
-                    threads: usize::try_from(threads).unwrap(),
-                    ..ProbeOptions::default()
-                }),
-                ..ExploreOptions::default()
-            },
-        )
-    };
+    let run = |timeout: Option<Duration>| explore_within(&env, &candidates, timeout);
     // First solution: the smallest timeout (backtracking stops as soon as one exists).
     let first = run(Some(Duration::ZERO));
     let full = run(Some(cap));
@@ -726,24 +733,8 @@ fn seeds_table(seeds: &[u64]) {
     let update = std::env::var("EXPLORE_BEST_KNOWN").is_ok_and(|v| v == "update");
     let mut best = BestKnown::read();
     let mut out = std::io::stdout().lock();
-    let threads = usize::try_from(number(
-        "EXPLORE_THREADS",
-        ProbeOptions::default().threads as u64,
-    ))
-    .unwrap();
     let run = |env: &Environment, candidates: &Candidates, timeout: Duration| {
-        explore(
-            env,
-            candidates,
-            &ExploreOptions {
-                timeout: Some(timeout),
-                probes: Some(ProbeOptions {
-                    threads,
-                    ..ProbeOptions::default()
-                }),
-                ..ExploreOptions::default()
-            },
-        )
+        explore_within(env, candidates, Some(timeout))
     };
     let [a, b, c] = at_ms.map(grouped);
     let _ = writeln!(
@@ -781,14 +772,9 @@ fn seeds_table(seeds: &[u64]) {
         });
         if full.plan.is_some()
             && full.cost.unsatisfied == 0
-            && best
-                .get(seed, "200x10")
-                .is_none_or(|k| full.cost.value < k - 1e-9)
+            && best.offer(seed, "200x10", full.cost.value, "EXPLORE")
         {
             new_best += 1;
-            if update {
-                best.offer(seed, "200x10", full.cost.value, "EXPLORE");
-            }
         }
         for (n, q) in [(500, 20), (1000, 30), (2000, 50)] {
             let name = format!("{n}x{q}");
@@ -816,50 +802,26 @@ fn seeds_table(seeds: &[u64]) {
                 found.push((r.cost, "CP-SAT"));
             }
             let known = best.get(seed, &name);
-            let cheapest = found
-                .iter()
-                .copied()
-                .fold(None::<(f64, &str)>, |m, f| match m {
-                    Some(m) if m.0 <= f.0 => Some(m),
-                    _ => Some(f),
-                });
-            let mut marked = false;
-            if let Some((cost, source)) = cheapest
-                && known.is_none_or(|k| cost < k - 1e-9)
-            {
-                marked = true;
-                new_best += 1;
-                if update {
-                    best.offer(seed, &name, cost, source);
-                }
-            }
+            let cheapest = found.iter().min_by(|x, y| x.0.total_cmp(&y.0)).copied();
+            let marked =
+                cheapest.is_some_and(|(cost, source)| best.offer(seed, &name, cost, source));
+            new_best += usize::from(marked);
+            // The best known, this run's cheapest included.
             let reference_cost = match (known, cheapest) {
                 (Some(k), Some((c, _))) => k.min(c),
-                (Some(k), None) => k,
-                (None, Some((c, _))) => c,
-                (None, None) => f64::NAN,
+                (k, c) => k.or(c.map(|c| c.0)).unwrap_or(f64::NAN),
             };
-            let cell = |e: &dyknow_engine::Exploration| {
-                if e.plan.is_none() || e.cost.unsatisfied > 0 {
-                    return fmt_cost(e.cost);
-                }
-                format!(
-                    "{:.2} ({:.2} %)",
-                    e.cost.value,
-                    100.0 * (e.cost.value / reference_cost - 1.0)
-                )
+            // The gap of a graph feeding every target (none otherwise).
+            let gap = |e: &dyknow_engine::Exploration| {
+                (e.plan.is_some() && e.cost.unsatisfied == 0)
+                    .then(|| 100.0 * (e.cost.value / reference_cost - 1.0))
             };
-            let g: Vec<f64> = at
-                .iter()
-                .map(|e| {
-                    if e.plan.is_none() || e.cost.unsatisfied > 0 {
-                        f64::INFINITY
-                    } else {
-                        100.0 * (e.cost.value / reference_cost - 1.0)
-                    }
-                })
-                .collect();
-            gaps.push([g[0], g[1], g[2]]);
+            let cell = |e: &dyknow_engine::Exploration| match gap(e) {
+                Some(g) => format!("{:.2} ({g:.2} %)", e.cost.value),
+                None => fmt_cost(e.cost),
+            };
+            let g = |i: usize| gap(&at[i]).unwrap_or(f64::INFINITY);
+            gaps.push([g(0), g(1), g(2)]);
             let reference_cell = match &reference {
                 None => "not run".to_owned(),
                 Some(Ok(r)) => format!(

@@ -1092,10 +1092,8 @@ impl Manager {
             FleetEvent::ExecutorsChanged => self.executors_changed()?,
             FleetEvent::Crashed { cu, reason } => {
                 tracing::warn!("{cu} crashed: {reason}");
-                match self.remove_crashed(&cu) {
-                    Ok(()) => self.wake.notify_one(),
-                    Err(LifecycleError::UnknownCu(_)) => {}
-                    Err(e) => return Err(e),
+                if self.remove_all_crashed(&[cu])? > 0 {
+                    self.wake.notify_one();
                 }
             }
             FleetEvent::Vanished { executor, cus } => {
