@@ -13,8 +13,10 @@
 //! transformations cost nothing (`reroute_cost(t) = own(t) + Σ over t's inputs of the cheapest
 //! provider's reroute cost`, with the own costs of new transformations perturbed a little so
 //! that ties and near-ties break differently from move to move). A move is kept when the
-//! graph costs no more than before, and undone otherwise; after many moves without progress a
-//! *kick* reroutes a third of the targets, kept whatever it costs.
+//! graph costs no more than before, or no more than it did [`LATE_ACCEPTANCE`] moves ago
+//! (late acceptance: the search may climb out of a valley it would otherwise only leave by
+//! a kick), and undone otherwise; after many moves without progress a *kick* reroutes a
+//! third of the targets, kept whatever it costs.
 //!
 //! Rerouting proves nothing and decides nothing: its cheapest graph becomes a probe round's
 //! neighbourhood (every job keeps the provider the graph gives it), which Algorithm 4 then
@@ -82,10 +84,54 @@ pub(super) struct Reroute {
     /// Kicks since the cheapest graph last got cheaper, and its cost at the last kick.
     failed_kicks: u32,
     best_at_kick: Option<Cost>,
+    /// The current graph's cost at each of the last [`LATE_ACCEPTANCE`] moves.
+    late: Late,
 }
 
 /// Moves without progress before a kick.
 const KICK_AFTER: u32 = 64;
+
+/// How many moves back late acceptance looks. Measured on the bench's 24 generated
+/// instances at 100 ms (docs/benchmarks.md, "Late acceptance"): 64 and 128 did better than
+/// none, 256 no better, 512 and more worse (the walk then wanders too long for 100 ms).
+const LATE_ACCEPTANCE: usize = 128;
+
+/// Late acceptance (Burke and Bykov's late acceptance hill climbing): the current cost at
+/// each of the last `n` moves, in a ring. A move is accepted when its graph costs no more
+/// than the current one or than the current one `n` moves ago.
+#[derive(Clone, Debug)]
+struct Late {
+    costs: Vec<Cost>,
+    moves: usize,
+}
+
+impl Late {
+    /// A history of `n` moves, all at `cost`.
+    fn new(n: usize, cost: Cost) -> Self {
+        Self {
+            costs: vec![cost; n],
+            moves: 0,
+        }
+    }
+
+    /// Forgets the history: every move back was at `cost` (after a kick or a new start).
+    fn reset(&mut self, cost: Cost) {
+        self.costs.fill(cost);
+    }
+
+    /// Whether a move from `current` to `after` is kept; records the current cost that
+    /// follows (`after` when kept, `current` when not).
+    fn accepts(&mut self, current: Cost, after: Cost) -> bool {
+        if self.costs.is_empty() {
+            return !current.below(after);
+        }
+        let slot = self.moves % self.costs.len();
+        self.moves = self.moves.wrapping_add(1);
+        let kept = !current.below(after) || !self.costs[slot].below(after);
+        self.costs[slot] = if kept { after } else { current };
+        kept
+    }
+}
 
 /// The share of the targets a kick rips up (each with probability numerator / denominator),
 /// by the number of kicks in a row that found nothing cheaper before it, modulo 4.
@@ -186,11 +232,13 @@ impl Reroute {
             ports: Vec::new(),
             failed_kicks: 0,
             best_at_kick: None,
+            late: Late::new(LATE_ACCEPTANCE, Cost::INFINITE),
         };
         // Start from every target rerouted in turn, nothing kept.
         reroute.rip_up_and_reroute(&(0..targets).collect::<Vec<_>>(), None, 0.0);
         reroute.cost = reroute.evaluate();
         reroute.remember();
+        reroute.late.reset(reroute.cost);
         reroute
     }
 
@@ -325,7 +373,10 @@ impl Reroute {
         self.undo.clear();
         self.rip_up_and_reroute(&ripped, forbidden, noise);
         let after = self.evaluate();
-        if kick || !cost.below(after) {
+        if kick {
+            self.late.reset(after);
+        }
+        if kick || self.late.accepts(cost, after) {
             if after.below(cost) {
                 self.stale = 0;
             } else {
@@ -870,6 +921,88 @@ mod tests {
 
     /// Each kick after one that found nothing cheaper rips up more of the cheapest graph's
     /// targets: a third, a half, two thirds, every one, then a third again.
+    #[test]
+    fn late_acceptance_keeps_a_dearer_graph_only_within_the_cost_n_moves_back() {
+        let c = |value: f64| Cost {
+            unsatisfied: 0,
+            value,
+        };
+        // Three moves back, the graph cost 12; it costs 10 now. Each step: the current
+        // cost, the move's, whether it is kept, and the ring after it (the current cost
+        // after each of the last three moves).
+        let mut late = Late::new(3, c(12.0));
+        for (current, after, kept, why) in [
+            (10.0, 12.0, true, "no dearer than the 12 of 3 moves back"),
+            (12.0, 11.0, true, "cheaper than the current graph"),
+            (11.0, 10.0, true, "cheaper than the current graph"), // 12, 11, 10
+            (10.0, 12.0, true, "no dearer than the 12 of 3 moves back"),
+            (12.0, 11.5, true, "cheaper than the current graph"),
+            (
+                11.5,
+                11.8,
+                false,
+                "dearer than 11.5 and than the 10 of 3 moves back",
+            ),
+            // The rejected move recorded the current cost in its slot: 12, 11.5, 11.5.
+            (11.5, 12.0, true, "no dearer than the 12 of 3 moves back"),
+            (12.0, 12.0 + 1e-9, false, "dearer than 12 and than 11.5"),
+        ] {
+            assert_eq!(
+                late.accepts(c(current), c(after)),
+                kept,
+                "{current} → {after}: {why}"
+            );
+        }
+        // An unsatisfied target more is dearer whatever the value.
+        let unsatisfied = Cost {
+            unsatisfied: 1,
+            value: 0.0,
+        };
+        assert!(!late.accepts(c(12.0), unsatisfied));
+        // After a reset only what is no dearer than the reset cost is kept.
+        late.reset(c(5.0));
+        assert!(!late.accepts(c(5.0), c(5.5)));
+        assert!(late.accepts(c(5.0), c(4.0)));
+    }
+
+    #[test]
+    fn without_a_history_late_acceptance_is_hill_climbing() {
+        let c = |value: f64| Cost {
+            unsatisfied: 0,
+            value,
+        };
+        let mut late = Late::new(0, c(1.0));
+        for (current, after) in [(1.0, 1.0), (1.0, 0.5), (0.5, 2.0), (2.0, 1.0), (1.0, 1.5)] {
+            assert_eq!(
+                late.accepts(c(current), c(after)),
+                after <= current,
+                "{current} → {after}"
+            );
+        }
+    }
+
+    #[test]
+    fn late_acceptance_never_loses_the_cheapest_graph() {
+        // The walk may take dearer graphs; the cheapest found only gets cheaper, and it is
+        // the cost of the graph it remembers.
+        let mut r = layered(11, 30);
+        let mut best = r.best;
+        let mut dearer = 0;
+        for _ in 0..2_000 {
+            let (before, kick) = (r.cost, r.stale >= KICK_AFTER);
+            r.step();
+            // A kick keeps a dearer graph too; late acceptance is the other way to one.
+            dearer += usize::from(!kick && before.below(r.cost));
+            assert!(!best.below(r.best), "{:?} after {best:?}", r.best);
+            best = r.best;
+        }
+        assert!(dearer > 0, "late acceptance never took a dearer graph");
+        let cheapest = r.best;
+        r.feeds.clone_from(&r.best_feeds);
+        r.fed.clone_from(&r.best_fed);
+        assert_eq!(r.evaluate(), cheapest);
+    }
+
     #[test]
     fn kicks_grow_while_they_find_nothing_cheaper() {
         let ripped = |failed: u32, again: bool| {
