@@ -921,12 +921,16 @@ mod tests {
 
     /// Each kick after one that found nothing cheaper rips up more of the cheapest graph's
     /// targets: a third, a half, two thirds, every one, then a third again.
-    #[test]
-    fn late_acceptance_keeps_a_dearer_graph_only_within_the_cost_n_moves_back() {
-        let c = |value: f64| Cost {
+    /// A cost with every target satisfied.
+    fn c(value: f64) -> Cost {
+        Cost {
             unsatisfied: 0,
             value,
-        };
+        }
+    }
+
+    #[test]
+    fn late_acceptance_keeps_a_dearer_graph_only_within_the_cost_n_moves_back() {
         // Three moves back, the graph cost 12; it costs 10 now. Each step: the current
         // cost, the move's, whether it is kept, and the ring after it (the current cost
         // after each of the last three moves).
@@ -967,10 +971,6 @@ mod tests {
 
     #[test]
     fn without_a_history_late_acceptance_is_hill_climbing() {
-        let c = |value: f64| Cost {
-            unsatisfied: 0,
-            value,
-        };
         let mut late = Late::new(0, c(1.0));
         for (current, after) in [(1.0, 1.0), (1.0, 0.5), (0.5, 2.0), (2.0, 1.0), (1.0, 1.5)] {
             assert_eq!(
