@@ -8,10 +8,19 @@
 //! 2. Generated environments of 10 to 2,000 transformations and 1 to 50 targets: layered
 //!    pipelines with alternatives (three transformations per tag), fan-in (two inputs) and
 //!    fan-out (tags consumed by several transformations). Time to a proven optimum (capped),
-//!    and the any-time cost gap to the best known cost at 10, 100 and 1,000 ms.
+//!    and the any-time cost gap to the independent peer's optimum at 10, 100 and 1,000 ms.
+//!
+//! The independent peer solves the same problem, read from a JSON instance written from the
+//! environment and the candidate table (`instance`), not from EXPLORE's structures:
+//! `EXPLORE_PEER=milp` (the default) is the mixed-integer programme of
+//! `benches/peers/milp_explore.py` solved by HiGHS, which proves optima or gives a proven lower
+//! bound; `EXPLORE_PEER=cpsat` is the CP-SAT model of `benches/peers/cpsat_explore.py` (it
+//! proves nothing beyond 50 × 5 here: `docs/benchmarks.md`). Both need `PEER_PYTHON` (set by
+//! `benches/run.sh`, which installs highspy and OR-Tools).
 //!
 //! Settings for iterating (environment): `EXPLORE_ONLY=layered-2000x50,…` runs only these
-//! rows; `EXPLORE_CAP_SECONDS`, `EXPLORE_CPSAT_SECONDS` cap the proof and CP-SAT (10 and 60 s);
+//! rows; `EXPLORE_CAP_SECONDS`, `EXPLORE_PEER_SECONDS` cap the proof and the peer (10 and
+//! 60 s; `EXPLORE_CPSAT_SECONDS=N` alone still means CP-SAT for N s);
 //! `EXPLORE_AT=10,100,1000` sets the any-time columns (ms); `EXPLORE_SEED=k` generates the
 //! layered instances from another seed (0 is the published one); `EXPLORE_THREADS=n` sets the
 //! probes' further threads (1 by default); `EXPLORE_INSTANCES=DIR` keeps each instance as JSON.
@@ -20,16 +29,20 @@
 //!    generated instances: for each seed, layered 200 × 10 (time to the proof, capped at
 //!    `EXPLORE_CAP_SECONDS`, default 1) and 500 × 20, 1,000 × 30, 2,000 × 50 (absolute costs
 //!    at the `EXPLORE_AT` marks, default 100,300,1000, and after the capped search), each
-//!    against the cheapest cost known for that instance in `benches/explore-best-known.csv`
-//!    (any run's, CP-SAT's included when `PEER_PYTHON` is set, unless `EXPLORE_CPSAT_SECONDS=0`);
-//!    then the mean gap and the number of instances more than 1 % above it at each mark, and
-//!    for 200 × 10 the root bounds: EXPLORE's and (with `PEER_PYTHON`) the LP relaxation's of
-//!    `benches/peers/lp_explore.py`. A cheaper cost than the file's
-//!    is marked `new best`; `EXPLORE_BEST_KNOWN=update` writes it to the file.
+//!    against what is known of that instance's optimum in `benches/explore-best-known.csv`:
+//!    the cheapest cost any run found and the best lower bound the MILP peer proved (equal:
+//!    the optimum). The peer runs beside each instance when `EXPLORE_PEER_SECONDS` is set
+//!    (default 0 here: the file holds its results). Then the mean gap to the cheapest known
+//!    cost, the instances more than 1 % above it, and those proven within 1 % of the optimum
+//!    (at most 1.01 × the proven bound) at each mark; for 200 × 10 the root bounds: EXPLORE's
+//!    and (with `PEER_PYTHON`) the LP relaxation's of `benches/peers/lp_explore.py`, and the
+//!    peer's own proof. A cheaper cost or a higher bound than the file's is marked `new`;
+//!    `EXPLORE_BEST_KNOWN=update` writes it to the file. A cost below a proven bound stops the
+//!    bench: one of the two models is wrong.
 //!
 //! EXPLORE has no published peer to run side by side (the thesis' implementation is not
 //! available); the brute-force optimum of `engine/tests/brute_force.rs` is the reference for
-//! correctness on small environments, and the best known cost is the reference here.
+//! correctness on small environments, and the MILP peer's proven optima and bounds here.
 #![expect(clippy::unwrap_used, reason = "a benchmark binary")]
 
 use std::io::Write;
@@ -360,9 +373,9 @@ struct Reference {
 fn peer(script: &str, args: &[&str], instance: &str) -> Result<serde_json::Value, String> {
     use std::process::{Command, Stdio};
     let python = std::env::var("PEER_PYTHON").map_err(|_| "PEER_PYTHON unset".to_owned())?;
-    let script = format!("{}/../benches/peers/{script}", env!("CARGO_MANIFEST_DIR"));
+    let path = format!("{}/../benches/peers/{script}", env!("CARGO_MANIFEST_DIR"));
     let mut child = Command::new(python)
-        .arg(script)
+        .arg(&path)
         .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -376,30 +389,113 @@ fn peer(script: &str, args: &[&str], instance: &str) -> Result<serde_json::Value
         .write_all(instance.as_bytes())
         .map_err(|e| e.to_string())?;
     let output = child.wait_with_output().map_err(|e| e.to_string())?;
-    let failed = || {
-        String::from_utf8_lossy(&output.stderr)
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let last_error = || {
+        stderr
             .lines()
-            .last()
-            .unwrap_or("failed")
+            .rfind(|l| !l.trim().is_empty())
+            .unwrap_or("no message")
             .to_owned()
     };
     if !output.status.success() {
-        return Err(failed());
+        return Err(format!(
+            "{script} failed ({}): {}",
+            output.status,
+            last_error()
+        ));
     }
-    serde_json::from_slice(&output.stdout).map_err(|_| failed())
+    // The answer is the last line (a solver may print a banner before it).
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let last = stdout.lines().rfind(|l| !l.trim().is_empty()).unwrap_or("");
+    serde_json::from_str(last)
+        .map_err(|e| format!("{script} printed no JSON line ({e}): {last:.80}"))
 }
 
-/// Solves `instance` with the CP-SAT reference (`benches/peers/cpsat_explore.py`), within
-/// `seconds`.
-fn cpsat(instance: &str, seconds: u64) -> Result<Reference, String> {
-    let v = peer("cpsat_explore.py", &[&seconds.to_string(), "2"], instance)?;
-    Ok(Reference {
-        cost: v["cost"].as_f64().ok_or(format!("no solution: {v}"))?,
-        unsatisfied: v["unsatisfied"].as_u64().unwrap_or(0) as u32,
-        bound: v["bound"].as_f64(),
-        status: v["status"].as_str().unwrap_or("?").to_owned(),
-        seconds: v["seconds"].as_f64().unwrap_or(f64::NAN),
-    })
+/// The independent exact method the bench compares EXPLORE with: `EXPLORE_PEER=milp` (the
+/// default: the mixed-integer programme of `benches/peers/milp_explore.py`, solved by HiGHS)
+/// or `cpsat` (`benches/peers/cpsat_explore.py`, OR-Tools' CP-SAT), capped at
+/// `EXPLORE_PEER_SECONDS`. `EXPLORE_CPSAT_SECONDS=N` alone, as before, means CP-SAT for N s.
+#[derive(Clone, Copy)]
+struct Peer {
+    milp: bool,
+    seconds: u64,
+}
+
+impl Peer {
+    /// The peer the environment asks for, capped at `default` seconds unless it says.
+    fn from_env(default: u64) -> Self {
+        let cpsat_seconds = std::env::var("EXPLORE_CPSAT_SECONDS").ok();
+        let milp = match std::env::var("EXPLORE_PEER").as_deref() {
+            Ok("milp") => true,
+            Ok("cpsat") => false,
+            Ok(other) => panic!("EXPLORE_PEER is milp or cpsat, not {other}"),
+            Err(_) => cpsat_seconds.is_none(),
+        };
+        let seconds = if milp {
+            number("EXPLORE_PEER_SECONDS", default)
+        } else {
+            number(
+                "EXPLORE_PEER_SECONDS",
+                number("EXPLORE_CPSAT_SECONDS", default),
+            )
+        };
+        Self { milp, seconds }
+    }
+
+    /// Whether it runs: a peer Python is set and the cap is above 0.
+    fn runs(self) -> bool {
+        std::env::var("PEER_PYTHON").is_ok() && self.seconds > 0
+    }
+
+    fn name(self) -> &'static str {
+        if self.milp { "MILP (HiGHS)" } else { "CP-SAT" }
+    }
+
+    /// The source a reference cost of this peer is recorded with.
+    fn source(self) -> &'static str {
+        if self.milp { "HiGHS" } else { "CP-SAT" }
+    }
+
+    /// Solves `instance` within the cap, on 2 threads.
+    fn solve(self, instance: &str) -> Result<Reference, String> {
+        let script = if self.milp {
+            "milp_explore.py"
+        } else {
+            "cpsat_explore.py"
+        };
+        let v = peer(script, &[&self.seconds.to_string(), "2"], instance)?;
+        Ok(Reference {
+            cost: v["cost"].as_f64().ok_or(format!("no solution: {v}"))?,
+            unsatisfied: v["unsatisfied"].as_u64().unwrap_or(0) as u32,
+            bound: v["bound"].as_f64(),
+            status: v["status"].as_str().unwrap_or("?").to_owned(),
+            seconds: v["seconds"].as_f64().unwrap_or(f64::NAN),
+        })
+    }
+}
+
+impl Reference {
+    /// Whether the peer proved its cost optimal.
+    fn optimal(&self) -> bool {
+        self.status.eq_ignore_ascii_case("optimal")
+    }
+
+    /// The table cell: cost, status, time, and the bound when not optimal.
+    fn cell(&self) -> String {
+        format!(
+            "{} ({}, {:.2} s{})",
+            fmt_cost(dyknow_engine::Cost {
+                unsatisfied: self.unsatisfied,
+                value: self.cost
+            }),
+            self.status.to_lowercase(),
+            self.seconds,
+            match self.bound {
+                Some(b) if !self.optimal() => format!(", bound {b:.2}"),
+                _ => String::new(),
+            }
+        )
+    }
 }
 
 fn fmt_cost(c: dyknow_engine::Cost) -> String {
@@ -433,14 +529,14 @@ fn explore_within(
 }
 
 /// One instance: EXPLORE (first solution, proof capped at `cap`, any-time at the timeouts
-/// `at_ms`, its root bound) beside CP-SAT's optimum, as a table row.
+/// `at_ms`, its root bound) beside the independent peer's optimum, as a table row.
 fn row(
     out: &mut impl Write,
     family: &str,
     (n, q): (usize, usize),
     (env, candidates): (Environment, Candidates),
     cap: Duration,
-    cpsat_seconds: u64,
+    peer: Peer,
     at_ms: [u64; 3],
 ) {
     // `EXPLORE_ONLY=layered-500x20,…` runs only these rows.
@@ -464,7 +560,7 @@ fn row(
     if let Ok(keep) = std::env::var("EXPLORE_INSTANCES") {
         let _ = std::fs::write(format!("{keep}/{family}-{n}x{q}.json"), &json);
     }
-    let reference = cpsat(&json, cpsat_seconds);
+    let reference = peer.solve(&json);
     let gap = |e: &dyknow_engine::Exploration| match (&e.plan, &reference) {
         (Some(_), Ok(r)) if r.unsatisfied == e.cost.unsatisfied => {
             format!(
@@ -490,19 +586,7 @@ fn row(
         format!("not within {} s", cap.as_secs())
     };
     let reference_cell = match &reference {
-        Ok(r) => format!(
-            "{} ({}, {:.2} s{})",
-            fmt_cost(dyknow_engine::Cost {
-                unsatisfied: r.unsatisfied,
-                value: r.cost
-            }),
-            r.status.to_lowercase(),
-            r.seconds,
-            match r.bound {
-                Some(b) if r.status != "OPTIMAL" => format!(", bound {b:.2}"),
-                _ => String::new(),
-            }
-        ),
+        Ok(r) => r.cell(),
         Err(e) => format!("n/a ({e})"),
     };
     let _ = writeln!(
@@ -555,11 +639,11 @@ fn main() {
         return;
     }
     let quick = std::env::var("BENCH_QUICK").is_ok();
-    // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently, `EXPLORE_CPSAT_SECONDS=N`
-    // CP-SAT (e.g. short, when iterating on EXPLORE with `EXPLORE_ONLY`; the published gaps
+    // `EXPLORE_CAP_SECONDS=N` caps EXPLORE's proof differently, `EXPLORE_PEER_SECONDS=N` the
+    // peer (e.g. short, when iterating on EXPLORE with `EXPLORE_ONLY`; the published gaps
     // are against the 60 s reference).
     let cap = Duration::from_secs(number("EXPLORE_CAP_SECONDS", if quick { 2 } else { 10 }));
-    let cpsat_seconds = number("EXPLORE_CPSAT_SECONDS", if quick { 10 } else { 60 });
+    let peer = Peer::from_env(if quick { 10 } else { 60 });
     let dir = tempfile::tempdir().unwrap();
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "# DyKnow reconfiguration benchmark\n");
@@ -574,15 +658,18 @@ fn main() {
 
     let _ = writeln!(
         out,
-        "\n## Generated environments against CP-SAT (horizon 10; EXPLORE's proof capped at {} s, CP-SAT's at {cpsat_seconds} s, 2 workers)\n",
-        cap.as_secs()
+        "\n## Generated environments against {} (horizon 10; EXPLORE's proof capped at {} s, the peer's at {} s, 2 threads)\n",
+        peer.name(),
+        cap.as_secs(),
+        peer.seconds,
     );
     let at_ms = any_time_millis();
     let seed = number("EXPLORE_SEED", 0);
     let [a, b, c] = at_ms.map(grouped);
     let _ = writeln!(
         out,
-        "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | CP-SAT (status, time) | gap to CP-SAT at {a} ms | at {b} ms | at {c} ms |"
+        "| family | transformations | targets | first solution | proven optimum | cost after the capped search | root bound | {} (status, time) | gap to it at {a} ms | at {b} ms | at {c} ms |",
+        peer.name()
     );
     let _ = writeln!(
         out,
@@ -602,15 +689,7 @@ fn main() {
     };
     for &(n, q) in layered {
         let instance = generated(n, q, 0x5eed + n as u64 + seed);
-        row(
-            &mut out,
-            "layered",
-            (n, q),
-            instance,
-            cap,
-            cpsat_seconds,
-            at_ms,
-        );
+        row(&mut out, "layered", (n, q), instance, cap, peer, at_ms);
     }
     let trees: &[(usize, usize)] = if quick {
         &[(100, 1), (200, 10)]
@@ -618,15 +697,7 @@ fn main() {
         &[(100, 1), (200, 10), (2000, 50), (10000, 50)]
     };
     for &(n, q) in trees {
-        row(
-            &mut out,
-            "tree",
-            (n, q),
-            tree(n, q),
-            cap,
-            cpsat_seconds,
-            at_ms,
-        );
+        row(&mut out, "tree", (n, q), tree(n, q), cap, peer, at_ms);
     }
 }
 
@@ -650,11 +721,28 @@ fn parse_seeds(text: &str) -> Vec<u64> {
     seeds
 }
 
-/// The cheapest cost known for each generated instance: (seed, "NxQ") → (cost, where it came
-/// from), from `benches/explore-best-known.csv` (`seed,instance,cost,source`).
+/// What is known of each generated instance's optimum: (seed, "NxQ") → the cheapest cost any
+/// run found (an upper bound on the optimum), where it came from, and the best proven lower
+/// bound (the independent peer's), from `benches/explore-best-known.csv`
+/// (`seed,instance,cost,bound,source`; `bound` empty when none is known). A bound equal to the
+/// cost proves that cost optimal.
 struct BestKnown {
     path: std::path::PathBuf,
-    costs: std::collections::BTreeMap<(u64, String), (f64, String)>,
+    known: std::collections::BTreeMap<(u64, String), Known>,
+}
+
+#[derive(Clone, Debug)]
+struct Known {
+    cost: f64,
+    bound: Option<f64>,
+    source: String,
+}
+
+impl Known {
+    /// Whether the cost is proven optimal (up to the solvers' tolerance, 1e-6 relative).
+    fn optimal(&self) -> bool {
+        self.bound.is_some_and(|b| b >= self.cost * (1.0 - 1e-6))
+    }
 }
 
 impl BestKnown {
@@ -662,57 +750,122 @@ impl BestKnown {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../benches/explore-best-known.csv");
         let text = std::fs::read_to_string(&path).unwrap_or_default();
-        let costs = text
+        let known = text
             .lines()
             .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-            .filter_map(|l| {
-                let mut cells = l.splitn(4, ',');
-                let seed = cells.next()?.trim().parse().ok()?;
-                let instance = cells.next()?.trim().to_owned();
-                let cost = cells.next()?.trim().parse().ok()?;
-                let source = cells.next().unwrap_or("").trim().to_owned();
-                Some(((seed, instance), (cost, source)))
+            .map(|l| {
+                let parsed = (|| {
+                    let mut cells = l.splitn(5, ',');
+                    let seed = cells.next()?.trim().parse().ok()?;
+                    let instance = cells.next()?.trim().to_owned();
+                    let cost = cells.next()?.trim().parse().ok()?;
+                    let bound = match cells.next()?.trim() {
+                        "" => None,
+                        b => Some(b.parse().ok()?),
+                    };
+                    let source = cells.next().unwrap_or("").trim().to_owned();
+                    Some((
+                        (seed, instance),
+                        Known {
+                            cost,
+                            bound,
+                            source,
+                        },
+                    ))
+                })();
+                parsed.unwrap_or_else(|| {
+                    panic!(
+                        "{}: not seed,instance,cost,bound,source: {l}",
+                        path.display()
+                    )
+                })
             })
             .collect();
-        Self { path, costs }
+        Self { path, known }
     }
 
-    fn get(&self, seed: u64, instance: &str) -> Option<f64> {
-        self.costs.get(&(seed, instance.to_owned())).map(|c| c.0)
+    fn get(&self, seed: u64, instance: &str) -> Option<&Known> {
+        self.known.get(&(seed, instance.to_owned()))
     }
 
-    /// Keeps `cost` when it is cheaper than the known one; whether it was.
+    /// Keeps `cost` when it is cheaper than the known one; whether it was. A cost below the
+    /// proven bound means that one of the two methods is wrong: the bench stops.
     fn offer(&mut self, seed: u64, instance: &str, cost: f64, source: &str) -> bool {
         let key = (seed, instance.to_owned());
-        let cheaper = self.costs.get(&key).is_none_or(|(c, _)| cost < *c - 1e-9);
+        let entry = self.known.entry(key).or_insert_with(|| Known {
+            cost: f64::INFINITY,
+            bound: None,
+            source: String::new(),
+        });
+        if let Some(b) = entry.bound {
+            assert!(
+                cost >= b - 1e-6 * b.abs().max(1.0),
+                "seed {seed} {instance}: {source} found {cost}, below the proven bound {b}: \
+                 EXPLORE's cost model or the peer's model is wrong"
+            );
+        }
+        let cheaper = cost < entry.cost - 1e-9;
         if cheaper {
-            self.costs.insert(key, (cost, source.to_owned()));
+            entry.cost = cost;
+            entry.source = source.to_owned();
         }
         cheaper
     }
 
+    /// Keeps `bound` when it is above the known one; whether it was. A bound above a known
+    /// cost stops the bench, as in `offer`.
+    fn offer_bound(&mut self, seed: u64, instance: &str, bound: f64) -> bool {
+        let known = self.get(seed, instance).cloned();
+        if let Some(k) = &known {
+            assert!(
+                bound <= k.cost + 1e-6 * k.cost.abs().max(1.0),
+                "seed {seed} {instance}: a proven bound {bound} above the cost {} that {} \
+                 found: EXPLORE's cost model or the peer's model is wrong",
+                k.cost,
+                k.source
+            );
+        }
+        let Some(entry) = self.known.get_mut(&(seed, instance.to_owned())) else {
+            return false;
+        };
+        let higher = entry.bound.is_none_or(|b| bound > b + 1e-9);
+        if higher {
+            // A bound within the tolerance of the cost proves it: recorded as the cost.
+            entry.bound = Some(bound.min(entry.cost));
+        }
+        higher
+    }
+
     fn write(&self) {
         let mut text = String::from(
-            "# The cheapest cost known for each generated layered instance of\n\
-             # lifecycle/benches/explore.rs (EXPLORE_SEED=seed), from any run: the reference of\n\
-             # EXPLORE_SEEDS=... (see docs/benchmarks.md). Written by EXPLORE_BEST_KNOWN=update.\n\
-             # seed,instance,cost,source\n",
+            "# What is known of the optimum of each generated layered instance of\n\
+             # lifecycle/benches/explore.rs (EXPLORE_SEED=seed), from any run: the cheapest cost\n\
+             # found and where, and the best lower bound proven by the independent MILP peer\n\
+             # (benches/peers/milp_explore.py, HiGHS); cost = bound: proven optimal. The reference\n\
+             # of EXPLORE_SEEDS=... (docs/benchmarks.md). Written by EXPLORE_BEST_KNOWN=update.\n\
+             # seed,instance,cost,bound,source\n",
         );
-        for ((seed, instance), (cost, source)) in &self.costs {
-            text.push_str(&format!("{seed},{instance},{cost:.6},{source}\n"));
+        for ((seed, instance), k) in &self.known {
+            let bound = k.bound.map_or(String::new(), |b| format!("{b:.6}"));
+            text.push_str(&format!(
+                "{seed},{instance},{:.6},{bound},{}\n",
+                k.cost, k.source
+            ));
         }
         std::fs::write(&self.path, text).unwrap();
     }
 }
 
-/// A 200 × 10 instance's proof: its time (`None`: not within the cap), the cost found, and
-/// the bounds at the root (EXPLORE's, the LP relaxation's when a peer Python is set).
+/// A 200 × 10 instance's proof: its time (`None`: not within the cap), the cost found, the
+/// bounds at the root (EXPLORE's, the LP relaxation's when a peer Python is set), and the
+/// peer's own solve when it ran.
 struct Proof {
     seed: u64,
     proven: Option<Duration>,
     cost: dyknow_engine::Cost,
     root: f64,
     lp: Option<Result<f64, String>>,
+    peer: Option<Result<Reference, String>>,
 }
 
 /// The LP relaxation's bound of `instance` (`benches/peers/lp_explore.py`, OR-Tools' GLOP).
@@ -721,11 +874,52 @@ fn lp_bound(instance: &str) -> Result<f64, String> {
     v["bound"].as_f64().ok_or(format!("no bound: {v}"))
 }
 
+/// `EXPLORE_INSTANCES=DIR` keeps the instance as `DIR/<name>.json`, for the peers by hand.
+fn keep_instance(env: &Environment, candidates: &Candidates, name: &str) {
+    if let Ok(dir) = std::env::var("EXPLORE_INSTANCES") {
+        let json = instance(env, candidates, &ExploreOptions::default());
+        let _ = std::fs::write(format!("{dir}/{name}.json"), json);
+    }
+}
+
+/// Records what the peer found for an instance: its cost (when it feeds every target) and its
+/// proven bound; how many of the two were news.
+fn offer_reference(
+    best: &mut BestKnown,
+    seed: u64,
+    instance: &str,
+    peer: Peer,
+    reference: &Result<Reference, String>,
+) -> usize {
+    let Ok(r) = reference else { return 0 };
+    if r.unsatisfied != 0 {
+        return 0;
+    }
+    let cheaper = best.offer(seed, instance, r.cost, peer.source());
+    let higher = r.bound.is_some_and(|b| best.offer_bound(seed, instance, b));
+    usize::from(cheaper) + usize::from(higher)
+}
+
+/// The reference cell of an instance: the cost, and whether it is the proven optimum or how
+/// far the proven bound is below it.
+fn known_cell(k: Option<&Known>) -> String {
+    match k {
+        None => "none".to_owned(),
+        Some(k) if k.optimal() => format!("{:.2} (optimal)", k.cost),
+        Some(Known {
+            cost,
+            bound: Some(b),
+            ..
+        }) => format!("{cost:.2} (bound {b:.2})"),
+        Some(k) => format!("{:.2}", k.cost),
+    }
+}
+
 /// Issue 18's any-time and proof bars over the generated instances of `seeds` (see the module
 /// documentation, 3).
 fn seeds_table(seeds: &[u64]) {
     let cap = Duration::from_secs(number("EXPLORE_CAP_SECONDS", 1));
-    let cpsat_seconds = number("EXPLORE_CPSAT_SECONDS", 60);
+    let peer = Peer::from_env(0);
     let at_ms = match std::env::var("EXPLORE_AT") {
         Ok(_) => any_time_millis(),
         Err(_) => [100, 300, 1000],
@@ -741,104 +935,108 @@ fn seeds_table(seeds: &[u64]) {
         out,
         "# EXPLORE over generated instances (seeds {seeds:?}; proof and search capped at {} s{})\n",
         cap.as_secs(),
-        if std::env::var("PEER_PYTHON").is_ok() && cpsat_seconds > 0 {
-            format!(", CP-SAT at {cpsat_seconds} s")
+        if peer.runs() {
+            format!(", {} at {} s", peer.name(), peer.seconds)
         } else {
             String::new()
         }
     );
     let _ = writeln!(
         out,
-        "| seed | instance | best known | {a} ms | {b} ms | {c} ms | capped search | CP-SAT |"
+        "| seed | instance | reference (cheapest known; proven optimal or bound) | {a} ms | {b} ms | {c} ms | capped search | {} |",
+        peer.name()
     );
     let _ = writeln!(out, "| --- | --- | --- | --- | --- | --- | --- | --- |");
-    let mut gaps: Vec<[f64; 3]> = Vec::new();
+    // Per instance, at each mark: the gap to the cheapest known cost, and to the proven bound
+    // (an upper estimate of the gap to the optimum; infinite without a bound).
+    let mut gaps: Vec<[(f64, f64); 3]> = Vec::new();
+    let mut optimal = 0;
     let mut proofs: Vec<Proof> = Vec::new();
-    let mut new_best = 0;
+    let mut news = 0;
     for &seed in seeds {
         // 200 × 10: the proof.
         let (env, candidates) = generated(200, 10, 0x5eed + 200 + seed);
+        keep_instance(&env, &candidates, &format!("layered-200x10-seed{seed}"));
         let full = run(&env, &candidates, cap);
         let root = dyknow_engine::lower_bound(&env, &candidates, &ExploreOptions::default());
-        let lp = std::env::var("PEER_PYTHON")
-            .ok()
-            .map(|_| lp_bound(&instance(&env, &candidates, &ExploreOptions::default())));
+        let json = instance(&env, &candidates, &ExploreOptions::default());
+        let lp = std::env::var("PEER_PYTHON").ok().map(|_| lp_bound(&json));
+        let reference = peer.runs().then(|| peer.solve(&json));
+        if full.plan.is_some() && full.cost.unsatisfied == 0 {
+            news += usize::from(best.offer(seed, "200x10", full.cost.value, "EXPLORE"));
+            if full.proven_optimal {
+                news += usize::from(best.offer_bound(seed, "200x10", full.cost.value));
+            }
+        }
+        if let Some(r) = &reference {
+            news += offer_reference(&mut best, seed, "200x10", peer, r);
+        }
         proofs.push(Proof {
             seed,
             proven: full.proven_optimal.then_some(full.elapsed),
             cost: full.cost,
             root: root.value,
             lp,
+            peer: reference,
         });
-        if full.plan.is_some()
-            && full.cost.unsatisfied == 0
-            && best.offer(seed, "200x10", full.cost.value, "EXPLORE")
-        {
-            new_best += 1;
-        }
         for (n, q) in [(500, 20), (1000, 30), (2000, 50)] {
             let name = format!("{n}x{q}");
             let (env, candidates) = generated(n, q, 0x5eed + n as u64 + seed);
+            keep_instance(&env, &candidates, &format!("layered-{name}-seed{seed}"));
             let at: Vec<_> = at_ms
                 .iter()
                 .map(|t| run(&env, &candidates, Duration::from_millis(*t)))
                 .collect();
             let full = run(&env, &candidates, cap);
-            let reference =
-                (std::env::var("PEER_PYTHON").is_ok() && cpsat_seconds > 0).then(|| {
-                    let json = instance(&env, &candidates, &ExploreOptions::default());
-                    cpsat(&json, cpsat_seconds)
-                });
-            // Every cost of this run that satisfies every target.
-            let mut found: Vec<(f64, &str)> = at
-                .iter()
-                .chain([&full])
-                .filter(|e| e.plan.is_some() && e.cost.unsatisfied == 0)
-                .map(|e| (e.cost.value, "EXPLORE"))
-                .collect();
-            if let Some(Ok(r)) = &reference
-                && r.unsatisfied == 0
-            {
-                found.push((r.cost, "CP-SAT"));
+            let reference = peer
+                .runs()
+                .then(|| peer.solve(&instance(&env, &candidates, &ExploreOptions::default())));
+            let before = best.get(seed, &name).cloned();
+            // Every cost of this run that satisfies every target, and the peer's.
+            for e in at.iter().chain([&full]) {
+                if e.plan.is_some() && e.cost.unsatisfied == 0 {
+                    news += usize::from(best.offer(seed, &name, e.cost.value, "EXPLORE"));
+                }
             }
-            let known = best.get(seed, &name);
-            let cheapest = found.iter().min_by(|x, y| x.0.total_cmp(&y.0)).copied();
-            let marked =
-                cheapest.is_some_and(|(cost, source)| best.offer(seed, &name, cost, source));
-            new_best += usize::from(marked);
-            // The best known, this run's cheapest included.
-            let reference_cost = match (known, cheapest) {
-                (Some(k), Some((c, _))) => k.min(c),
-                (k, c) => k.or(c.map(|c| c.0)).unwrap_or(f64::NAN),
-            };
-            // The gap of a graph feeding every target (none otherwise).
+            if let Some(r) = &reference {
+                news += offer_reference(&mut best, seed, &name, peer, r);
+            }
+            let known = best.get(seed, &name).cloned();
+            optimal += usize::from(known.as_ref().is_some_and(Known::optimal));
+            let reference_cost = known.as_ref().map_or(f64::NAN, |k| k.cost);
+            // The gaps of a graph feeding every target (none otherwise).
             let gap = |e: &dyknow_engine::Exploration| {
-                (e.plan.is_some() && e.cost.unsatisfied == 0)
-                    .then(|| 100.0 * (e.cost.value / reference_cost - 1.0))
+                (e.plan.is_some() && e.cost.unsatisfied == 0).then(|| {
+                    (
+                        100.0 * (e.cost.value / reference_cost - 1.0),
+                        known
+                            .as_ref()
+                            .and_then(|k| k.bound)
+                            .map_or(f64::INFINITY, |b| 100.0 * (e.cost.value / b - 1.0)),
+                    )
+                })
             };
             let cell = |e: &dyknow_engine::Exploration| match gap(e) {
-                Some(g) => format!("{:.2} ({g:.2} %)", e.cost.value),
+                Some((g, _)) => format!("{:.2} ({g:.2} %)", e.cost.value),
                 None => fmt_cost(e.cost),
             };
-            let g = |i: usize| gap(&at[i]).unwrap_or(f64::INFINITY);
+            let g = |i: usize| gap(&at[i]).unwrap_or((f64::INFINITY, f64::INFINITY));
             gaps.push([g(0), g(1), g(2)]);
             let reference_cell = match &reference {
                 None => "not run".to_owned(),
-                Some(Ok(r)) => format!(
-                    "{} ({})",
-                    fmt_cost(dyknow_engine::Cost {
-                        unsatisfied: r.unsatisfied,
-                        value: r.cost
-                    }),
-                    r.status.to_lowercase()
-                ),
+                Some(Ok(r)) => r.cell(),
                 Some(Err(e)) => format!("n/a ({e})"),
+            };
+            let changed = match (&before, &known) {
+                (Some(b), Some(k)) => b.cost != k.cost || b.bound != k.bound,
+                (None, Some(_)) => true,
+                _ => false,
             };
             let _ = writeln!(
                 out,
                 "| {seed} | {n} × {q} | {}{} | {} | {} | {} | {} | {reference_cell} |",
-                known.map_or("none".to_owned(), |k| format!("{k:.2}")),
-                if marked { " (new best)" } else { "" },
+                known_cell(known.as_ref()),
+                if changed { " (new)" } else { "" },
                 cell(&at[0]),
                 cell(&at[1]),
                 cell(&at[2]),
@@ -848,11 +1046,16 @@ fn seeds_table(seeds: &[u64]) {
         }
     }
     let count = gaps.len() as f64;
-    let mean = |i: usize| gaps.iter().map(|g| g[i]).sum::<f64>() / count;
-    let over = |i: usize| gaps.iter().filter(|g| g[i] > 1.0).count();
+    let mean = |i: usize| gaps.iter().map(|g| g[i].0).sum::<f64>() / count;
+    let over = |i: usize| gaps.iter().filter(|g| g[i].0 > 1.0).count();
+    let certified = |i: usize| gaps.iter().filter(|g| g[i].1 <= 1.0).count();
     let _ = writeln!(
         out,
-        "\n| | {a} ms | {b} ms | {c} ms |\n| --- | --- | --- | --- |\n| mean gap to the best known | {:.2} % | {:.2} % | {:.2} % |\n| instances more than 1 % above it (of {}) | {} | {} | {} |",
+        "\n| | {a} ms | {b} ms | {c} ms |\n| --- | --- | --- | --- |\n\
+         | mean gap to the cheapest known cost | {:.2} % | {:.2} % | {:.2} % |\n\
+         | instances more than 1 % above it (of {}) | {} | {} | {} |\n\
+         | instances proven within 1 % of the optimum (cost ≤ 1.01 × the proven bound) | {} | {} | {} |\n\n\
+         Cheapest known cost proven optimal on {optimal} of {} instances.",
         mean(0),
         mean(1),
         mean(2),
@@ -860,55 +1063,82 @@ fn seeds_table(seeds: &[u64]) {
         over(0),
         over(1),
         over(2),
+        certified(0),
+        certified(1),
+        certified(2),
+        gaps.len(),
     );
     // The proofs, with how far below the optimum (or the best known) the bounds start.
     let _ = writeln!(
         out,
-        "\n| seed | 200 × 10: proven optimal | cost | best known | EXPLORE's root bound | LP bound (`benches/peers/lp_explore.py`) |\n| --- | --- | --- | --- | --- | --- |"
+        "\n| seed | 200 × 10: EXPLORE proven optimal | cost | reference | EXPLORE's root bound | LP bound (`benches/peers/lp_explore.py`) | {} |\n| --- | --- | --- | --- | --- | --- | --- |",
+        peer.name()
     );
     for p in &proofs {
         let known = best.get(p.seed, "200x10");
         let below = |b: f64| {
             known.map_or(String::new(), |k| {
-                format!(" ({:.1} % below)", 100.0 * (1.0 - b / k))
+                format!(" ({:.1} % below)", 100.0 * (1.0 - b / k.cost))
             })
         };
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} | {:.2}{} | {} |",
+            "| {} | {} | {} | {} | {:.2}{} | {} | {} |",
             p.seed,
             p.proven
                 .map_or(format!("not within {} s", cap.as_secs()), ms),
             fmt_cost(p.cost),
-            known.map_or("none".to_owned(), |k| format!("{k:.2}")),
+            known_cell(known),
             p.root,
             below(p.root),
             match &p.lp {
                 None => "not run".to_owned(),
                 Some(Ok(b)) => format!("{b:.2}{}", below(*b)),
                 Some(Err(e)) => format!("n/a ({e})"),
+            },
+            match &p.peer {
+                None => "not run".to_owned(),
+                Some(Ok(r)) => r.cell(),
+                Some(Err(e)) => format!("n/a ({e})"),
             }
         );
     }
     let _ = writeln!(
         out,
-        "\n200 × 10 proven optimal within {} s: {} of {}",
+        "\n200 × 10 proven optimal by EXPLORE within {} s: {} of {}",
         cap.as_secs(),
         proofs.iter().filter(|p| p.proven.is_some()).count(),
         proofs.len(),
     );
-    if new_best > 0 {
+    if peer.runs() {
+        let _ = writeln!(
+            out,
+            "200 × 10 proven optimal by {} within {} s: {} of {} (within 1 s: {})",
+            peer.name(),
+            peer.seconds,
+            proofs
+                .iter()
+                .filter(|p| matches!(&p.peer, Some(Ok(r)) if r.optimal()))
+                .count(),
+            proofs.len(),
+            proofs
+                .iter()
+                .filter(|p| matches!(&p.peer, Some(Ok(r)) if r.optimal() && r.seconds <= 1.0))
+                .count(),
+        );
+    }
+    if news > 0 {
         if update {
             best.write();
             let _ = writeln!(
                 out,
-                "\n{new_best} cheaper costs than the best known: written to {}",
+                "\n{news} cheaper costs or higher bounds than the reference's: written to {}",
                 best.path.display()
             );
         } else {
             let _ = writeln!(
                 out,
-                "\n{new_best} cheaper costs than the best known (EXPLORE_BEST_KNOWN=update writes them)"
+                "\n{news} cheaper costs or higher bounds than the reference's (EXPLORE_BEST_KNOWN=update writes them)"
             );
         }
     }
