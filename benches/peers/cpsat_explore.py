@@ -27,6 +27,8 @@ import time
 
 from ortools.sat.python import cp_model
 
+from explore_instance import further_kinds
+
 SCALE = 1_000_000
 
 
@@ -78,12 +80,7 @@ def solve(instance, seconds, workers):
     channels = len({t["channel"] for t in targets})
     for t in {p for p, _port in feeds}:
         tf = tids[t]
-        protected_cus = tf.get("protected_cus", 1 if tf["protected"] else 0)
-        other_cus = tf.get("other_cus", 0)
-        if protected_cus > 0:
-            free_n, kept_n = protected_cus - 1, other_cus
-        else:
-            free_n, kept_n = 0, max(other_cus - 1, 0)
+        free_n, kept_n = further_kinds(tf)
         free = model.NewIntVar(0, min(free_n, channels), f"free{t}")
         kept = model.NewIntVar(0, min(kept_n, channels), f"kept{t}")
         spawned = model.NewIntVar(0, channels, f"spawned{t}")

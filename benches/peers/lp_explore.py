@@ -25,6 +25,8 @@ import sys
 
 from ortools.linear_solver import pywraplp
 
+from explore_instance import reach as reach_of
+
 
 def bound(instance):
     tfs = instance["transformations"]
@@ -35,14 +37,7 @@ def bound(instance):
             solver.Add(x[t] == 1)
     for k, target in enumerate(instance["targets"]):
         providers = sorted({p for p, _port in target["providers"]})
-        reach, stack = set(), list(providers)
-        while stack:
-            t = stack.pop()
-            if t in reach:
-                continue
-            reach.add(t)
-            for ps in tfs[t]["inputs"]:
-                stack.extend(p for p, _port in ps)
+        reach = reach_of(tfs, providers)
         u = {t: solver.NumVar(0, 1, f"u{k}_{t}") for t in reach}
         for t in reach:
             solver.Add(u[t] <= x[t])

@@ -38,6 +38,9 @@ import time
 
 import highspy
 
+from explore_instance import further_kinds
+from explore_instance import reach as reach_of
+
 
 def quiet_highs():
     """A HiGHS instance that logs nothing: its constructor prints a banner on standard output,
@@ -126,14 +129,7 @@ def solve(instance, seconds, threads):
         unsat.append(u_k)
         ports = sorted({(p, port) for p, port in target["providers"] if feedable[p]})
         # The reach of target k: what may take part in feeding it.
-        reach, stack = set(), [p for p, _port in ports]
-        while stack:
-            t = stack.pop()
-            if t in reach:
-                continue
-            reach.add(t)
-            for ins in tfs[t]["inputs"]:
-                stack.extend(p for p, _port in ins if feedable[p])
+        reach = reach_of(tfs, [p for p, _port in ports], lambda p: feedable[p])
         u = {t: h.addVariable(lb=0.0, ub=1.0) for t in sorted(reach)}
         for t in sorted(reach):
             h.addConstr(u[t] - x[t] <= 0)
@@ -153,12 +149,7 @@ def solve(instance, seconds, threads):
     further = {}
     for t in sorted({p for p, _port in feeds}):
         tf = tfs[t]
-        protected_cus = tf.get("protected_cus", 1 if tf["protected"] else 0)
-        other_cus = tf.get("other_cus", 0)
-        if protected_cus > 0:
-            free_n, kept_n = protected_cus - 1, other_cus
-        else:
-            free_n, kept_n = 0, max(other_cus - 1, 0)
+        free_n, kept_n = further_kinds(tf)
         m = len(channels)
         integer = highspy.HighsVarType.kInteger
         free = h.addVariable(lb=0, ub=min(free_n, m), obj=0.0, type=integer)
