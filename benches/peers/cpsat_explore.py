@@ -27,7 +27,7 @@ import time
 
 from ortools.sat.python import cp_model
 
-from explore_instance import further_kinds
+from explore_instance import answer, further_kinds
 
 SCALE = 1_000_000
 
@@ -139,16 +139,8 @@ def solve(instance, seconds, workers):
     bound_unsat = int(scaled_bound // big)
     slack = 0.5 * (n + 2 * len(further) * channels) / SCALE
     bound = (scaled_bound - bound_unsat * big) / SCALE - slack + constant
-    return {
-        "status": solver.StatusName(status),
-        "cost": cost,
-        "unsatisfied": unsatisfied,
-        "bound": bound if bound_unsat == unsatisfied else None,
-        "bound_unsatisfied": bound_unsat,
-        "chosen": len(chosen),
-        "further_cus": runs,
-        "seconds": elapsed,
-    }
+    return answer(solver.StatusName(status), cost, unsatisfied, bound, bound_unsat, len(chosen),
+                  runs, elapsed)
 
 
 def main():

@@ -26,3 +26,20 @@ def further_kinds(tf):
     if protected_cus > 0:
         return protected_cus - 1, other_cus
     return 0, max(other_cus - 1, 0)
+
+
+def answer(status, cost, unsatisfied, bound, bound_unsatisfied, chosen, further_cus, seconds, **more):
+    """The one JSON object a peer prints (what lifecycle/benches/explore.rs reads): the
+    configuration found (its cost, targets left unsatisfied, transformations chosen, further
+    CUs), the proven bound when it is for as many unsatisfied targets, the status and time."""
+    return {
+        "status": status,
+        "cost": cost,
+        "unsatisfied": unsatisfied,
+        "bound": bound if bound_unsatisfied == unsatisfied else None,
+        "bound_unsatisfied": bound_unsatisfied,
+        "chosen": chosen,
+        "further_cus": further_cus,
+        "seconds": seconds,
+        **more,
+    }

@@ -38,7 +38,7 @@ import time
 
 import highspy
 
-from explore_instance import further_kinds
+from explore_instance import answer, further_kinds
 from explore_instance import reach as reach_of
 
 
@@ -198,17 +198,8 @@ def solve(instance, seconds, threads):
     dual = info.mip_dual_bound
     bound_unsat = int(dual // big) if dual < inf else unsatisfied
     bound = dual - bound_unsat * big + instance.get("constant", 0.0)
-    return {
-        "status": name,
-        "cost": cost,
-        "unsatisfied": unsatisfied,
-        "bound": bound if bound_unsat == unsatisfied else None,
-        "bound_unsatisfied": bound_unsat,
-        "chosen": len(chosen),
-        "further_cus": runs,
-        "nodes": info.mip_node_count,
-        "seconds": elapsed,
-    }
+    return answer(name, cost, unsatisfied, bound, bound_unsat, len(chosen), runs, elapsed,
+                  nodes=info.mip_node_count)
 
 
 def main():
