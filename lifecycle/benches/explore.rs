@@ -874,10 +874,10 @@ fn lp_bound(instance: &str) -> Result<f64, String> {
     v["bound"].as_f64().ok_or(format!("no bound: {v}"))
 }
 
-/// `EXPLORE_INSTANCES=DIR` keeps the instance as `DIR/<name>.json`, for the peers by hand.
-fn keep_instance(env: &Environment, candidates: &Candidates, name: &str) {
+/// `EXPLORE_INSTANCES=DIR` keeps the instance `json` as `DIR/<name>.json`, for the peers by
+/// hand.
+fn keep_instance(json: &str, name: &str) {
     if let Ok(dir) = std::env::var("EXPLORE_INSTANCES") {
-        let json = instance(env, candidates, &ExploreOptions::default());
         let _ = std::fs::write(format!("{dir}/{name}.json"), json);
     }
 }
@@ -956,10 +956,10 @@ fn seeds_table(seeds: &[u64]) {
     for &seed in seeds {
         // 200 × 10: the proof.
         let (env, candidates) = generated(200, 10, 0x5eed + 200 + seed);
-        keep_instance(&env, &candidates, &format!("layered-200x10-seed{seed}"));
+        let json = instance(&env, &candidates, &ExploreOptions::default());
+        keep_instance(&json, &format!("layered-200x10-seed{seed}"));
         let full = run(&env, &candidates, cap);
         let root = dyknow_engine::lower_bound(&env, &candidates, &ExploreOptions::default());
-        let json = instance(&env, &candidates, &ExploreOptions::default());
         let lp = std::env::var("PEER_PYTHON").ok().map(|_| lp_bound(&json));
         let reference = peer.runs().then(|| peer.solve(&json));
         if full.plan.is_some() && full.cost.unsatisfied == 0 {
@@ -982,15 +982,14 @@ fn seeds_table(seeds: &[u64]) {
         for (n, q) in [(500, 20), (1000, 30), (2000, 50)] {
             let name = format!("{n}x{q}");
             let (env, candidates) = generated(n, q, 0x5eed + n as u64 + seed);
-            keep_instance(&env, &candidates, &format!("layered-{name}-seed{seed}"));
+            let json = instance(&env, &candidates, &ExploreOptions::default());
+            keep_instance(&json, &format!("layered-{name}-seed{seed}"));
             let at: Vec<_> = at_ms
                 .iter()
                 .map(|t| run(&env, &candidates, Duration::from_millis(*t)))
                 .collect();
             let full = run(&env, &candidates, cap);
-            let reference = peer
-                .runs()
-                .then(|| peer.solve(&instance(&env, &candidates, &ExploreOptions::default())));
+            let reference = peer.runs().then(|| peer.solve(&json));
             let before = best.get(seed, &name).cloned();
             // Every cost of this run that satisfies every target, and the peer's.
             for e in at.iter().chain([&full]) {
