@@ -53,16 +53,35 @@ impl Ticks {
         Duration::from_millis(self.period_ms as u64)
     }
 
-    /// The tick nearest to now, unless it was already taken.
-    fn next(&mut self) -> Option<i64> {
-        let now = now_ms();
-        let t = (now + self.period_ms / 2) / self.period_ms * self.period_ms;
-        (t > self.last).then(|| {
-            self.last = t;
+    /// The ticks due now, oldest first: every tick after the last one taken up to the tick
+    /// nearest to now, none more than [`LATE_MS`] before it. The host's CUs share one timer
+    /// thread, and a camera's callback (rendering, then the in-process stages its frame
+    /// feeds) holds it for tens of milliseconds: a 50 Hz source's timer then fires late,
+    /// and taking only the tick nearest to now lost up to one pose in four. A late tick is now
+    /// published late instead of never; after a longer stall the older ticks are skipped
+    /// rather than replayed, so a stream's gap is a real outage.
+    fn due(&mut self) -> impl Iterator<Item = i64> + use<> {
+        self.due_at(now_ms())
+    }
+
+    fn due_at(&mut self, now: i64) -> impl Iterator<Item = i64> + use<> {
+        let period = self.period_ms;
+        let t = (now + period / 2) / period * period;
+        let oldest = t - LATE_MS / period * period;
+        let first = if self.last == i64::MIN {
             t
-        })
+        } else {
+            (self.last + period).max(oldest)
+        };
+        if t > self.last {
+            self.last = t;
+        }
+        (first..=t).step_by(period as usize)
     }
 }
+
+/// How late a tick may be published (see [`Ticks::due`]).
+const LATE_MS: i64 = 250;
 
 /// A source: at every tick of its clock, one sample computed from the tick's time on every out
 /// port.
@@ -82,7 +101,7 @@ impl<F: FnMut(i64) -> Value + Send + 'static> Transformation for Source<F> {
     }
 
     fn on_timer(&mut self, cu: &mut NodeHandle<'_>, _: TimerId) -> Result<(), CuError> {
-        if let Some(t) = self.ticks.next() {
+        for t in self.ticks.due() {
             let value = (self.make)(t);
             cu.publish_all(&Sample::new(t, value))?;
         }
@@ -291,18 +310,60 @@ impl Transformation for BallDetector {
 }
 
 /// `nao/ball_localization`: the ball's pixel and the robot's pose at the frame's time into
-/// the ball's position on the field `{"x", "y"}` (metres).
+/// the ball's position on the field `{"x", "y"}` (metres), with the pose sensed nearest to
+/// the frame's time within [`POSE_WINDOW_MS`].
+///
+/// A pixel waits for its poses: the two inputs arrive on different threads (the pose from
+/// the host's timer thread, the pixel after the segmenter's round trip), so a pixel may come
+/// before the poses around its frame's time. It is localised once a pose at exactly its time
+/// is there or one later than its window (nothing nearer can come), and dropped only when
+/// no pose of its window ever came. Before, it was dropped on arrival: up to 8 of 60 frames
+/// in a run of the Chapter 6 pipeline (`docs/lab.md`).
 pub struct BallLocalization {
     poses: BTreeMap<i64, Pose>,
+    /// Pixels waiting for the poses of their window, by frame time.
+    waiting: BTreeMap<i64, PixelPos>,
 }
 
+/// How far from a frame's time its pose may have been sensed.
+const POSE_WINDOW_MS: i64 = 25;
+
 impl BallLocalization {
+    /// Poses kept (4 s at 50 Hz), and pixels waiting at most.
+    const POSES: usize = 200;
+    const WAITING: usize = 32;
+
     /// A localiser.
     #[must_use]
     pub fn new() -> Self {
         Self {
             poses: BTreeMap::new(),
+            waiting: BTreeMap::new(),
         }
+    }
+
+    /// Localises the waiting pixels whose pose is known now, oldest first.
+    fn localise_waiting(&mut self, cu: &mut NodeHandle<'_>) -> Result<(), CuError> {
+        let latest = self.poses.last_key_value().map(|(t, _)| *t);
+        while let Some((&t, _)) = self.waiting.first_key_value() {
+            let closed = latest.is_some_and(|l| l > t + POSE_WINDOW_MS);
+            if !closed && !self.poses.contains_key(&t) {
+                break;
+            }
+            let pixel = self.waiting.pop_first().map(|(_, p)| p);
+            let nearest = self
+                .poses
+                .range(t - POSE_WINDOW_MS..=t + POSE_WINDOW_MS)
+                .min_by_key(|(pt, _)| (**pt - t).abs())
+                .map(|(_, p)| *p);
+            if let Some((x, y)) = pixel
+                .zip(nearest)
+                .and_then(|(pixel, pose)| nao::localize(&pixel, &pose))
+            {
+                cu.publish_all(&Sample::new(t, json!({"x": x, "y": y})))?;
+            }
+        }
+        Ok(())
     }
 }
 
@@ -316,26 +377,22 @@ impl Transformation for BallLocalization {
     fn on_sample(&mut self, cu: &mut NodeHandle<'_>, _: &str, s: Sample) -> Result<(), CuError> {
         if s.value.get("head_yaw").is_some() {
             self.poses.insert(s.t, pose_of(&s.value)?);
-            while self.poses.len() > 200 {
+            while self.poses.len() > Self::POSES {
                 self.poses.pop_first();
             }
-            return Ok(());
+        } else {
+            let pixel = PixelPos {
+                u: number(&s.value, "u")?,
+                v: number(&s.value, "v")?,
+                radius: number(&s.value, "radius")?,
+            };
+            self.waiting.insert(s.t, pixel);
+            // Without poses (the pose CU is gone) the oldest would wait for ever.
+            while self.waiting.len() > Self::WAITING {
+                self.waiting.pop_first();
+            }
         }
-        let pixel = PixelPos {
-            u: number(&s.value, "u")?,
-            v: number(&s.value, "v")?,
-            radius: number(&s.value, "radius")?,
-        };
-        // The pose sensed nearest to the frame's time, within 25 ms.
-        let nearest = self
-            .poses
-            .range(s.t - 25..=s.t + 25)
-            .min_by_key(|(t, _)| (**t - s.t).abs())
-            .map(|(_, p)| *p);
-        if let Some((x, y)) = nearest.and_then(|pose| nao::localize(&pixel, &pose)) {
-            cu.publish_all(&Sample::new(s.t, json!({"x": x, "y": y})))?;
-        }
-        Ok(())
+        self.localise_waiting(cu)
     }
 }
 
@@ -508,5 +565,173 @@ impl Transformation for FieldBallDetector {
             cu.publish_all(&Sample::new(s.t, json!({"x": x, "y": y})))?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::ROBOTS;
+
+    fn every(period_ms: i64) -> Ticks {
+        Ticks {
+            period_ms,
+            last: i64::MIN,
+        }
+    }
+
+    fn due(ticks: &mut Ticks, now: i64) -> Vec<i64> {
+        ticks.due_at(now).collect()
+    }
+
+    #[test]
+    fn a_source_starts_at_the_tick_nearest_to_now_and_takes_each_tick_once() {
+        let mut ticks = every(20);
+        assert_eq!(due(&mut ticks, 1_009), [1_000]);
+        // Early, or again within the same tick: nothing.
+        assert_eq!(due(&mut ticks, 1_009), Vec::<i64>::new());
+        assert_eq!(due(&mut ticks, 1_001), Vec::<i64>::new());
+        // On time.
+        assert_eq!(due(&mut ticks, 1_020), [1_020]);
+        assert_eq!(due(&mut ticks, 1_041), [1_040]);
+    }
+
+    #[test]
+    fn a_timer_that_fires_late_loses_no_tick() {
+        // The 50 Hz pose when a camera's callback held the timer thread: the timer due at
+        // 1,040 fires at 1,052, whose nearest tick is 1,060. Before, 1,040 was never
+        // published.
+        let mut ticks = every(20);
+        assert_eq!(due(&mut ticks, 1_020), [1_020]);
+        assert_eq!(due(&mut ticks, 1_052), [1_040, 1_060]);
+        assert_eq!(due(&mut ticks, 1_080), [1_080]);
+        // Ticks up to LATE_MS late are taken, oldest first: 240 ms of them here.
+        assert_eq!(
+            due(&mut ticks, 1_320),
+            (1_100..=1_320).step_by(20).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn after_a_long_stall_the_older_ticks_are_skipped_not_replayed() {
+        let mut ticks = every(100);
+        assert_eq!(due(&mut ticks, 1_000), [1_000]);
+        // Ten seconds without a firing: only the ticks of the last LATE_MS.
+        assert_eq!(due(&mut ticks, 11_010), [10_800, 10_900, 11_000]);
+        assert_eq!(due(&mut ticks, 11_100), [11_100]);
+    }
+
+    /// What a CU published, by port.
+    #[derive(Default)]
+    struct Published(Vec<Sample>);
+
+    impl dyknow_cu::Outputs for Published {
+        fn publish(&mut self, _: &str, sample: &Sample) -> Result<(), CuError> {
+            self.0.push(sample.clone());
+            Ok(())
+        }
+
+        fn is_bound(&self, _: &str) -> bool {
+            true
+        }
+    }
+
+    /// Feeds `samples` to a localiser; returns the (t, position) it published.
+    fn localise(samples: &[Sample]) -> Vec<(i64, (f64, f64))> {
+        let (params, inputs, outputs) = (BTreeMap::new(), Vec::new(), vec!["out".to_owned()]);
+        let (mut published, mut timers) = (Published::default(), Vec::new());
+        let mut localiser = BallLocalization::new();
+        for s in samples {
+            let mut cu = NodeHandle::new(
+                "localiser",
+                &params,
+                &inputs,
+                &outputs,
+                &mut published,
+                &mut timers,
+            );
+            localiser.on_sample(&mut cu, "in", s.clone()).unwrap();
+        }
+        published
+            .0
+            .iter()
+            .map(|s| {
+                (
+                    s.t,
+                    (
+                        s.value["x"].as_f64().unwrap(),
+                        s.value["y"].as_f64().unwrap(),
+                    ),
+                )
+            })
+            .collect()
+    }
+
+    fn pose_at(t: i64) -> Sample {
+        Sample::new(
+            t,
+            pose_json(&nao::sensed_pose(&World::default(), &ROBOTS[0], t)),
+        )
+    }
+
+    const PIXEL: PixelPos = PixelPos {
+        u: 640.0,
+        v: 900.0,
+        radius: 12.0,
+    };
+
+    fn pixel_at(t: i64) -> Sample {
+        Sample::new(
+            t,
+            json!({"u": PIXEL.u, "v": PIXEL.v, "radius": PIXEL.radius}),
+        )
+    }
+
+    /// Where [`PIXEL`] is with the pose sensed at `t`.
+    fn seen_with_pose_of(t: i64) -> (f64, f64) {
+        nao::localize(&PIXEL, &nao::sensed_pose(&World::default(), &ROBOTS[0], t)).unwrap()
+    }
+
+    #[test]
+    fn a_pixel_after_its_pose_is_localised_at_once() {
+        let out = localise(&[pose_at(980), pose_at(1_000), pixel_at(1_000)]);
+        assert_eq!(out, [(1_000, seen_with_pose_of(1_000))]);
+    }
+
+    #[test]
+    fn a_pixel_before_its_pose_waits_for_it() {
+        // The pixel overtook the poses of its window (they were held on the timer thread).
+        let out = localise(&[pose_at(960), pixel_at(1_000)]);
+        assert!(out.is_empty(), "{out:?}");
+        let out = localise(&[pose_at(960), pixel_at(1_000), pose_at(980), pose_at(1_000)]);
+        assert_eq!(out, [(1_000, seen_with_pose_of(1_000))]);
+        // No pose at its time: the nearest in its window, once a later one closes it.
+        let out = localise(&[pose_at(960), pixel_at(1_010), pose_at(1_000)]);
+        assert!(out.is_empty(), "{out:?}");
+        let out = localise(&[
+            pose_at(960),
+            pixel_at(1_010),
+            pose_at(1_000),
+            pose_at(1_020),
+            pose_at(1_040),
+        ]);
+        assert_eq!(out, [(1_010, seen_with_pose_of(1_000))]);
+    }
+
+    #[test]
+    fn a_pixel_without_a_pose_in_its_window_is_dropped_and_holds_up_nothing() {
+        let out = localise(&[
+            pose_at(900),
+            pixel_at(1_000),
+            pixel_at(1_100),
+            pose_at(1_100),
+        ]);
+        assert_eq!(out, [(1_100, seen_with_pose_of(1_100))]);
+        // Without any pose, at most WAITING pixels wait.
+        let pixels: Vec<Sample> = (0..100).map(|k| pixel_at(k * 100)).collect();
+        let mut all = pixels.clone();
+        all.push(pose_at(9_900));
+        let out = localise(&all);
+        assert_eq!(out, [(9_900, seen_with_pose_of(9_900))]);
     }
 }

@@ -144,6 +144,70 @@ fn positions_are_true(service: &Service, channel: &str, n: usize, step: &str) {
     eprintln!("{step}: {n} positions, worst error {worst:.3} m");
 }
 
+/// Ports' statistics as the CU's executor counts them, from one report: (samples, `t` of the
+/// last one) per port.
+fn ports<const N: usize>(
+    service: &Service,
+    cus: &BTreeMap<String, Value>,
+    transformation: &str,
+    ports: [&str; N],
+) -> [(i64, i64); N] {
+    let name = of(cus, transformation)["name"].as_str().unwrap().to_owned();
+    let statistics = service.get(&format!("/cus/{name}"))["statistics"]["ports"].clone();
+    ports.map(|port| {
+        (
+            statistics[port]["messages"].as_i64().unwrap_or(0),
+            statistics[port]["last_t"].as_i64().unwrap_or(i64::MIN),
+        )
+    })
+}
+
+/// Over `seconds` of Piff's pipeline, as its executor counts them (no network between): the
+/// pose publishes every tick, and every pixel the localisation receives becomes a position
+/// (`docs/lab.md`, "No sample is lost to the host's timing": a pose whose timer fired late,
+/// and a pixel that arrived before its poses, were lost).
+fn nothing_lost_between_stages(service: &Service, cus: &BTreeMap<String, Value>, seconds: i64) {
+    const POSE_PERIOD_MS: i64 = 20; // nao/pose at its default 50 Hz (the spec sets no fps)
+    let counts = || {
+        let [pose] = ports(service, cus, "pose(piff)", ["pose"]);
+        let [pixels, positions] = ports(
+            service,
+            cus,
+            "ball_localization(piff)",
+            ["pixelPos", "position"],
+        );
+        // A pixel waiting for its pose when the counts are read is not lost.
+        let waiting = i64::from(pixels.1 > positions.1);
+        (pose, pixels.0 - positions.0 - waiting, pixels.0)
+    };
+    let (pose, lost, pixels) =
+        eventually("Piff's first positions", Duration::from_secs(30), || {
+            let c = counts();
+            (c.2 > 0).then_some(c)
+        });
+    let (pose_after, lost_after, pixels_after) =
+        eventually("Piff's pipeline to run on", Duration::from_secs(30), || {
+            let c = counts();
+            (c.0.1 >= pose.1 + seconds * 1_000).then_some(c)
+        });
+    let ticks = (pose_after.1 - pose.1) / POSE_PERIOD_MS;
+    assert_eq!(
+        pose_after.0 - pose.0,
+        ticks,
+        "pose samples published from t = {} to {}",
+        pose.1,
+        pose_after.1
+    );
+    let received = pixels_after - pixels;
+    assert_eq!(
+        lost_after - lost,
+        0,
+        "of {received} pixels, {} not localised",
+        lost_after - lost
+    );
+    eprintln!("Piff over {seconds} s: {ticks} pose ticks and {received} pixels, none lost");
+}
+
 /// How long the target's stream was interrupted by something at `at_ms`: from then to the
 /// first sample computed from a frame after it.
 fn outage(target: &Listener, (at, at_ms): (Instant, i64)) -> u128 {
@@ -291,6 +355,7 @@ fn chapter_6_runs_live_on_three_executors() {
         .unwrap()
         .to_owned();
     positions_are_true(&service, &position, 20, "Piff");
+    nothing_lost_between_stages(&service, &config, 3);
     for _ in 0..10 {
         let (_, s) = target.next();
         let (x, y) = World::default().ball_at(s.t);
