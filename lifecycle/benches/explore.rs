@@ -1016,7 +1016,13 @@ fn seeds_table(seeds: &[u64]) {
                 })
             };
             let cell = |e: &dyknow_engine::Exploration| match gap(e) {
-                Some((g, _)) => format!("{:.2} ({g:.2} %)", e.cost.value),
+                // A cost equal to the reference but summed in another order can fall a
+                // few ulps below it: printed as 0.00 %, not -0.00 %.
+                Some((g, _)) => format!(
+                    "{:.2} ({:.2} %)",
+                    e.cost.value,
+                    if g.abs() < 0.005 { 0.0 } else { g }
+                ),
                 None => fmt_cost(e.cost),
             };
             let g = |i: usize| gap(&at[i]).unwrap_or((f64::INFINITY, f64::INFINITY));
