@@ -1,5 +1,7 @@
 //! In-process breakdown of batch ingestion (the `docs/benchmarks.md` "Where the batch time goes"
-//! table): `cargo run --release --workspace --example ingest_breakdown [specs]`.
+//! table): `cargo build --release --locked --workspace --examples`, then
+//! `$CARGO_TARGET_DIR/release/examples/ingest_breakdown [specs]` (`cargo run` takes no
+//! `--workspace`, and `-p dyknow-store --features rocksdb` would build RocksDB a second time).
 #![expect(clippy::unwrap_used, reason = "a measurement tool")]
 
 use dyknow_store::oxigraph::model::Quad;
