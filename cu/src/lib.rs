@@ -44,7 +44,7 @@ pub use pins::{KEPT as KEPT_KEYS, pinned_key};
 pub use process::{ProcessEnv, client_config, client_config_file, router_config, run_process};
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};
-pub use transformation::{NodeHandle, Outputs, TimerId, Transformation};
+pub use transformation::{Collect, NodeHandle, Outputs, TimerId, Transformation};
 pub use unit::{CrashHook, Started, Unit, UnitSpec, panic_message};
 
 pub use zenoh;

@@ -60,6 +60,22 @@ pub trait Outputs {
     fn is_bound(&self, port: &str) -> bool;
 }
 
+/// [`Outputs`] that keep what is published, (port, sample) in order: for running a
+/// transformation without a host, e.g. in its tests ([`NodeHandle::new`] over it).
+#[derive(Debug, Default)]
+pub struct Collect(pub Vec<(String, Sample)>);
+
+impl Outputs for Collect {
+    fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
+        self.0.push((port.to_owned(), sample.clone()));
+        Ok(())
+    }
+
+    fn is_bound(&self, _: &str) -> bool {
+        true
+    }
+}
+
 /// A CU's view of itself during a callback (the seed's `dyknow::NodeHandle`).
 pub struct NodeHandle<'a> {
     pub(crate) name: &'a str,

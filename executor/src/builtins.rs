@@ -482,21 +482,9 @@ impl Transformation for Fault {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dyknow_cu::Outputs;
+    use dyknow_cu::Collect;
     use serde_json::json;
     use std::collections::BTreeMap;
-
-    #[derive(Default)]
-    struct Collect(Vec<(String, Sample)>);
-    impl Outputs for Collect {
-        fn publish(&mut self, port: &str, sample: &Sample) -> Result<(), CuError> {
-            self.0.push((port.to_owned(), sample.clone()));
-            Ok(())
-        }
-        fn is_bound(&self, _: &str) -> bool {
-            true
-        }
-    }
 
     fn spec(params: Value) -> UnitSpec {
         UnitSpec {

@@ -621,25 +621,10 @@ mod tests {
         assert_eq!(due(&mut ticks, 11_100), [11_100]);
     }
 
-    /// What a CU published, by port.
-    #[derive(Default)]
-    struct Published(Vec<Sample>);
-
-    impl dyknow_cu::Outputs for Published {
-        fn publish(&mut self, _: &str, sample: &Sample) -> Result<(), CuError> {
-            self.0.push(sample.clone());
-            Ok(())
-        }
-
-        fn is_bound(&self, _: &str) -> bool {
-            true
-        }
-    }
-
     /// Feeds `samples` to a localiser; returns the (t, position) it published.
     fn localise(samples: &[Sample]) -> Vec<(i64, (f64, f64))> {
         let (params, inputs, outputs) = (BTreeMap::new(), Vec::new(), vec!["out".to_owned()]);
-        let (mut published, mut timers) = (Published::default(), Vec::new());
+        let (mut published, mut timers) = (dyknow_cu::Collect::default(), Vec::new());
         let mut localiser = BallLocalization::new();
         for s in samples {
             let mut cu = NodeHandle::new(
@@ -655,7 +640,7 @@ mod tests {
         published
             .0
             .iter()
-            .map(|s| {
+            .map(|(_, s)| {
                 (
                     s.t,
                     (
