@@ -8,7 +8,7 @@
 #   benches/run.sh rcc8        RCC-8 closure (Figures 3.10, 3.11) against PyRCC8; landmarks (Figures 3.8, 3.9)
 #   benches/run.sh groups      a formula group of 1,000 formulas over 100 live channels at 100 Hz (issue 15)
 #   benches/run.sh ui          the web view with 500 running CUs in headless chromium (issue 16)
-#   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery
+#   benches/run.sh dataplane   chains of relay CUs (Figure 5.5) against plain Zenoh and dora; crash recovery; timers
 #   benches/run.sh load        64 HTTP clients for 10 minutes with Chapter 6 running; SPARQL against `oxigraph serve`
 #   benches/run.sh scale       libraries of 100 to 10,000 transformations, 1 and 50 targets: spec change to change set, GET /cus, start-up (issue 18)
 #   benches/run.sh startup     start-up on a store of 10,000 specs loaded offline (benches/startup.sh)
@@ -76,6 +76,7 @@ if [ "$which" = all ] || [ "$which" = dataplane ]; then
   cargo bench --locked --workspace --bench chain -- --messages 1000 --rate 5 --idle-cus 0
   benches/peers/dora/run.sh --messages 1000 --rate 5
   cargo bench --locked --workspace --bench recovery
+  cargo bench --locked --workspace --bench timers
 fi
 if [ "$which" = all ] || [ "$which" = load ]; then
   cargo bench --locked --workspace --bench load -- --secs 600 --clients 64

@@ -188,7 +188,8 @@ fn serve<T: Transformation>(
     .wait()?;
     let transformation = make(&env.spec)?;
     let (exit_tx, exit_rx) = mpsc::channel::<Exit>();
-    let timers = Timers::start();
+    // One CU: its callbacks run one at a time anyway, so the queue's thread fires them.
+    let timers = Timers::with_workers(0);
     // The control service first, then the CU (whose liveliness token tells the executor it
     // may send requests): a request never finds the service missing.
     let slot: Arc<OnceLock<Unit>> = Arc::default();

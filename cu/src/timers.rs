@@ -1,8 +1,12 @@
-//! One thread that fires the timers of every CU of a host, so idle CUs cost no thread and
-//! no CPU.
+//! The timer threads of a host: one thread keeps every CU's timers in a queue and fires the
+//! quick ones itself; a timer whose last firing took longer than [`Timers::INLINE_BELOW`]
+//! (or that never fired yet) goes to a small pool of workers. So idle CUs cost no thread and
+//! no CPU, a quick timer costs no hand-off between threads, and one CU's slow callback (a
+//! camera rendering its frame) does not hold up the others' timers.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
+use std::sync::mpsc;
 use std::sync::{Arc, Condvar, Mutex, PoisonError, Weak};
 use std::time::{Duration, Instant};
 
@@ -18,6 +22,8 @@ struct Entry {
     period: Duration,
     timer: usize,
     target: Weak<dyn Fire>,
+    /// How long its last firing took; `None` before the first.
+    took: Option<Duration>,
 }
 
 impl PartialEq for Entry {
@@ -44,10 +50,12 @@ struct Queue {
     stopped: bool,
 }
 
-/// The timer thread of a host. Dropping the last handle stops it.
+type Shared = Arc<(Mutex<Queue>, Condvar)>;
+
+/// The timer threads of a host. Dropping the last handle stops them.
 #[derive(Clone)]
 pub struct Timers {
-    shared: Arc<(Mutex<Queue>, Condvar)>,
+    shared: Shared,
     _stop: Arc<Stop>,
 }
 
@@ -57,7 +65,7 @@ impl std::fmt::Debug for Timers {
     }
 }
 
-struct Stop(Arc<(Mutex<Queue>, Condvar)>);
+struct Stop(Shared);
 
 impl Drop for Stop {
     fn drop(&mut self) {
@@ -68,13 +76,43 @@ impl Drop for Stop {
 }
 
 impl Timers {
-    /// Starts the timer thread.
+    /// How many workers [`Timers::start`] gives a host: as many callbacks as this can be slow
+    /// at once before the others' timers wait.
+    pub const WORKERS: usize = 4;
+
+    /// A timer whose last firing took less than this fires on the queue's thread; a slower
+    /// one, on a worker.
+    pub const INLINE_BELOW: Duration = Duration::from_micros(500);
+
+    /// Starts the queue's thread and [`Timers::WORKERS`] workers.
     pub fn start() -> Self {
-        let shared: Arc<(Mutex<Queue>, Condvar)> = Arc::default();
+        Self::with_workers(Self::WORKERS)
+    }
+
+    /// Starts the queue's thread and `workers` workers. With none, the queue's thread fires
+    /// every timer itself, one after another (enough for a process that hosts one CU: its
+    /// callbacks run one at a time anyway).
+    pub fn with_workers(workers: usize) -> Self {
+        let shared: Shared = Arc::default();
+        let (to_workers, from_queue) = mpsc::channel::<Entry>();
+        let from_queue = Arc::new(Mutex::new(from_queue));
+        let mut started = 0;
+        for i in 0..workers {
+            let (shared, from_queue) = (shared.clone(), from_queue.clone());
+            match std::thread::Builder::new()
+                .name(format!("dyknow-timer-{i}"))
+                .spawn(move || work(&shared, &from_queue))
+            {
+                Ok(_) => started += 1,
+                Err(e) => tracing::error!("cannot start a timer worker: {e}"),
+            }
+        }
+        // Without a worker (none asked for, or none could start) the queue fires them itself.
+        let to_workers = (started > 0).then_some(to_workers);
         let worker = shared.clone();
         let spawned = std::thread::Builder::new()
             .name("dyknow-timers".into())
-            .spawn(move || run(&worker));
+            .spawn(move || run(&worker, to_workers.as_ref()));
         if let Err(e) = spawned {
             tracing::error!("cannot start the timer thread: {e}");
         }
@@ -85,7 +123,8 @@ impl Timers {
     }
 
     /// Fires `timer` of `target` every `period`, first after one period, while `target`
-    /// lives and wants it.
+    /// lives and wants it. One timer never fires twice at once: it is out of the queue while
+    /// it fires.
     pub fn every(&self, target: Weak<dyn Fire>, timer: usize, period: Duration) {
         let (queue, signal) = &*self.shared;
         let mut queue = queue.lock().unwrap_or_else(PoisonError::into_inner);
@@ -97,12 +136,15 @@ impl Timers {
             period,
             timer,
             target,
+            took: None,
         }));
         signal.notify_one();
     }
 }
 
-fn run(shared: &(Mutex<Queue>, Condvar)) {
+/// The queue's thread: waits for the earliest timer, fires it if it was quick last time (or
+/// there is no worker), else hands it to a worker.
+fn run(shared: &(Mutex<Queue>, Condvar), workers: Option<&mpsc::Sender<Entry>>) {
     let (queue, signal) = shared;
     let mut guard = queue.lock().unwrap_or_else(PoisonError::into_inner);
     loop {
@@ -126,24 +168,57 @@ fn run(shared: &(Mutex<Queue>, Condvar)) {
                     .0;
             }
             Some(_) => {
-                let Some(Reverse(mut entry)) = guard.heap.pop() else {
+                let Some(Reverse(entry)) = guard.heap.pop() else {
                     continue;
                 };
                 drop(guard);
-                let again = entry.target.upgrade().is_some_and(|t| t.fire(entry.timer));
-                guard = queue.lock().unwrap_or_else(PoisonError::into_inner);
-                if again {
-                    // Fixed rate; after a long stall, the next tick is one period from now.
-                    entry.due += entry.period;
-                    let now = Instant::now();
-                    if entry.due < now {
-                        entry.due = now + entry.period;
-                    }
-                    guard.heap.push(Reverse(entry));
+                let quick = entry.took.is_some_and(|d| d < Timers::INLINE_BELOW);
+                let unsent = match workers {
+                    Some(workers) if !quick => workers.send(entry).err().map(|e| e.0),
+                    _ => Some(entry),
+                };
+                if let Some(entry) = unsent {
+                    fire(shared, entry);
                 }
+                guard = queue.lock().unwrap_or_else(PoisonError::into_inner);
             }
         }
     }
+}
+
+/// A worker: fires the timers the queue hands it until the queue's thread stops.
+fn work(shared: &(Mutex<Queue>, Condvar), from_queue: &Mutex<mpsc::Receiver<Entry>>) {
+    loop {
+        let next = from_queue
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .recv();
+        match next {
+            Ok(entry) => fire(shared, entry),
+            Err(_) => return,
+        }
+    }
+}
+
+/// Fires `entry` and, if its target wants it again, puts it back in the queue.
+fn fire(shared: &(Mutex<Queue>, Condvar), mut entry: Entry) {
+    let clock = Instant::now();
+    let again = entry.target.upgrade().is_some_and(|t| t.fire(entry.timer));
+    if !again {
+        return;
+    }
+    entry.took = Some(clock.elapsed());
+    let (queue, signal) = shared;
+    let mut guard = queue.lock().unwrap_or_else(PoisonError::into_inner);
+    // Fixed rate; after a long stall, the next tick is one period from now.
+    entry.due += entry.period;
+    let now = Instant::now();
+    if entry.due < now {
+        entry.due = now + entry.period;
+    }
+    guard.heap.push(Reverse(entry));
+    // The queue's thread may be asleep until a later timer.
+    signal.notify_one();
 }
 
 #[cfg(test)]
@@ -158,9 +233,16 @@ mod tests {
         }
     }
 
-    #[test]
-    fn timers_fire_until_their_target_says_stop_or_is_gone() {
-        let timers = Timers::start();
+    /// Polls until `count` reaches `n`, for at most 10 s.
+    fn wait_for(count: &AtomicUsize, n: usize, what: &str) {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while count.load(Ordering::SeqCst) < n {
+            assert!(Instant::now() < deadline, "{what}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    fn timers_fire_until_their_target_says_stop_or_is_gone(timers: &Timers) {
         let three = Arc::new(Count(AtomicUsize::new(0), 3));
         let as_fire: Arc<dyn Fire> = three.clone();
         timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(2));
@@ -171,16 +253,111 @@ mod tests {
         let weak_gone = Arc::downgrade(&gone);
         drop(gone);
         assert!(weak_gone.upgrade().is_none());
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while three.0.load(Ordering::SeqCst) < 3 {
-            assert!(
-                Instant::now() < deadline,
-                "the timer never fired three times"
-            );
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        wait_for(&three.0, 3, "the timer never fired three times");
         // It said stop on the third firing: forty more periods bring no fourth.
         std::thread::sleep(Duration::from_millis(80));
         assert_eq!(three.0.load(Ordering::SeqCst), 3);
+    }
+
+    #[test]
+    fn timers_fire_until_their_target_says_stop_or_is_gone_with_workers() {
+        timers_fire_until_their_target_says_stop_or_is_gone(&Timers::start());
+    }
+
+    #[test]
+    fn timers_fire_until_their_target_says_stop_or_is_gone_without_workers() {
+        timers_fire_until_their_target_says_stop_or_is_gone(&Timers::with_workers(0));
+    }
+
+    /// Blocks in its first firing until the test releases it.
+    struct Slow {
+        entered: Mutex<mpsc::Sender<()>>,
+        release: Mutex<mpsc::Receiver<()>>,
+    }
+    impl Fire for Slow {
+        fn fire(&self, _timer: usize) -> bool {
+            let _ = self.entered.lock().unwrap().send(());
+            let _ = self.release.lock().unwrap().recv();
+            false
+        }
+    }
+
+    #[test]
+    fn a_slow_callback_does_not_hold_up_the_other_timers() {
+        let timers = Timers::start();
+        let (entered, in_slow) = mpsc::channel();
+        let (release, released) = mpsc::channel();
+        let slow: Arc<dyn Fire> = Arc::new(Slow {
+            entered: Mutex::new(entered),
+            release: Mutex::new(released),
+        });
+        timers.every(Arc::downgrade(&slow), 0, Duration::from_millis(1));
+        in_slow
+            .recv_timeout(Duration::from_secs(10))
+            .expect("the slow timer fired");
+        // With one thread firing every timer, this one would wait until the slow one returns.
+        let fast = Arc::new(Count(AtomicUsize::new(0), usize::MAX));
+        let fast_fire: Arc<dyn Fire> = fast.clone();
+        timers.every(Arc::downgrade(&fast_fire), 0, Duration::from_millis(1));
+        wait_for(&fast.0, 3, "the other timer waited for the slow callback");
+        release.send(()).unwrap();
+    }
+
+    /// Counts how many of its firings overlap.
+    #[derive(Default)]
+    struct Overlap {
+        inside: AtomicUsize,
+        most: AtomicUsize,
+        fired: AtomicUsize,
+    }
+    impl Fire for Overlap {
+        fn fire(&self, _timer: usize) -> bool {
+            let inside = self.inside.fetch_add(1, Ordering::SeqCst) + 1;
+            self.most.fetch_max(inside, Ordering::SeqCst);
+            // Longer than the period: the next tick is due before this one returns.
+            std::thread::sleep(Duration::from_millis(3));
+            self.inside.fetch_sub(1, Ordering::SeqCst);
+            self.fired.fetch_add(1, Ordering::SeqCst);
+            true
+        }
+    }
+
+    #[test]
+    fn a_timer_never_fires_twice_at_once() {
+        let timers = Timers::start();
+        let overlap = Arc::new(Overlap::default());
+        let as_fire: Arc<dyn Fire> = overlap.clone();
+        timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(1));
+        wait_for(&overlap.fired, 20, "the timer never fired twenty times");
+        drop(as_fire);
+        assert_eq!(overlap.most.load(Ordering::SeqCst), 1);
+    }
+
+    /// Records the name of the thread of each firing.
+    #[derive(Default)]
+    struct Where(Mutex<Vec<String>>, AtomicUsize);
+    impl Fire for Where {
+        fn fire(&self, _timer: usize) -> bool {
+            let name = std::thread::current().name().unwrap_or("").to_owned();
+            self.0.lock().unwrap().push(name);
+            self.1.fetch_add(1, Ordering::SeqCst);
+            true
+        }
+    }
+
+    #[test]
+    fn a_quick_timer_fires_on_the_queues_thread_after_its_first_firing() {
+        let timers = Timers::start();
+        let at = Arc::new(Where::default());
+        let as_fire: Arc<dyn Fire> = at.clone();
+        timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(1));
+        wait_for(&at.1, 20, "the timer never fired twenty times");
+        drop(as_fire);
+        let names = at.0.lock().unwrap().clone();
+        // Not known to be quick yet: a worker.
+        assert!(names[0].starts_with("dyknow-timer-"), "{names:?}");
+        // Then on the queue's thread, unless a firing was preempted for longer than
+        // INLINE_BELOW (then the next goes to a worker again).
+        assert!(names.iter().any(|n| n == "dyknow-timers"), "{names:?}");
     }
 }

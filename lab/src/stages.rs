@@ -54,10 +54,11 @@ impl Ticks {
     }
 
     /// The ticks due now, oldest first: every tick after the last one taken up to the tick
-    /// nearest to now, none more than [`LATE_MS`] before it. The host's CUs share one timer
-    /// thread, and a camera's callback (rendering, then the in-process stages its frame
-    /// feeds) holds it for tens of milliseconds: a 50 Hz source's timer then fires late,
-    /// and taking only the tick nearest to now lost up to one pose in four. A late tick is now
+    /// nearest to now, none more than [`LATE_MS`] before it. A timer can fire late: when the
+    /// host's CUs shared one timer thread, a camera's callback (rendering, then the in-process
+    /// stages its frame feeds) held it for tens of milliseconds, and taking only the tick
+    /// nearest to now lost up to one pose in four. The host's timers now have workers
+    /// (`dyknow_cu::Timers`), and a timer can still be late on a busy machine. A late tick is
     /// published late instead of never; after a longer stall the older ticks are skipped
     /// rather than replayed, so a stream's gap is a real outage.
     fn due(&mut self) -> impl Iterator<Item = i64> + use<> {
@@ -314,7 +315,7 @@ impl Transformation for BallDetector {
 /// the frame's time within [`POSE_WINDOW_MS`].
 ///
 /// A pixel waits for its poses: the two inputs arrive on different threads (the pose from
-/// the host's timer thread, the pixel after the segmenter's round trip), so a pixel may come
+/// a timer of the host, the pixel after the segmenter's round trip), so a pixel may come
 /// before the poses around its frame's time. It is localised once a pose at exactly its time
 /// is there or one later than its window (nothing nearer can come), and dropped only when
 /// no pose of its window ever came. Before, it was dropped on arrival: up to 8 of 60 frames
@@ -598,7 +599,7 @@ mod tests {
 
     #[test]
     fn a_timer_that_fires_late_loses_no_tick() {
-        // The 50 Hz pose when a camera's callback held the timer thread: the timer due at
+        // The 50 Hz pose when a camera's callback held the (then only) timer thread: the timer due at
         // 1,040 fires at 1,052, whose nearest tick is 1,060. Before, 1,040 was never
         // published.
         let mut ticks = every(20);

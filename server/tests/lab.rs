@@ -34,17 +34,48 @@ fn cus(service: &Service) -> BTreeMap<String, Value> {
         .collect()
 }
 
-/// The transformations of the running CUs, once all of them run on `executors`.
+/// The running CUs once their transformations are exactly `transformations`, all running. On a
+/// timeout the panic says what was last seen (each CU's transformation, state and executor),
+/// the last change sets, and the service's last lines.
 fn settled(service: &Service, transformations: &[&str]) -> BTreeMap<String, Value> {
     let want: BTreeSet<&str> = transformations.iter().copied().collect();
-    eventually("the configuration", Duration::from_secs(60), || {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
         let cus = cus(service);
         let have: BTreeSet<&str> = cus
             .values()
             .map(|c| c["transformation"].as_str().unwrap())
             .collect();
-        (have == want && cus.values().all(|c| c["state"] == "running")).then_some(cus.clone())
-    })
+        if have == want && cus.values().all(|c| c["state"] == "running") {
+            return cus;
+        }
+        if Instant::now() >= deadline {
+            let seen: Vec<String> = cus
+                .values()
+                .map(|c| {
+                    format!(
+                        "{} {} on {}",
+                        c["transformation"], c["state"], c["executor"]
+                    )
+                })
+                .collect();
+            let change_sets = service.change_sets();
+            let last: Vec<String> = change_sets
+                .iter()
+                .rev()
+                .take(3)
+                .map(|c| format!("{} {} {}", c["cause"], c["status"], c["cost"]))
+                .collect();
+            service.failed(
+                "timed out waiting for the configuration",
+                format!(
+                    "want {want:?}; last seen {seen:?}; executors {}; last change sets (newest first) {last:?}",
+                    service.get("/executors")
+                ),
+            );
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
 }
 
 /// `dependsOn` in the store (SPARQL over the materialised graph) by CU name.
@@ -208,6 +239,44 @@ fn nothing_lost_between_stages(service: &Service, cus: &BTreeMap<String, Value>,
     eprintln!("Piff over {seconds} s: {ticks} pose ticks and {received} pixels, none lost");
 }
 
+/// How late samples arrive on `channels` over `seconds`: from the time a sample stands for
+/// (its `t`) to its arrival here, in ms. A source stamps its samples with the tick of its
+/// clock nearest to when its timer fires, so the lateness is offset by the phase between
+/// timer and clock (up to half a period either way); its spread, the jitter, is not.
+/// Printed, not asserted: it measures the host's timing (`docs/lab.md`, "Timers").
+fn lateness(session: &dyknow_cu::zenoh::Session, channels: &[(&str, &str)], seconds: u64) {
+    let listeners: Vec<(&str, Listener)> = channels
+        .iter()
+        .map(|(what, channel)| (*what, Listener::new(session, channel)))
+        .collect();
+    let (start, start_ms) = now();
+    let until = start + Duration::from_secs(seconds);
+    while Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    for (what, listener) in listeners {
+        let mut late: Vec<i64> = listener
+            .drain()
+            .into_iter()
+            .map(|(arrived, s)| {
+                let arrived_ms = start_ms
+                    + i64::try_from(arrived.saturating_duration_since(start).as_millis()).unwrap();
+                arrived_ms - s.t
+            })
+            .collect();
+        late.sort_unstable();
+        if let (Some(min), Some(median), Some(max)) =
+            (late.first(), late.get(late.len() / 2), late.last())
+        {
+            eprintln!(
+                "{what}: {} samples in {seconds} s, late by {min} / {median} / {max} ms (min / median / max), jitter {} ms",
+                late.len(),
+                max - min
+            );
+        }
+    }
+}
+
 /// How long the target's stream was interrupted by something at `at_ms`: from then to the
 /// first sample computed from a frame after it.
 fn outage(target: &Listener, (at, at_ms): (Instant, i64)) -> u128 {
@@ -356,6 +425,19 @@ fn chapter_6_runs_live_on_three_executors() {
         .to_owned();
     positions_are_true(&service, &position, 20, "Piff");
     nothing_lost_between_stages(&service, &config, 3);
+    let pose = of(&config, "pose(piff)")["outputs"]["pose"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    lateness(
+        &session,
+        &[
+            ("pose", &pose),
+            ("position", &position),
+            ("target", "/target_1"),
+        ],
+        3,
+    );
     for _ in 0..10 {
         let (_, s) = target.next();
         let (x, y) = World::default().ball_at(s.t);
