@@ -322,14 +322,18 @@ mod tests {
         }
     }
 
+    /// Fires `target` every millisecond, with workers, until `fired(target)` reaches `n`.
+    fn fire_until<T: Fire + 'static>(target: &Arc<T>, fired: fn(&T) -> &AtomicUsize, n: usize) {
+        let timers = Timers::start();
+        let as_fire: Arc<dyn Fire> = target.clone();
+        timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(1));
+        wait_for(fired(target), n, "the timer never fired often enough");
+    }
+
     #[test]
     fn a_timer_never_fires_twice_at_once() {
-        let timers = Timers::start();
         let overlap = Arc::new(Overlap::default());
-        let as_fire: Arc<dyn Fire> = overlap.clone();
-        timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(1));
-        wait_for(&overlap.fired, 20, "the timer never fired twenty times");
-        drop(as_fire);
+        fire_until(&overlap, |o| &o.fired, 20);
         assert_eq!(overlap.most.load(Ordering::SeqCst), 1);
     }
 
@@ -347,12 +351,8 @@ mod tests {
 
     #[test]
     fn a_quick_timer_fires_on_the_queues_thread_after_its_first_firing() {
-        let timers = Timers::start();
         let at = Arc::new(Where::default());
-        let as_fire: Arc<dyn Fire> = at.clone();
-        timers.every(Arc::downgrade(&as_fire), 0, Duration::from_millis(1));
-        wait_for(&at.1, 20, "the timer never fired twenty times");
-        drop(as_fire);
+        fire_until(&at, |w| &w.1, 20);
         let names = at.0.lock().unwrap().clone();
         // Not known to be quick yet: a worker.
         assert!(names[0].starts_with("dyknow-timer-"), "{names:?}");

@@ -382,7 +382,11 @@ const CEILING: [&str; 10] = [
 
 #[test]
 fn chapter_6_runs_live_on_three_executors() {
+    // Each step's start, printed: a slow run shows where its time went.
+    let began = Instant::now();
+    let step = |what: &str| eprintln!("[{:5.1} s] {what}", began.elapsed().as_secs_f64());
     let service = Service::start(&["--no-executor"]);
+    step("(6.2): the target first; nothing can produce it");
     // (6.2): the target first; nothing can produce it.
     service.post("/targets", &spec("ch6-target.ttl"));
     for f in [
@@ -397,6 +401,7 @@ fn chapter_6_runs_live_on_three_executors() {
     let session = service.session();
     let target = Listener::new(&session, "/target_1");
 
+    step("(6.3)–(6.4): Piff's executor joins; its seven CUs run and compute");
     // (6.3)–(6.4): Piff's executor joins; its seven CUs run and compute.
     let seen = service.change_sets().len();
     let mut piff = executor(&service, "piff");
@@ -449,6 +454,7 @@ fn chapter_6_runs_live_on_three_executors() {
         );
     }
 
+    step("(6.5)–(6.6): kill -9 of the segmenter");
     // (6.5)–(6.6): kill -9 of the segmenter, a process CU; a new one is wired to the running
     // subsampler.
     let segmenter = of(&config, "segmenter(piff)").clone();
@@ -488,6 +494,7 @@ fn chapter_6_runs_live_on_three_executors() {
     assert_depends_on_matches(&service, &config, "segmenter replaced");
     let before_puff: BTreeSet<String> = config.keys().cloned().collect();
 
+    step("(6.7): Puff joins; nothing changes, also after a review");
     // (6.7): Puff joins; nothing changes, also after a review.
     // Piff's running pipeline is measured before Puff's budget is compared with it.
     measured(&service, &PIFF, 5);
@@ -526,6 +533,7 @@ fn chapter_6_runs_live_on_three_executors() {
         "Puff joined: nothing changed (Piff's pipeline measured at {piff_upkeep:.1} CPU ms/s)"
     );
 
+    step("(6.7)–(6.10): Piff leaves (its executor killed); Puff's pipeline takes over");
     // (6.7)–(6.10): Piff leaves (its executor killed); Puff's pipeline takes over.
     let left_at = now();
     piff.0.kill().unwrap();
@@ -551,6 +559,7 @@ fn chapter_6_runs_live_on_three_executors() {
     positions_are_true(&service, &position, 20, "Puff");
     let monitor = of(&config, "circle_monitor(ball,puff)")["name"].clone();
 
+    step("(6.11)–(6.14): the lab joins; the ceiling cameras take over");
     // (6.11)–(6.14): the lab joins; once Puff's upkeep is measured, the next review switches
     // to the ceiling cameras, keeping Puff's circle monitor.
     let puff_upkeep = measured(&service, &PUFF, 2);
@@ -599,6 +608,7 @@ fn chapter_6_runs_live_on_three_executors() {
         "{ceiling_upkeep} ≥ {puff_upkeep}"
     );
 
+    step("(6.15)–(6.16): the target is released; every CU stops, no process is left");
     // (6.15)–(6.16): the target is released; every CU stops, no process is left.
     let r = agent()
         .delete(&format!("{}/targets/target1", service.url))
