@@ -8,7 +8,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::sync::mpsc;
 use std::sync::{Arc, Condvar, Mutex, PoisonError, Weak};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// Something with timers: a running CU.
 pub trait Fire: Send + Sync {
@@ -122,16 +122,23 @@ impl Timers {
         }
     }
 
-    /// Fires `timer` of `target` every `period`, first after one period, while `target`
-    /// lives and wants it. One timer never fires twice at once: it is out of the queue while
-    /// it fires.
+    /// Fires `timer` of `target` every `period` while `target` lives and wants it, on the
+    /// wall clock's grid: at the multiples of `period` since the Unix epoch, the first within
+    /// one period. So the timers of one period tick together, on every host whose clock
+    /// agrees, and a source that stamps its samples with its clock's ticks publishes each at
+    /// its time rather than up to half a period before or after it. One timer never fires twice
+    /// at once: it is out of the queue while it fires.
     pub fn every(&self, target: Weak<dyn Fire>, timer: usize, period: Duration) {
+        let since_epoch = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap_or_default();
+        let due = first_due(Instant::now(), since_epoch, period);
         let (queue, signal) = &*self.shared;
         let mut queue = queue.lock().unwrap_or_else(PoisonError::into_inner);
         queue.seq += 1;
         let seq = queue.seq;
         queue.heap.push(Reverse(Entry {
-            due: Instant::now() + period,
+            due,
             seq,
             period,
             timer,
@@ -140,6 +147,32 @@ impl Timers {
         }));
         signal.notify_one();
     }
+}
+
+/// When a timer of `period` armed at `now` (`since_epoch` on the wall clock) first fires: at
+/// the next multiple of `period` since the epoch, now if `now` is one.
+fn first_due(now: Instant, since_epoch: Duration, period: Duration) -> Instant {
+    let period = period.as_nanos().max(1);
+    let into = since_epoch.as_nanos() % period;
+    now + nanos((period - into) % period)
+}
+
+/// The tick after `due`, a timer of `period` that fired at `due`, seen at `now`: one period
+/// later (a fixed rate), or, if that has passed (the firing, or the wait for a worker, took
+/// longer than a period), the first tick of the same grid from `now` on: the missed ticks are
+/// skipped, not fired in a burst.
+fn next_due(due: Instant, period: Duration, now: Instant) -> Instant {
+    let next = due + period;
+    if next >= now {
+        return next;
+    }
+    let period = period.as_nanos().max(1);
+    let behind = (now - next).as_nanos();
+    next + nanos(behind.div_ceil(period) * period)
+}
+
+fn nanos(n: u128) -> Duration {
+    Duration::from_nanos(u64::try_from(n).unwrap_or(u64::MAX))
 }
 
 /// The queue's thread: waits for the earliest timer, fires it if it was quick last time (or
@@ -210,12 +243,7 @@ fn fire(shared: &(Mutex<Queue>, Condvar), mut entry: Entry) {
     entry.took = Some(clock.elapsed());
     let (queue, signal) = shared;
     let mut guard = queue.lock().unwrap_or_else(PoisonError::into_inner);
-    // Fixed rate; after a long stall, the next tick is one period from now.
-    entry.due += entry.period;
-    let now = Instant::now();
-    if entry.due < now {
-        entry.due = now + entry.period;
-    }
+    entry.due = next_due(entry.due, entry.period, Instant::now());
     guard.heap.push(Reverse(entry));
     // The queue's thread may be asleep until a later timer.
     signal.notify_one();
@@ -359,5 +387,35 @@ mod tests {
         // Then on the queue's thread, unless a firing was preempted for longer than
         // INLINE_BELOW (then the next goes to a worker again).
         assert!(names.iter().any(|n| n == "dyknow-timers"), "{names:?}");
+    }
+
+    #[test]
+    fn a_timer_first_fires_on_the_wall_clocks_grid_of_its_period() {
+        let now = Instant::now();
+        let ms = Duration::from_millis;
+        // 1,000,007 ms since the epoch, 20 ms period: the next multiple is 1,000,020.
+        assert_eq!(first_due(now, ms(1_000_007), ms(20)), now + ms(13));
+        // On a multiple: now.
+        assert_eq!(first_due(now, ms(1_000_000), ms(20)), now);
+        // Sub-millisecond remainders count.
+        let at = ms(1_000_000) + Duration::from_micros(250);
+        assert_eq!(
+            first_due(now, at, ms(100)),
+            now + ms(100) - Duration::from_micros(250)
+        );
+    }
+
+    #[test]
+    fn a_late_timer_keeps_its_rate_and_after_a_stall_skips_to_its_grid() {
+        let start = Instant::now();
+        let ms = Duration::from_millis;
+        // On time, or late by less than a period: one period after the tick it was due at.
+        assert_eq!(next_due(start, ms(20), start + ms(1)), start + ms(20));
+        assert_eq!(next_due(start, ms(20), start + ms(19)), start + ms(20));
+        assert_eq!(next_due(start, ms(20), start + ms(20)), start + ms(20));
+        // Fired 47 ms late: the ticks at 20 and 40 are skipped; the next is at 60, on the grid.
+        assert_eq!(next_due(start, ms(20), start + ms(47)), start + ms(60));
+        // Exactly on a later tick: that tick.
+        assert_eq!(next_due(start, ms(20), start + ms(80)), start + ms(80));
     }
 }

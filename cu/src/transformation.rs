@@ -202,7 +202,8 @@ impl<'a> NodeHandle<'a> {
     }
 
     /// Asks for [`Transformation::on_timer`] every `period` (from [`Transformation::start`]);
-    /// returns the timer's number.
+    /// returns the timer's number. Timers tick on the wall clock's grid: at the multiples of
+    /// `period` since the Unix epoch ([`crate::Timers::every`]).
     pub fn every(&mut self, period: Duration) -> TimerId {
         self.timers.push(period.max(Duration::from_micros(100)));
         self.timers.len() - 1

@@ -5,6 +5,12 @@
 //! the target's channel; the guard crashed 50 times: a builtin by a panic on command, a
 //! process CU by `kill -9`.
 //!
+//! Each kind twice: *isolated*, each crash 250 ms after its replacement appeared (more than
+//! the default `--review-spacing-ms`, 100, after the review that made it), and *back to
+//! back*, each crash as soon as the replacement flows, which the manager holds back for the
+//! rest of the spacing since the last review (a crash storm is coalesced into one review
+//! per spacing, `docs/reliability.md`).
+//!
 //! `cargo bench -p dyknow-server --bench recovery -- [--crashes N]`
 
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
@@ -142,16 +148,17 @@ fn run(
     session: &zenoh::Session,
     tag: &str,
     crashes: usize,
+    idle: Duration,
     crash: &dyn Fn(&Value),
 ) -> Vec<Duration> {
     let channel = format!("/out-{tag}");
     let (turtle, target) = specs(
-        if tag == "builtin" {
+        if tag.starts_with("builtin") {
             "builtin"
         } else {
             "process"
         },
-        &if tag == "builtin" {
+        &if tag.starts_with("builtin") {
             "dyknow/fault".to_owned()
         } else {
             format!("{BIN} cu dyknow/relay")
@@ -177,6 +184,8 @@ fn run(
         .expect("the pipeline flows");
     let mut outages = Vec::new();
     for _ in 0..crashes {
+        // The pace of the crashes is what is measured: isolated or back to back.
+        std::thread::sleep(idle);
         let Some(before) = guard(s, tag) else {
             let sets = get(s, "/changesets");
             let last: Vec<String> = sets
@@ -243,6 +252,12 @@ fn run(
             );
         }
     }
+    // Released: its pipeline stops, so the next runs measure without it.
+    let r = agent()
+        .delete(&format!("{}/targets/q-{tag}", s.url))
+        .call()
+        .unwrap();
+    assert!(r.status().is_success(), "{}", r.status());
     outages
 }
 
@@ -271,29 +286,40 @@ fn main() {
     let session = zenoh::open(dyknow_cu::client_config(std::slice::from_ref(&s.zenoh)).unwrap())
         .wait()
         .unwrap();
-    let publisher_session = session.clone();
-    let builtin = run(&s, &session, "builtin", crashes, &|guard| {
-        let channel = guard["inputs"]["in"].as_str().unwrap();
-        publisher_session
-            .put(
-                Namespace::default().channel(channel).unwrap(),
-                Sample::now(json!({"fault": "panic"})).to_bytes(),
-            )
-            .wait()
-            .unwrap();
-    });
-    let process = run(&s, &session, "process", crashes, &|guard| {
-        let pid = guard["pid"].as_u64().expect("a process CU has a pid");
-        Command::new("kill")
-            .args(["-9", &pid.to_string()])
-            .status()
-            .unwrap();
-    });
+    let mut rows = Vec::new();
+    for (pace, idle) in [
+        ("isolated", Duration::from_millis(250)),
+        ("back to back", Duration::ZERO),
+    ] {
+        let publisher = session.clone();
+        let tag = format!("builtin{}", rows.len());
+        let builtin = run(&s, &session, &tag, crashes, idle, &|guard| {
+            let channel = guard["inputs"]["in"].as_str().unwrap();
+            publisher
+                .put(
+                    Namespace::default().channel(channel).unwrap(),
+                    Sample::now(json!({"fault": "panic"})).to_bytes(),
+                )
+                .wait()
+                .unwrap();
+        });
+        rows.push((format!("builtin CU panics, {pace}"), builtin));
+        let tag = format!("process{}", rows.len());
+        let process = run(&s, &session, &tag, crashes, idle, &|guard| {
+            let pid = guard["pid"].as_u64().expect("a process CU has a pid");
+            Command::new("kill")
+                .args(["-9", &pid.to_string()])
+                .status()
+                .unwrap();
+        });
+        rows.push((format!("process CU kill -9, {pace}"), process));
+    }
     println!("crash → target stream flowing again, ms (no client reports the crash)");
     println!(
         "{:<34} {:>4} {:>9} {:>9} {:>9} {:>9}",
         "crash", "n", "mean", "p50", "p90", "max"
     );
-    report("builtin CU panics", builtin);
-    report("process CU kill -9", process);
+    for (what, outages) in rows {
+        report(&what, outages);
+    }
 }
