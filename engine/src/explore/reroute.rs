@@ -1452,6 +1452,67 @@ mod tests {
         }
     }
 
+    /// A random acyclic candidate table unlike the layered one: inputs whose providers are any
+    /// earlier transformations, on ports 0 or 1, integer costs (many ties), a few protected
+    /// CUs (own cost 0, in every graph), targets sharing channels.
+    fn random_dag(seed: u64) -> Reroute {
+        let mut random = seed.wrapping_add(0x9e37);
+        let mut next = |m: u64| {
+            random = splitmix(random);
+            random % m
+        };
+        let n = 8 + next(40) as usize;
+        let mut own = Vec::new();
+        let mut inputs = Vec::new();
+        for t in 0..n {
+            own.push((1 + next(5)) as f64);
+            let arity = if t < 3 { 0 } else { next(4) as usize };
+            inputs.push(
+                (0..arity)
+                    .map(|_| {
+                        (0..1 + next(4))
+                            .map(|_| (next(t as u64) as usize, next(2) as usize))
+                            .collect()
+                    })
+                    .collect(),
+            );
+        }
+        let fixed: Vec<usize> = (0..n).filter(|_| next(10) == 0).take(2).collect();
+        for &t in &fixed {
+            own[t] = 0.0;
+        }
+        let targets = 1 + next(6) as usize;
+        let for_target = (0..targets)
+            .map(|_| {
+                (0..1 + next(3))
+                    .map(|_| (n / 2 + next((n - n / 2) as u64) as usize, next(2) as usize))
+                    .collect()
+            })
+            .collect();
+        let channel_of = (0..targets).map(|_| next(3) as usize).collect();
+        let further = own.iter().map(|c| c + (1 + next(3)) as f64).collect();
+        Reroute::new(own, further, inputs, for_target, channel_of, fixed)
+    }
+
+    proptest::proptest! {
+        /// The lazy, pruned programme routes as the whole one on tables of any shape, not only
+        /// layered ones: the same moves, graphs and costs.
+        #[test]
+        fn on_random_tables_the_patched_programme_routes_as_the_whole_one_does(seed in 0u64..1_000_000) {
+            let mut patched = random_dag(seed);
+            proptest::prop_assume!(patched.patch);
+            let mut whole = patched.clone();
+            whole.patch = false;
+            for _ in 0..10 {
+                patched.improve(8, Cost::INFINITE, &|| false);
+                whole.improve(8, Cost::INFINITE, &|| false);
+                proptest::prop_assert_eq!(&patched.feeds, &whole.feeds);
+                proptest::prop_assert_eq!(&patched.fed, &whole.fed);
+                proptest::prop_assert_eq!(patched.best, whole.best);
+            }
+        }
+    }
+
     #[test]
     fn rerouting_reaches_the_brute_force_optimum_of_small_instances() {
         let mut reached = 0;
