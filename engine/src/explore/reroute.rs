@@ -83,8 +83,6 @@ pub(super) struct Reroute {
     /// What the current move changed: (index, link before), inputs' indices first, then the
     /// targets' after them.
     undo: Vec<(usize, Option<(usize, usize)>)>,
-    /// The graph's members as a list (in no order): what `closure` marked and `wire` added.
-    members: Vec<usize>,
     /// Scratch: reroute costs, their choices, membership in the graph, colours of the cycle
     /// check, (transformation, port, channel) triples of the targets fed.
     value: Vec<f64>,
@@ -363,7 +361,6 @@ impl Reroute {
             value: vec![0.0; n],
             choice: vec![None; inputs],
             member: vec![false; n],
-            members: Vec::new(),
             colour: vec![0; n],
             ports: Vec::new(),
             reach,
@@ -515,9 +512,9 @@ impl Reroute {
         } else {
             // Every target using one node of the graph, which they may not use again.
             self.closure(None);
-            let mut nodes = self.members.clone();
-            nodes.sort_unstable();
-            nodes.retain(|t| !self.fixed.contains(t));
+            let nodes: Vec<usize> = (0..self.own.len())
+                .filter(|t| self.member[*t] && !self.fixed.contains(t))
+                .collect();
             if let Some(&f) = nodes.get((self.next() % nodes.len().max(1) as u64) as usize) {
                 forbidden = Some(f);
                 self.users(f, &mut ripped);
@@ -574,9 +571,11 @@ impl Reroute {
         }
         // `colour` as scratch: 1 when the transformation's graph reaches `f`.
         self.colour.fill(0);
-        let mut members = std::mem::take(&mut self.members);
-        members.sort_unstable_by_key(|t| self.position[*t]);
-        for &t in &members {
+        for k in 0..self.order.len() {
+            let t = self.order[k];
+            if !self.member[t] {
+                continue;
+            }
             let reaches = t == f
                 || self.feeds[self.start[t]..self.start[t + 1]]
                     .iter()
@@ -584,7 +583,6 @@ impl Reroute {
                     .any(|(p, _)| self.colour[*p] == 1);
             self.colour[t] = u8::from(reaches);
         }
-        self.members = members;
         for (q, link) in self.fed.iter().enumerate() {
             if link.is_some_and(|(t, _)| self.colour[t] == 1) {
                 ripped.push(q);
@@ -691,7 +689,6 @@ impl Reroute {
             if std::mem::replace(&mut self.member[t], true) {
                 continue;
             }
-            self.members.push(t);
             added.push(t);
             for i in self.start[t]..self.start[t + 1] {
                 self.set_feed(i, self.choice[i]);
@@ -948,7 +945,6 @@ impl Reroute {
     /// target `only`, when given) reach through the feeds.
     fn closure(&mut self, only: Option<usize>) {
         self.member.fill(false);
-        self.members.clear();
         let mut stack: Vec<usize> = match only {
             Some(q) => self.fed[q].iter().map(|l| l.0).collect(),
             None => self
@@ -963,7 +959,6 @@ impl Reroute {
             if std::mem::replace(&mut self.member[t], true) {
                 continue;
             }
-            self.members.push(t);
             for i in self.start[t]..self.start[t + 1] {
                 if let Some((p, _)) = self.feeds[i] {
                     stack.push(p);
@@ -976,10 +971,11 @@ impl Reroute {
     /// input of a member has no provider or the wiring has a cycle.
     fn evaluate(&mut self) -> Cost {
         self.closure(None);
-        // In index order, as the sum always was.
-        self.members.sort_unstable();
         let mut value = 0.0;
-        for &t in &self.members {
+        for t in 0..self.own.len() {
+            if !self.member[t] {
+                continue;
+            }
             value += self.own[t];
             if self.feeds[self.start[t]..self.start[t + 1]]
                 .iter()
