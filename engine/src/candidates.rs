@@ -3,6 +3,8 @@
 //! similarity relation ~. The knowledge base computes it with one SPARQL query
 //! ([`crate::knowledge`]); tests build it from any relation ([`Candidates::from_tags`]).
 
+use std::collections::BTreeMap;
+
 use rustc_hash::FxHashMap;
 
 use crate::ids::{Qid, Tid};
@@ -21,14 +23,21 @@ pub struct Provider {
 /// The candidate table.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Candidates {
-    inputs: FxHashMap<(Tid, usize), Vec<Provider>>,
+    /// Per transformation, per in port with at least one provider (never an empty list, nor
+    /// a transformation without one): looked up by `&str` without building a key.
+    inputs: FxHashMap<Tid, BTreeMap<usize, Vec<Provider>>>,
     targets: FxHashMap<Qid, Vec<Provider>>,
 }
 
 impl Candidates {
     /// Records that `provider` satisfies in port `input` of `tid`.
     pub fn add_input(&mut self, tid: &str, input: usize, provider: Provider) {
-        let list = self.inputs.entry((Tid::from(tid), input)).or_default();
+        let list = self
+            .inputs
+            .entry(Tid::from(tid))
+            .or_default()
+            .entry(input)
+            .or_default();
         if !list.contains(&provider) {
             list.push(provider);
             list.sort();
@@ -49,10 +58,16 @@ impl Candidates {
     pub fn set_input(&mut self, tid: &str, input: usize, mut providers: Vec<Provider>) {
         providers.sort();
         providers.dedup();
-        if providers.is_empty() {
-            self.inputs.remove(&(Tid::from(tid), input));
-        } else {
-            self.inputs.insert((Tid::from(tid), input), providers);
+        if !providers.is_empty() {
+            self.inputs
+                .entry(Tid::from(tid))
+                .or_default()
+                .insert(input, providers);
+        } else if let Some(ports) = self.inputs.get_mut(tid) {
+            ports.remove(&input);
+            if ports.is_empty() {
+                self.inputs.remove(tid);
+            }
         }
     }
 
@@ -69,7 +84,7 @@ impl Candidates {
 
     /// How many in ports and targets have at least one provider.
     pub fn len(&self) -> usize {
-        self.inputs.len() + self.targets.len()
+        self.inputs.values().map(BTreeMap::len).sum::<usize>() + self.targets.len()
     }
 
     /// Whether no in port or target has a provider.
@@ -80,7 +95,8 @@ impl Candidates {
     /// The providers of in port `input` of `tid`, sorted.
     pub fn for_input(&self, tid: &str, input: usize) -> &[Provider] {
         self.inputs
-            .get(&(Tid::from(tid), input))
+            .get(tid)
+            .and_then(|ports| ports.get(&input))
             .map_or(&[], Vec::as_slice)
     }
 
@@ -133,5 +149,42 @@ impl Candidates {
             }
         }
         table
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p(tid: &str, port: usize) -> Provider {
+        Provider {
+            tid: Tid::from(tid),
+            port,
+        }
+    }
+
+    /// The incremental table is compared with one computed from scratch: a table whose lists
+    /// were emptied again must equal one that never had them.
+    #[test]
+    fn a_table_emptied_again_equals_one_never_filled() {
+        let mut table = Candidates::default();
+        table.set_input("a", 0, vec![p("c", 0), p("b", 1), p("b", 1)]);
+        table.add_input("a", 1, p("c", 0));
+        table.add_target("q", p("a", 0));
+        assert_eq!(table.len(), 3);
+        assert_eq!(
+            table.for_input("a", 0),
+            [p("b", 1), p("c", 0)],
+            "sorted, once each"
+        );
+        assert_eq!(table.for_input("a", 2), []);
+        assert_eq!(table.for_input("z", 0), []);
+        table.set_input("a", 0, Vec::new());
+        assert_eq!(table.len(), 2);
+        assert_eq!(table.for_input("a", 1), [p("c", 0)]);
+        table.set_input("a", 1, Vec::new());
+        table.set_target("q", Vec::new());
+        assert!(table.is_empty());
+        assert_eq!(table, Candidates::default());
     }
 }

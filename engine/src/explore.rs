@@ -529,11 +529,19 @@ pub fn explore(
         let (mut main_time, mut probe_time) = (Duration::ZERO, Duration::ZERO);
         let mut last_gain = 0u64;
         let halt = || deadline.is_some_and(|d| Instant::now() >= d);
+        // From this moment on, the probes' share while they find cheaper graphs grows.
+        let late = options.timeout.map(|t| start + t.mul_f64(LATE_AFTER));
         loop {
             let before = best.cost;
             match main.step(&mut search, &mut best) {
                 Step::Expanded => {
                     expansions += 1;
+                    // A dive through a large graph takes milliseconds: the deadline is
+                    // looked at during it too.
+                    if best.nodes.is_some() && halt() {
+                        proven_optimal = false;
+                        break;
+                    }
                     continue;
                 }
                 Step::Exhausted => break, // Line 38.
@@ -568,8 +576,9 @@ pub fn explore(
                     }
                     for k in 1..=p.threads as u64 {
                         let shared = &shared;
-                        let theirs = Probes::new(&search, &main, p.limit, k);
-                        let theirs = move || theirs.search(shared, deadline);
+                        let (copy, dfs) = (search.clone(), main.clone());
+                        let theirs =
+                            move || Probes::of(copy, dfs, p.limit, k).search(shared, deadline);
                         beside.extend(
                             std::thread::Builder::new()
                                 .name(format!("explore-probes-{k}"))
@@ -579,10 +588,15 @@ pub fn explore(
                     }
                 }
                 let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit, 0));
-                // While they keep finding cheaper graphs the probes take three quarters of the
-                // time, once they stop a quarter (the main search's proof then comes sooner).
+                // While they keep finding cheaper graphs the probes take three parts of the
+                // time to the main search's one, twenty after the first tenth of the timeout;
+                // once they stop a quarter (the main search's proof then comes sooner).
                 let fresh = probes.round < last_gain + GAIN_WINDOW;
-                let share = if fresh { 3.0 } else { 1.0 / 3.0 };
+                let share = match (fresh, late.is_some_and(|l| Instant::now() >= l)) {
+                    (false, _) => SHARE_STALE,
+                    (true, false) => SHARE_FRESH,
+                    (true, true) => SHARE_LATE,
+                };
                 while probe_time.as_secs_f64() < share * main_time.as_secs_f64() && !halt() {
                     let turn = Instant::now();
                     let before = best.cost;
@@ -594,6 +608,12 @@ pub fn explore(
                     if !beside.is_empty() {
                         shared.exchange(before, &mut best, &mut seen);
                     }
+                }
+                // The probes' turn ended at the deadline: so does the search (the main
+                // search's own check may be 16 slow backtracks away).
+                if halt() {
+                    proven_optimal = false;
+                    break;
                 }
                 since = Instant::now();
             }
@@ -866,8 +886,13 @@ impl<'a> Probes<'a> {
     /// The probes' copy of the search, taken back to the root from the main search's state.
     /// Probes `k` (0 on the main search's thread) take seeds of their own.
     fn new(search: &Search<'a>, main: &Dfs, limit: u64, k: u64) -> Self {
-        let mut search = search.clone();
-        let mut dfs = main.clone();
+        Self::of(search.clone(), main.clone(), limit, k)
+    }
+
+    /// [`Probes::new`] from copies of the search and of the main search's state (taken on the
+    /// main search's thread; the rest, rerouting's first graph above all, is built on the
+    /// probes' own).
+    fn of(mut search: Search<'a>, mut dfs: Dfs, limit: u64, k: u64) -> Self {
         while dfs.undo(&mut search) {}
         let roots = search.nodes.len();
         let reroute = Reroute::new(
@@ -947,7 +972,14 @@ impl<'a> Probes<'a> {
         }
         let ended = loop {
             match self.dfs.step(&mut self.search, best) {
-                Step::Expanded => *expansions += 1,
+                Step::Expanded => {
+                    *expansions += 1;
+                    // A guided dive builds a whole graph, milliseconds at 2,000
+                    // transformations: the deadline is looked at during it too.
+                    if halt() {
+                        break false;
+                    }
+                }
                 Step::Backtracked => break false,
                 Step::Exhausted => break true,
             }
@@ -965,6 +997,31 @@ impl<'a> Probes<'a> {
 /// How recently (probe rounds) the probes must have found a cheaper graph to keep the larger
 /// share of the time.
 const GAIN_WINDOW: u64 = 64;
+
+/// The probes' time on the main search's thread, as a multiple of the main search's, while
+/// they keep finding cheaper graphs (within [`GAIN_WINDOW`] rounds), in the first
+/// [`LATE_AFTER`] of the timeout: the main search's proof, when one comes soon, keeps a
+/// quarter of the thread. A review at 2,000 × 50 (1 s timeout) proves its change set optimal
+/// in 25–45 ms warm (p50) so; with [`SHARE_LATE`] from the start it took 105 ms
+/// (docs/benchmarks.md, "Searches that end on time").
+const SHARE_FRESH: f64 = 3.0;
+
+/// The probes' share while they keep finding cheaper graphs after [`LATE_AFTER`] of the
+/// timeout, when a proof has become unlikely and the cost at the deadline is what is left to
+/// win. Measured on the bench's 24 generated instances at 100 ms once searches ended on
+/// time (docs/benchmarks.md, "Searches that end on time"), instances more than 1 % above the
+/// reference on average (interleaved batches): 20 throughout 3.8 (mean gap 0.42 %) against
+/// 4.75 (0.59 %) with 3 throughout, 24 samples each; 20 after 10 % of the timeout 4.1
+/// (0.48 %), the same as 20 throughout in that batch (0.44 %), 18 samples each; 20 after 30 %
+/// 4.4 (0.51 %).
+const SHARE_LATE: f64 = 20.0;
+
+/// The share of the timeout after which [`SHARE_LATE`] replaces [`SHARE_FRESH`].
+const LATE_AFTER: f64 = 0.1;
+
+/// The probes' share once they stop finding cheaper graphs: a quarter of the time, so that a
+/// proof the main search can give comes sooner.
+const SHARE_STALE: f64 = 1.0 / 3.0;
 
 /// Rerouting moves per odd probe round (each reroutes one to a few targets; a move takes
 /// ~25 µs at 2,000 transformations × 50 targets, so a round ~6 ms unless the deadline ends it).
@@ -1092,47 +1149,48 @@ pub fn lower_bound(env: &Environment, candidates: &Candidates, options: &Explore
 /// transformation can be in one: with a library of thousands and a few targets, leaving them
 /// out of the search saves the set-up work that grows with the library, and changes nothing
 /// it finds.
-fn relevant(env: &Environment, candidates: &Candidates) -> (Vec<Tid>, Vec<u64>) {
-    fn reach<'e>(
-        env: &'e Environment,
-        tid: &Tid,
-        seen: &mut std::collections::BTreeSet<&'e Tid>,
-        stack: &mut Vec<&'e Tid>,
-    ) {
-        if let Some((tid, _)) = env.library.get_key_value(tid)
-            && seen.insert(tid)
-        {
-            stack.push(tid);
-        }
-    }
-    let mut seen = std::collections::BTreeSet::new();
+fn relevant<'e>(
+    env: &'e Environment,
+    candidates: &Candidates,
+) -> (Vec<(&'e Tid, &'e crate::model::Transformation)>, Vec<u64>) {
+    // Each transformation's position in the library, which is also its key: what the
+    // probes' random draws are keyed by, so that they do not depend on what was left out.
+    let library: Vec<(&Tid, &crate::model::Transformation)> = env.library.iter().collect();
+    let position: FxHashMap<&str, usize> = library
+        .iter()
+        .enumerate()
+        .map(|(k, (tid, _))| (tid.as_str(), k))
+        .collect();
+    let mut seen = vec![false; library.len()];
     let mut stack = Vec::new();
+    let mut reach = |tid: &str, stack: &mut Vec<usize>| {
+        if let Some(&k) = position.get(tid)
+            && !std::mem::replace(&mut seen[k], true)
+        {
+            stack.push(k);
+        }
+    };
     for q in env.targets.keys() {
         for p in candidates.for_target(q) {
-            reach(env, &p.tid, &mut seen, &mut stack);
+            reach(&p.tid, &mut stack);
         }
     }
     for cu in env.cus.values() {
-        reach(env, &cu.tid, &mut seen, &mut stack);
+        reach(&cu.tid, &mut stack);
     }
-    while let Some(t) = stack.pop() {
-        for i in 0..env.library[t].inputs.len() {
-            for p in candidates.for_input(t, i) {
-                reach(env, &p.tid, &mut seen, &mut stack);
+    while let Some(k) = stack.pop() {
+        let (tid, tf) = library[k];
+        for i in 0..tf.inputs.len() {
+            for p in candidates.for_input(tid, i) {
+                reach(&p.tid, &mut stack);
             }
         }
     }
-    // Each one's position in the whole library: what the probes' random draws are keyed by,
-    // so that they do not depend on what was left out.
-    let mut keys = Vec::with_capacity(seen.len());
-    let mut wanted = seen.iter().peekable();
-    for (k, tid) in env.library.keys().enumerate() {
-        if wanted.peek().is_some_and(|w| **w == tid) {
-            keys.push(k as u64);
-            wanted.next();
-        }
-    }
-    (seen.into_iter().cloned().collect(), keys)
+    // In the library's order (by name), as before.
+    (0..library.len())
+        .filter(|k| seen[*k])
+        .map(|k| (library[k], k as u64))
+        .unzip()
 }
 
 /// The upkeep of protected CUs over the horizon: paid whatever the plan.
@@ -1148,12 +1206,14 @@ fn protected_upkeep(env: &Environment, options: &ExploreOptions) -> f64 {
 
 impl<'a> Search<'a> {
     fn new(env: &Environment, candidates: &Candidates, options: &'a ExploreOptions) -> Self {
-        let (tids, keys) = relevant(env, candidates);
-        let tid_index: FxHashMap<Tid, usize> = tids
+        let (relevant, keys) = relevant(env, candidates);
+        let tid_index: FxHashMap<&str, usize> = relevant
             .iter()
             .enumerate()
-            .map(|(i, t)| (t.clone(), i))
+            .map(|(i, (t, _))| (t.as_str(), i))
             .collect();
+        let (tids, lib): (Vec<Tid>, Vec<&crate::model::Transformation>) =
+            relevant.into_iter().map(|(t, tf)| (t.clone(), tf)).unzip();
         let cus: Vec<Cid> = env.cus.keys().cloned().collect();
         // Existing CUs of each transformation (valid ones: the transformation exists).
         let mut existing: Vec<Vec<usize>> = vec![Vec::new(); tids.len()];
@@ -1169,8 +1229,8 @@ impl<'a> Search<'a> {
         let own: Vec<f64> = tids
             .iter()
             .enumerate()
-            .map(|(t, tid)| {
-                let tf = &env.library[tid];
+            .map(|(t, _)| {
+                let tf = lib[t];
                 if existing[t].iter().any(|c| env.cus[&cus[*c]].protected) {
                     0.0
                 } else if existing[t].is_empty() {
@@ -1182,8 +1242,9 @@ impl<'a> Search<'a> {
             .collect();
         let inputs_of: Vec<Vec<Vec<usize>>> = tids
             .iter()
-            .map(|t| {
-                (0..env.library[t].inputs.len())
+            .zip(&lib)
+            .map(|(t, tf)| {
+                (0..tf.inputs.len())
                     .map(|i| {
                         candidates
                             .for_input(t, i)
@@ -1225,7 +1286,7 @@ impl<'a> Search<'a> {
                 if !subtree[t].is_finite() {
                     continue;
                 }
-                let tf = &env.library[&p.tid];
+                let tf = lib[t];
                 if p.port >= tf.outputs.len() {
                     continue;
                 }
@@ -1267,8 +1328,9 @@ impl<'a> Search<'a> {
         };
         let for_input: Vec<Vec<Vec<Static>>> = tids
             .iter()
-            .map(|t| {
-                (0..env.library[t].inputs.len())
+            .zip(&lib)
+            .map(|(t, tf)| {
+                (0..tf.inputs.len())
                     .map(|i| statics(candidates.for_input(t, i)))
                     .collect()
             })
@@ -1282,7 +1344,7 @@ impl<'a> Search<'a> {
             .iter()
             .map(|q| env.targets[q].channel.clone())
             .collect();
-        let in_counts = tids.iter().map(|t| env.library[t].inputs.len()).collect();
+        let in_counts = lib.iter().map(|tf| tf.inputs.len()).collect();
         let mut interned: FxHashMap<Vec<usize>, Arc<[usize]>> = FxHashMap::default();
         let mut distinct = |statics: &[Static]| -> Arc<[usize]> {
             let mut v: Vec<usize> = statics.iter().map(|s| s.tid).collect();
@@ -1316,12 +1378,9 @@ impl<'a> Search<'a> {
         for (t, _) in ports_target.iter().flatten() {
             feeds_targets[*t] = true;
         }
-        let out_counts: Vec<usize> = tids.iter().map(|t| env.library[t].outputs.len()).collect();
-        let keep_cost: Vec<f64> = tids.iter().map(|t| h * env.library[t].upkeep).collect();
-        let spawn_cost: Vec<f64> = tids
-            .iter()
-            .map(|t| env.library[t].labour + h * env.library[t].upkeep)
-            .collect();
+        let out_counts: Vec<usize> = lib.iter().map(|tf| tf.outputs.len()).collect();
+        let keep_cost: Vec<f64> = lib.iter().map(|tf| h * tf.upkeep).collect();
+        let spawn_cost: Vec<f64> = lib.iter().map(|tf| tf.labour + h * tf.upkeep).collect();
         let further_cost: Vec<f64> = (0..n)
             .map(|t| {
                 if existing[t].len() >= 2 {
@@ -2167,7 +2226,7 @@ mod tests {
             |i: &&str, o: &&str| i == o,
         );
         let (tids, keys) = super::relevant(&env, &candidates);
-        let tids: Vec<&str> = tids.iter().map(|t| t.as_str()).collect();
+        let tids: Vec<&str> = tids.iter().map(|(t, _)| t.as_str()).collect();
         assert_eq!(tids, ["kept", "m", "s", "y"]);
         assert_eq!(keys, [0, 1, 3, 5], "positions in the whole library");
     }

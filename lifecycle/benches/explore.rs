@@ -950,6 +950,8 @@ fn seeds_table(seeds: &[u64]) {
     // Per instance, at each mark: the gap to the cheapest known cost, and to the proven bound
     // (an upper estimate of the gap to the optimum; infinite without a bound).
     let mut gaps: Vec<[(f64, f64); 3]> = Vec::new();
+    // The longest any-time search at each mark: how far past its deadline a search returns.
+    let mut longest = [Duration::ZERO; 3];
     let mut optimal = 0;
     let mut proofs: Vec<Proof> = Vec::new();
     let mut news = 0;
@@ -1027,6 +1029,9 @@ fn seeds_table(seeds: &[u64]) {
             };
             let g = |i: usize| gap(&at[i]).unwrap_or((f64::INFINITY, f64::INFINITY));
             gaps.push([g(0), g(1), g(2)]);
+            for (l, e) in longest.iter_mut().zip(&at) {
+                *l = (*l).max(e.elapsed);
+            }
             let reference_cell = match &reference {
                 None => "not run".to_owned(),
                 Some(Ok(r)) => r.cell(),
@@ -1059,7 +1064,8 @@ fn seeds_table(seeds: &[u64]) {
         "\n| | {a} ms | {b} ms | {c} ms |\n| --- | --- | --- | --- |\n\
          | mean gap to the cheapest known cost | {:.2} % | {:.2} % | {:.2} % |\n\
          | instances more than 1 % above it (of {}) | {} | {} | {} |\n\
-         | instances proven within 1 % of the optimum (cost ≤ 1.01 × the proven bound) | {} | {} | {} |\n\n\
+         | instances proven within 1 % of the optimum (cost ≤ 1.01 × the proven bound) | {} | {} | {} |\n\
+         | longest search (returned after) | {} | {} | {} |\n\n\
          Cheapest known cost proven optimal on {optimal} of {} instances.",
         mean(0),
         mean(1),
@@ -1071,6 +1077,9 @@ fn seeds_table(seeds: &[u64]) {
         certified(0),
         certified(1),
         certified(2),
+        ms(longest[0]),
+        ms(longest[1]),
+        ms(longest[2]),
         gaps.len(),
     );
     // The proofs, with how far below the optimum (or the best known) the bounds start.

@@ -430,7 +430,7 @@ impl Reroute {
         self
     }
 
-    /// Runs `moves` moves (fewer when `halt` says so first: it is asked every 16 moves);
+    /// Runs `moves` moves (fewer when `halt` says so first: it is asked every 4 moves);
     /// returns a neighbourhood for a probe round when the cheapest graph found is cheaper than
     /// both `bound` (the search's best cost) and the last one proposed.
     pub(super) fn improve(
@@ -440,7 +440,7 @@ impl Reroute {
         halt: &dyn Fn() -> bool,
     ) -> Option<Guide> {
         for k in 0..moves {
-            if k % 16 == 15 && halt() {
+            if k % 4 == 3 && halt() {
                 break;
             }
             self.step();
@@ -1271,6 +1271,35 @@ mod tests {
         assert_eq!(r.evaluate(), c(10.0));
     }
 
+    /// Ties go to the candidate listed first, in both modes of the programme: among a
+    /// target's candidates in the order given, among an input's providers in their sorted
+    /// order (as the whole programme's strict minimum does; the lazy one looks at providers
+    /// cheapest own cost first and must not let that order break ties).
+    #[test]
+    fn ties_go_to_the_candidate_listed_first() {
+        for patch in [true, false] {
+            // Target 0 may read 1 or 0 (equal costs, 1 listed first); target 1 reads 4, whose
+            // one input may read 3 or 2 (equal costs; 2 first once sorted).
+            let own = vec![3.0, 3.0, 2.0, 2.0, 1.0];
+            let inputs = vec![
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+                Vec::new(),
+                vec![vec![(3, 0), (2, 0)]],
+            ];
+            let for_target = vec![vec![(1, 0), (0, 0)], vec![(4, 0)]];
+            let mut r = Reroute::new(own.clone(), own, inputs, for_target, vec![0, 1], Vec::new());
+            r.patch = patch;
+            for order in [[0, 1], [1, 0]] {
+                r.rip_up_and_reroute(&order, None, None, 0.0);
+                assert_eq!(r.fed, [Some((1, 0)), Some((4, 0))], "patch {patch}");
+                assert_eq!(r.feeds[r.start[4]], Some((2, 0)), "patch {patch}");
+                assert_eq!(r.evaluate(), c(3.0 + 1.0 + 2.0));
+            }
+        }
+    }
+
     #[test]
     fn late_acceptance_keeps_a_dearer_graph_only_within_the_cost_n_moves_back() {
         // Three moves back, the graph cost 12; it costs 10 now. Each step: the current
@@ -1405,11 +1434,11 @@ mod tests {
     #[test]
     fn a_halt_ends_the_moves() {
         let mut late = layered(3, 4);
-        let mut fifteen = late.clone();
+        let mut three = late.clone();
         late.improve(1_000_000, Cost::INFINITE, &|| true);
-        fifteen.improve(15, Cost::INFINITE, &|| false);
-        assert_eq!(late.random, fifteen.random, "15 moves, then the halt");
-        assert_eq!(late.feeds, fifteen.feeds);
+        three.improve(3, Cost::INFINITE, &|| false);
+        assert_eq!(late.random, three.random, "3 moves, then the halt");
+        assert_eq!(late.feeds, three.feeds);
     }
 
     #[test]
