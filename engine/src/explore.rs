@@ -1223,20 +1223,20 @@ impl<'a> Search<'a> {
             }
         }
         let h = options.horizon;
+        // A node's cost over the horizon: an existing CU's upkeep, a new one's labour too.
+        let keep_cost: Vec<f64> = lib.iter().map(|tf| h * tf.upkeep).collect();
+        let spawn_cost: Vec<f64> = lib.iter().map(|tf| tf.labour + h * tf.upkeep).collect();
         // Ordering heuristic (Ch. 4.3.3 leaves it open): the estimated cost of a transformation's
         // whole subtree, its own cost plus the cheapest subtree for each input, ignoring sharing
         // (so not a bound, only an order). Computed by relaxation; cycles stay unbounded.
-        let own: Vec<f64> = tids
-            .iter()
-            .enumerate()
-            .map(|(t, _)| {
-                let tf = lib[t];
+        let own: Vec<f64> = (0..tids.len())
+            .map(|t| {
                 if existing[t].iter().any(|c| env.cus[&cus[*c]].protected) {
                     0.0
                 } else if existing[t].is_empty() {
-                    tf.labour + h * tf.upkeep
+                    spawn_cost[t]
                 } else {
-                    h * tf.upkeep
+                    keep_cost[t]
                 }
             })
             .collect();
@@ -1286,8 +1286,7 @@ impl<'a> Search<'a> {
                 if !subtree[t].is_finite() {
                     continue;
                 }
-                let tf = lib[t];
-                if p.port >= tf.outputs.len() {
+                if p.port >= lib[t].outputs.len() {
                     continue;
                 }
                 if existing[t].is_empty() {
@@ -1295,7 +1294,7 @@ impl<'a> Search<'a> {
                         tid: t,
                         port: p.port,
                         existing: None,
-                        cost: tf.labour + h * tf.upkeep,
+                        cost: spawn_cost[t],
                     });
                 } else {
                     for c in &existing[t] {
@@ -1304,7 +1303,7 @@ impl<'a> Search<'a> {
                             tid: t,
                             port: p.port,
                             existing: Some(*c),
-                            cost: if protected { 0.0 } else { h * tf.upkeep },
+                            cost: if protected { 0.0 } else { keep_cost[t] },
                         });
                     }
                 }
@@ -1379,8 +1378,6 @@ impl<'a> Search<'a> {
             feeds_targets[*t] = true;
         }
         let out_counts: Vec<usize> = lib.iter().map(|tf| tf.outputs.len()).collect();
-        let keep_cost: Vec<f64> = lib.iter().map(|tf| h * tf.upkeep).collect();
-        let spawn_cost: Vec<f64> = lib.iter().map(|tf| tf.labour + h * tf.upkeep).collect();
         let further_cost: Vec<f64> = (0..n)
             .map(|t| {
                 if existing[t].len() >= 2 {
