@@ -32,12 +32,12 @@ pub struct Candidates {
 impl Candidates {
     /// Records that `provider` satisfies in port `input` of `tid`.
     pub fn add_input(&mut self, tid: &str, input: usize, provider: Provider) {
-        let list = self
-            .inputs
-            .entry(Tid::from(tid))
-            .or_default()
-            .entry(input)
-            .or_default();
+        // A key is built only for a transformation not in the table yet.
+        let ports = match self.inputs.get_mut(tid) {
+            Some(ports) => ports,
+            None => self.inputs.entry(Tid::from(tid)).or_default(),
+        };
+        let list = ports.entry(input).or_default();
         if !list.contains(&provider) {
             list.push(provider);
             list.sort();
@@ -46,7 +46,10 @@ impl Candidates {
 
     /// Records that `provider` satisfies target `qid`.
     pub fn add_target(&mut self, qid: &str, provider: Provider) {
-        let list = self.targets.entry(Qid::from(qid)).or_default();
+        let list = match self.targets.get_mut(qid) {
+            Some(list) => list,
+            None => self.targets.entry(Qid::from(qid)).or_default(),
+        };
         if !list.contains(&provider) {
             list.push(provider);
             list.sort();
@@ -59,10 +62,14 @@ impl Candidates {
         providers.sort();
         providers.dedup();
         if !providers.is_empty() {
-            self.inputs
-                .entry(Tid::from(tid))
-                .or_default()
-                .insert(input, providers);
+            match self.inputs.get_mut(tid) {
+                Some(ports) => ports.insert(input, providers),
+                None => self
+                    .inputs
+                    .entry(Tid::from(tid))
+                    .or_default()
+                    .insert(input, providers),
+            };
         } else if let Some(ports) = self.inputs.get_mut(tid) {
             ports.remove(&input);
             if ports.is_empty() {
@@ -76,7 +83,9 @@ impl Candidates {
         providers.sort();
         providers.dedup();
         if providers.is_empty() {
-            self.targets.remove(&Qid::from(qid));
+            self.targets.remove(qid);
+        } else if let Some(list) = self.targets.get_mut(qid) {
+            *list = providers;
         } else {
             self.targets.insert(Qid::from(qid), providers);
         }
@@ -179,6 +188,14 @@ mod tests {
         );
         assert_eq!(table.for_input("a", 2), []);
         assert_eq!(table.for_input("z", 0), []);
+        // Setting a list that exists replaces it (the key is kept, not built again).
+        table.set_input("a", 0, vec![p("d", 0)]);
+        assert_eq!(table.for_input("a", 0), [p("d", 0)]);
+        table.set_target("q", vec![p("b", 0), p("a", 0)]);
+        assert_eq!(table.for_target("q"), [p("a", 0), p("b", 0)]);
+        table.add_target("q", p("a", 0));
+        assert_eq!(table.for_target("q"), [p("a", 0), p("b", 0)], "once each");
+        table.set_target("q", vec![p("a", 0)]);
         table.set_input("a", 0, Vec::new());
         assert_eq!(table.len(), 2);
         assert_eq!(table.for_input("a", 1), [p("c", 0)]);

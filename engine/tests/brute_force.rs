@@ -291,18 +291,20 @@ proptest! {
 
     /// With a timeout of 1 to 50 ms the any-time probes search beside the main search, here
     /// from its first backtrack, taking turns every 1 to 3 of its backtracks, in rounds of 1 to
-    /// 5 backtracks, with 0 to 2 further probes on threads of their own. Proven or not, the plan is valid and never cheaper than the optimum; when
-    /// the search says it proved the optimum, it is the optimum.
+    /// 5 backtracks, with 0 to 2 further probes on threads of their own, which help with the
+    /// main search's proof after 0 to 3 rounds without a cheaper graph (subtrees of it split
+    /// between the threads). Proven or not, the plan is valid and never cheaper than the
+    /// optimum; when the search says it proved the optimum, it is the optimum.
     #[test]
     fn explore_with_probes_is_optimal_when_proven(
         (tfs, targets) in case(), every in 1u64..4, limit in 1u64..6, ms in 1u64..50,
-        threads in 0usize..3,
+        threads in 0usize..3, help_after in 0u64..4,
     ) {
         let (env, candidates) = build(&tfs, &targets);
         let options = ExploreOptions {
             horizon: H,
             timeout: Some(std::time::Duration::from_millis(ms)),
-            probes: Some(ProbeOptions { after: 0, every, threads, limit }),
+            probes: Some(ProbeOptions { after: 0, every, threads, limit, help_after }),
             ..ExploreOptions::default()
         };
         let exploration = explore(&env, &candidates, &options);
