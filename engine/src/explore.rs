@@ -114,7 +114,7 @@ pub struct ProbeOptions {
     pub after: u64,
     /// The main search and the probes on its thread take turns: the main search for this many
     /// backtracks, then the probes: up to three times the main search's time in all while
-    /// they keep finding cheaper graphs, a third of it once they stop.
+    /// they keep finding cheaper graphs, an eighth of it once they stop.
     pub every: u64,
     /// Further probes, each on a thread of its own beside the main search, with seeds of its
     /// own, from the time the probes start until the main search ends or the deadline passes.
@@ -614,7 +614,7 @@ pub fn explore(
                 let probes = probes.get_or_insert_with(|| Probes::new(&search, &main, p.limit, 0));
                 // While they keep finding cheaper graphs the probes take three parts of the
                 // time to the main search's one, twenty after the first tenth of the timeout;
-                // once they stop a quarter (the main search's proof then comes sooner).
+                // once they stop an eighth (the main search's proof then comes sooner).
                 let fresh = probes.round < last_gain + GAIN_WINDOW;
                 let share = match (fresh, late.is_some_and(|l| Instant::now() >= l)) {
                     (false, _) => SHARE_STALE,
@@ -1058,7 +1058,7 @@ impl Dfs {
 /// [`ProbeOptions::after`] times, a second search on its own copy of the plan takes turns with
 /// it: after every [`ProbeOptions::every`] backtracks of the main search, the probes run until
 /// their time in all is three times the main search's while they keep finding cheaper graphs
-/// (within the last [`GAIN_WINDOW`] rounds), a third of it once they stop. From then on,
+/// (within the last [`GAIN_WINDOW`] rounds), an eighth of it once they stop. From then on,
 /// [`ProbeOptions::threads`] further probes, with seeds of their own, also run on threads of
 /// their own until the main search ends or the deadline passes; all share one best graph
 /// ([`Shared`]), each taking the others' cheaper graphs at its next backtrack or turn. Each
@@ -1284,9 +1284,12 @@ const SHARE_LATE: f64 = 20.0;
 /// The share of the timeout after which [`SHARE_LATE`] replaces [`SHARE_FRESH`].
 const LATE_AFTER: f64 = 0.1;
 
-/// The probes' share once they stop finding cheaper graphs: a quarter of the time, so that a
-/// proof the main search can give comes sooner.
-const SHARE_STALE: f64 = 1.0 / 3.0;
+/// The probes' share once they stop finding cheaper graphs: a ninth of the time, so that a
+/// proof the main search can give comes sooner. With the proof on both cores, 200 × 10 was
+/// proven within 1 s on 3 of 8 seeds in each of five runs with it, on 3, 2, 2, 2 and 2 with a
+/// third (a quarter of the time), and the any-time cost was the same within the runs' spread
+/// (docs/benchmarks.md, "The proof on both cores").
+const SHARE_STALE: f64 = 1.0 / 8.0;
 
 /// Rerouting moves per odd probe round (each reroutes one to a few targets; a move takes
 /// ~25 µs at 2,000 transformations × 50 targets, so a round ~6 ms unless the deadline ends it).
