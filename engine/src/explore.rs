@@ -2547,21 +2547,32 @@ mod tests {
         (env, candidates)
     }
 
-    /// The complete graphs a depth-first search reaches from its state, without pruning (the
-    /// best is forgotten after each), as their costs, sorted.
-    fn leaves(search: &mut super::Search<'_>, dfs: &mut super::Dfs) -> Vec<f64> {
+    /// Steps a depth-first search without pruning (the best is forgotten after each graph), at
+    /// most `steps` times or to its end: the costs of the complete graphs it reached, the
+    /// steps taken, and whether it ended.
+    fn walk(
+        search: &mut super::Search<'_>,
+        dfs: &mut super::Dfs,
+        steps: usize,
+    ) -> (Vec<f64>, usize, bool) {
         let mut found = Vec::new();
         let mut best = Best::NONE;
-        loop {
+        for taken in 0..steps {
             let step = dfs.step(search, &mut best);
             if best.nodes.is_some() {
                 found.push(best.cost.value);
                 best = Best::NONE;
             }
             if step == super::Step::Exhausted {
-                break;
+                return (found, taken, true);
             }
         }
+        (found, steps, false)
+    }
+
+    /// The complete graphs a search reaches from its state to its end, as their costs, sorted.
+    fn leaves(search: &mut super::Search<'_>, dfs: &mut super::Dfs) -> Vec<f64> {
+        let mut found = walk(search, dfs, usize::MAX).0;
         found.sort_by(f64::total_cmp);
         found
     }
@@ -2580,45 +2591,21 @@ mod tests {
             (search, dfs)
         };
         let (mut search, mut dfs) = fresh();
-        let all = leaves(&mut search, &mut dfs);
+        let (mut all, total, _) = walk(&mut search, &mut dfs, usize::MAX);
+        all.sort_by(f64::total_cmp);
         assert!(
             all.len() > 50,
             "a tree worth splitting: {} graphs",
             all.len()
         );
         // Splits at about 80 points spread over the undivided search's steps.
-        let (mut search, mut dfs) = fresh();
-        let mut total = 0;
-        let mut best = Best::NONE;
-        while dfs.step(&mut search, &mut best) != super::Step::Exhausted {
-            best = Best::NONE; // No pruning.
-            total += 1;
-        }
         let mut splits = 0;
         for steps in (0..total).step_by(total / 80 + 1) {
             let (mut search, mut dfs) = fresh();
-            let mut best = Best::NONE;
-            let mut ended = false;
-            for _ in 0..steps {
-                if dfs.step(&mut search, &mut best) == super::Step::Exhausted {
-                    ended = true;
-                    break;
-                }
-                best = Best::NONE;
-            }
+            // The graphs reached before the split.
+            let (before, _, ended) = walk(&mut search, &mut dfs, steps);
             if ended {
                 break;
-            }
-            // The graphs reached before the split, from the steps taken.
-            let (mut before_search, mut before_dfs) = fresh();
-            let mut before = Vec::new();
-            let mut best = Best::NONE;
-            for _ in 0..steps {
-                before_dfs.step(&mut before_search, &mut best);
-                if best.nodes.is_some() {
-                    before.push(best.cost.value);
-                    best = Best::NONE;
-                }
             }
             let mut parts = before;
             let gifts: Vec<_> = (0..=steps % 2).filter_map(|_| dfs.give(&search)).collect();
