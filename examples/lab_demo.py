@@ -11,7 +11,7 @@ repair. Stops everything it started at the end (or on Ctrl-C).
 --speed divides every pause between steps (default 1: about two minutes in all). Needs only the
 `dyknow` binary (default: the one `./dev serve` builds) and Python's standard library.
 """
-import argparse, json, os, signal, socket, subprocess, sys, time, urllib.request
+import argparse, json, os, signal, socket, subprocess, sys, time, urllib.parse, urllib.request
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SPECS = os.path.join(ROOT, "specs", "turtle")
@@ -94,6 +94,10 @@ class Demo:
             return sum(v["average"] for v in vals)
         return None
 
+    def budget(self, names):
+        """The specs' upkeep estimates of `names`, summed (CPU ms/s)."""
+        return sum(self.get(f"/transformations/{urllib.parse.quote(n)}")["upkeep"] for n in names)
+
     def positions(self, channel, n=5):
         out = subprocess.run([self.bin, "listen", channel, "--connect", self.zenoh, "--count", str(n)],
                              capture_output=True, text=True, timeout=60).stdout
@@ -167,7 +171,7 @@ def run(d):
     d.call("POST", "/review")
     d.pause(2)
     d.show_change_sets()
-    print(f"  Piff's pipeline, measured: {d.upkeep(PIFF):.1f} CPU ms/s; Puff's budget: 411.6")
+    print(f"  Piff's pipeline, measured: {d.upkeep(PIFF):.1f} CPU ms/s; Puff's budget: {d.budget(PUFF):.1f}")
     d.pause(5)
 
     d.step("6.7-6.10  Piff leaves (its executor is killed): Puff's pipeline takes over")
@@ -179,7 +183,7 @@ def run(d):
 
     d.step("6.11-6.14  The lab's ceiling cameras join; once Puff's upkeep is measured, the review switches")
     puff_upkeep = d.wait("Puff's measured upkeep", lambda: d.upkeep(PUFF))
-    print(f"  Puff's pipeline, measured: {puff_upkeep:.1f} CPU ms/s; the ceiling's budget: 145.0")
+    print(f"  Puff's pipeline, measured: {puff_upkeep:.1f} CPU ms/s; the ceiling's budget: {d.budget(CEILING):.1f}")
     d.start("executor", "--name", "lab", "--connect", d.zenoh)
     want = set(CEILING) | {"circle_monitor(ball,puff)"}
     cus = d.wait("the ceiling pipeline", lambda: (lambda r: r if set(r) == want else None)(d.running()))

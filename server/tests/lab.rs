@@ -347,6 +347,22 @@ fn measured(service: &Service, transformations: &[&str], min: u64) -> f64 {
     })
 }
 
+/// The specs' estimates of `transformations`, summed: (labour, upkeep per second).
+fn budgets(service: &Service, transformations: &[&str]) -> (f64, f64) {
+    transformations
+        .iter()
+        .fold((0.0, 0.0), |(labour, upkeep), t| {
+            let spec = service.get(&format!("/transformations/{t}"));
+            (
+                labour + spec["labour"].as_f64().unwrap(),
+                upkeep + spec["upkeep"].as_f64().unwrap(),
+            )
+        })
+}
+
+/// The service's horizon H (its default, in time units of 1 s).
+const HORIZON: f64 = 10.0;
+
 const PIFF: [&str; 7] = [
     "pose(piff)",
     "bottom_cam(piff)",
@@ -557,6 +573,21 @@ fn chapter_6_runs_live_on_three_executors() {
     // (6.11)–(6.14): the lab joins; once Puff's upkeep is measured, the next review switches
     // to the ceiling cameras, keeping Puff's circle monitor.
     let puff_upkeep = measured(&service, &PUFF, 2);
+    // The premise of eqs. 6.12–6.14, checked first so that a machine where it does not hold
+    // says so rather than waiting for a switch that no review makes: the ceiling's estimated
+    // cost over the horizon (its labour, H × its budgets and Puff's monitor, which it keeps)
+    // is below H × Puff's measured upkeep.
+    let (ceiling_labour, ceiling_budget) = budgets(&service, &CEILING);
+    let monitor_upkeep = measured(&service, &["circle_monitor(ball,puff)"], 2);
+    let switch_cost = ceiling_labour + HORIZON * (ceiling_budget + monitor_upkeep);
+    eprintln!(
+        "before the lab joins: Puff measured {puff_upkeep:.1} CPU ms/s, so keeping it costs {:.1}; the switch is estimated at {ceiling_labour:.1} + {HORIZON} × ({ceiling_budget:.1} + {monitor_upkeep:.2}) = {switch_cost:.1}",
+        HORIZON * puff_upkeep
+    );
+    assert!(
+        switch_cost < HORIZON * puff_upkeep,
+        "the ceiling's budgets are not below Puff's measured upkeep on this machine, so no review would switch: remeasure them (docs/lab.md, \"Estimates\")"
+    );
     let seen = service.change_sets().len();
     let switch_from = now();
     let mut lab = executor(&service, "lab");
