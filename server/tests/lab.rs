@@ -360,9 +360,6 @@ fn budgets(service: &Service, transformations: &[&str]) -> (f64, f64) {
         })
 }
 
-/// The service's horizon H (its default, in time units of 1 s).
-const HORIZON: f64 = 10.0;
-
 const PIFF: [&str; 7] = [
     "pose(piff)",
     "bottom_cam(piff)",
@@ -577,15 +574,18 @@ fn chapter_6_runs_live_on_three_executors() {
     // says so rather than waiting for a switch that no review makes: the ceiling's estimated
     // cost over the horizon (its labour, H × its budgets and Puff's monitor, which it keeps)
     // is below H × Puff's measured upkeep.
+    let horizon = service.get("/environment")["cost"]["horizon"]
+        .as_f64()
+        .unwrap();
     let (ceiling_labour, ceiling_budget) = budgets(&service, &CEILING);
     let monitor_upkeep = measured(&service, &["circle_monitor(ball,puff)"], 2);
-    let switch_cost = ceiling_labour + HORIZON * (ceiling_budget + monitor_upkeep);
+    let switch_cost = ceiling_labour + horizon * (ceiling_budget + monitor_upkeep);
     eprintln!(
-        "before the lab joins: Puff measured {puff_upkeep:.1} CPU ms/s, so keeping it costs {:.1}; the switch is estimated at {ceiling_labour:.1} + {HORIZON} × ({ceiling_budget:.1} + {monitor_upkeep:.2}) = {switch_cost:.1}",
-        HORIZON * puff_upkeep
+        "before the lab joins: Puff measured {puff_upkeep:.1} CPU ms/s, so keeping it costs {:.1}; the switch is estimated at {ceiling_labour:.1} + {horizon} × ({ceiling_budget:.1} + {monitor_upkeep:.2}) = {switch_cost:.1}",
+        horizon * puff_upkeep
     );
     assert!(
-        switch_cost < HORIZON * puff_upkeep,
+        switch_cost < horizon * puff_upkeep,
         "the ceiling's budgets are not below Puff's measured upkeep on this machine, so no review would switch: remeasure them (docs/lab.md, \"Estimates\")"
     );
     let seen = service.change_sets().len();

@@ -440,9 +440,13 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
         .unwrap();
     wait_for_line(&mut b, "connected to");
     let b = Killed(b);
-    let before = eventually("the pipeline on b", Duration::from_secs(30), || {
+    // Both CUs of the pipeline, once they run on `executor`.
+    let pipeline_on = |executor: &str| {
         let placed = placement(&service);
-        (placed.len() == 2 && placed.values().all(|e| e == "b")).then_some(placed)
+        (placed.len() == 2 && placed.values().all(|e| e == executor)).then_some(placed)
+    };
+    let before = eventually("the pipeline on b", Duration::from_secs(30), || {
+        pipeline_on("b")
     });
     let (_a, _) = executor_listening(&service.zenoh, "a");
     let session = service.session();
@@ -467,10 +471,7 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
     let before = eventually(
         "the pipeline on b before the cut",
         Duration::from_secs(30),
-        || {
-            let placed = placement(&service);
-            (placed.len() == 2 && placed.values().all(|e| e == "b")).then_some(placed)
-        },
+        || pipeline_on("b"),
     );
     let seen = service.change_sets().len();
 
@@ -478,8 +479,7 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
     netns.link(false);
     let cut = Instant::now();
     let after = eventually("the pipeline on a", Duration::from_secs(30), || {
-        let placed = placement(&service);
-        (placed.len() == 2 && placed.values().all(|e| e == "a")).then_some(placed)
+        pipeline_on("a")
     });
     let replanned = cut.elapsed();
     let resumed = stream.first_after(cut).duration_since(cut);
