@@ -162,6 +162,8 @@ fn apply(kb: &KnowledgeBase, op: &Op, extensions: &mut Vec<String>) {
                 .collect();
             if let Ok(report) =
                 kb.post_extension(format!("{PREFIXES}{body}").as_bytes(), InputFormat::Turtle)
+                // The same content is the same graph (`replaced`): listed once.
+                && !extensions.contains(&report.graph)
             {
                 extensions.push(report.graph);
             }
