@@ -575,11 +575,28 @@ fn explore_replans_an_exported_model_offline() {
         assert!(Instant::now() < deadline, "no change set");
         std::thread::sleep(Duration::from_millis(20));
     }
+    // The CUs by transformation: which CU gets which name follows the order in which the
+    // search built the plan, and with its probes on two threads either of two plans of the
+    // same cost may be the one applied.
+    let (_, cus) = get(&agent, &format!("{base}/cus"));
+    let cus: serde_json::Value = serde_json::from_str(&cus).unwrap();
+    let cu_of = |tid: &str| -> String {
+        let names: Vec<&str> = cus
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| c["transformation"] == tid)
+            .map(|c| c["name"].as_str().unwrap())
+            .collect();
+        assert_eq!(names.len(), 1, "one CU of {tid}: {cus}");
+        names[0].to_owned()
+    };
+    let (tid4, tid2) = (cu_of("tid4"), cu_of("tid2"));
     let (status, _) = post(
         &agent,
         &format!("{base}/statistics"),
         "application/json",
-        r#"{"cu": "cu-2", "upkeep": 3.0}"#,
+        &format!(r#"{{"cu": "{tid4}", "upkeep": 3.0}}"#),
     );
     assert_eq!(status, 202);
     let (_, model) = get(
@@ -588,7 +605,7 @@ fn explore_replans_an_exported_model_offline() {
     );
     let crashed: String = model
         .lines()
-        .filter(|l| !l.contains("<urn:dyknow:cu:cu-3"))
+        .filter(|l| !l.contains(&format!("<urn:dyknow:cu:{tid2}")))
         .map(|l| format!("{l}\n"))
         .collect();
     let dir = tempfile::tempdir().unwrap();
@@ -605,7 +622,13 @@ fn explore_replans_an_exported_model_offline() {
         String::from_utf8_lossy(&out.stderr)
     );
     let cs: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(cs["cost"]["total"], 43.0);
+    // (Failed once in a clean-clone CI run, 41.0; not reproduced since: what the server had
+    // applied by then is in the message.)
+    let (_, sets) = get(&agent, &format!("{base}/changesets"));
+    assert_eq!(
+        cs["cost"]["total"], 43.0,
+        "offline: {cs}\nCUs before the export: {cus}\nchange sets: {sets}"
+    );
     let spawned: Vec<&str> = cs["actions"]
         .as_array()
         .unwrap()
