@@ -168,13 +168,17 @@ def run(d):
     d.wait("Piff's measured upkeep", lambda: d.upkeep(PIFF))
     d.start("executor", "--name", "puff", "--connect", d.zenoh)
     d.wait("Puff", lambda: any(e["name"] == "puff" and e["present"] for e in d.get("/executors")))
+    reviews = d.get("/environment")["reviews"]
     d.call("POST", "/review")
-    d.pause(2)
+    d.wait("the review", lambda: (lambda e: e["reviews"] > reviews and e["phase"] == "stable"
+                                  and not e["review_pending"])(d.get("/environment")))
+    if len(d.get("/changesets")) == d.seen:
+        print("  the review has no actions (no change set): the running configuration stays the cheapest")
     d.show_change_sets()
     print(f"  Piff's pipeline, measured: {d.upkeep(PIFF):.1f} CPU ms/s; Puff's budget: {d.budget(PUFF):.1f}")
     d.pause(5)
 
-    d.step("6.7-6.10  Piff leaves (its executor is killed): Puff's pipeline takes over")
+    d.step("6.8-6.10  Piff leaves (its executor is killed): Puff's pipeline takes over")
     piff.kill()
     cus = d.wait("Puff's pipeline", lambda: (lambda r: r if set(r) == set(PUFF) else None)(d.running()))
     d.show_change_sets()

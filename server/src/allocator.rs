@@ -35,13 +35,27 @@ pub fn tune() {
         let cores = std::thread::available_parallelism().map_or(2, std::num::NonZeroUsize::get);
         let mut args = std::env::args_os();
         let arg0 = args.next().unwrap_or_default();
-        // `/proc/self/exe` is this very binary, even if its path was replaced since it started.
-        let error = std::process::Command::new("/proc/self/exe")
+        let error = std::process::Command::new(this_binary())
             .arg0(arg0)
             .args(args)
             .env(VAR, tunables(cores))
             .exec();
         eprintln!("warning: cannot re-execute with {VAR} set, keeping glibc's defaults: {error}");
+    }
+}
+
+/// The path to execute this very binary again: its own path when that still names it, so the
+/// process keeps its name (the kernel names a process after the file it executes: `ps`,
+/// `pgrep dyknow` and `ss -p` would see `exe`), else `/proc/self/exe`, which names this binary
+/// even when its path was replaced since it started (a rebuild, an upgrade).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn this_binary() -> std::path::PathBuf {
+    use std::os::unix::fs::MetadataExt;
+    let proc = std::path::PathBuf::from("/proc/self/exe");
+    let identity = |p: &std::path::Path| std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+    match (std::env::current_exe(), identity(&proc)) {
+        (Ok(path), Some(this)) if identity(&path) == Some(this) => path,
+        _ => proc,
     }
 }
 

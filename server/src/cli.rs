@@ -80,8 +80,9 @@ pub enum Command {
         /// The store directory.
         #[arg(long, value_name = "DIR")]
         data: PathBuf,
-        /// Files to load (`.ttl`, `.nt`, `.jsonld`); each file is loaded atomically.
-        #[arg(required = true, value_name = "FILE")]
+        /// Files to load (`.ttl`, `.nt`, `.jsonld`), or directories (their files of those
+        /// kinds, in name order); each file is loaded atomically.
+        #[arg(required = true, value_name = "FILE_OR_DIR")]
         files: Vec<PathBuf>,
     },
     /// Writes the model of a store (GetModel) to standard output.
@@ -477,7 +478,17 @@ fn load_file(kb: &KnowledgeBase, path: &Path) -> Result<String, Failure> {
 
 #[cfg(feature = "rocksdb")]
 fn open_store(data: &Path) -> Result<KnowledgeBase, Failure> {
-    KnowledgeBase::open(data).map_err(|e| Failure(2, format!("{}: {e}", data.display())))
+    KnowledgeBase::open(data).map_err(|e| {
+        let e = e.to_string();
+        // RocksDB's lock: one process at a time opens a store for writing.
+        let hint = if e.contains("lock file") {
+            " (another process has this store open: is a `dyknow serve` running on it? \
+             `dyknow export` reads a store a server holds)"
+        } else {
+            ""
+        };
+        Failure(2, format!("{}: {e}{hint}", data.display()))
+    })
 }
 
 #[cfg(not(feature = "rocksdb"))]
@@ -809,8 +820,14 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "--review-spacing-ms must be at most 10 s (10000)".into(),
         ));
     }
-    if !(args.horizon.is_finite() && args.horizon >= 0.0) {
-        return Err(Failure(2, "--horizon must be a non-negative number".into()));
+    // H = 0 would make the stable interval 0: reviews back to back, for nothing.
+    if !(args.horizon.is_finite() && args.horizon > 0.0) {
+        return Err(Failure(
+            2,
+            "--horizon must be a positive number (the stable interval between scheduled reviews \
+             lasts H time units)"
+                .into(),
+        ));
     }
     if !(args.time_unit.is_finite() && args.time_unit > 0.0 && args.time_unit < 1e9) {
         return Err(Failure(

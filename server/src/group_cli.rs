@@ -55,15 +55,15 @@ pub enum GroupCommand {
         /// The synchronisation policy: wait, hold or event.
         #[arg(long, value_name = "POLICY", default_value = "wait")]
         sync: String,
-        /// The state period P (wait, hold).
-        #[arg(long, value_name = "MS", default_value_t = 100)]
-        period_ms: u64,
-        /// The maximum delay D (wait; hold's default is P).
+        /// The state period P (wait, hold) [default: 100].
+        #[arg(long, value_name = "MS")]
+        period_ms: Option<u64>,
+        /// The maximum delay D (wait, hold) [default: 5 P for wait, P for hold].
         #[arg(long, value_name = "MS")]
         max_delay_ms: Option<u64>,
-        /// The maximum age A (hold).
-        #[arg(long, value_name = "MS", default_value_t = 1000)]
-        max_age_ms: u64,
+        /// The maximum age A (hold) [default: 1000].
+        #[arg(long, value_name = "MS")]
+        max_age_ms: Option<u64>,
         /// The result channel.
         #[arg(long, value_name = "CHANNEL")]
         result_channel: Option<String>,
@@ -165,18 +165,10 @@ impl Client<'_> {
         })?;
         let status = r.status().as_u16();
         let text = r.body_mut().read_to_string().unwrap_or_default();
-        let v: Value = serde_json::from_str(&text).unwrap_or(Value::Null);
         if status >= 400 {
-            let mut msg = v["error"].as_str().unwrap_or(&text).to_owned();
-            if let Some(d) = v["details"].as_array().filter(|d| !d.is_empty()) {
-                msg.push_str(&format!(" {}", Value::Array(d.clone())));
-            }
-            return Err(Failure(
-                if status >= 500 { 1 } else { 2 },
-                format!("{status}: {msg}"),
-            ));
+            return Err(http_failure(status, &text));
         }
-        Ok(v)
+        Ok(serde_json::from_str(&text).unwrap_or(Value::Null))
     }
 
     fn get(&self, path: &str) -> Result<Value, Failure> {
@@ -202,6 +194,20 @@ impl Client<'_> {
         };
         self.answer(r)
     }
+}
+
+/// An HTTP error as the exit status and the service's message (`{"error", "details"}`, or the
+/// body as it is): 1 for a 5xx, else 2.
+fn http_failure(status: u16, body: &str) -> Failure {
+    let v: Value = serde_json::from_str(body).unwrap_or(Value::Null);
+    let mut msg = v["error"].as_str().unwrap_or(body).to_owned();
+    if let Some(d) = v["details"].as_array().filter(|d| !d.is_empty()) {
+        msg.push_str(&format!(" {}", Value::Array(d.clone())));
+    }
+    Failure(
+        if status >= 500 { 1 } else { 2 },
+        format!("{status}: {msg}"),
+    )
 }
 
 fn print(v: &Value) -> Result<(), Failure> {
@@ -245,8 +251,9 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
             body.insert("formulas".into(), json!(formulas));
             let mut d = Map::new();
             for arg in &domains {
-                let (name, values) = dyknow_mstl::trace::parse_domain(arg)
-                    .map_err(|e| Failure(2, format!("--domain: {e}")))?;
+                // The message names the flag and the argument already.
+                let (name, values) =
+                    dyknow_mstl::trace::parse_domain(arg).map_err(|e| Failure(2, e))?;
                 d.insert(name, json!(values));
             }
             body.insert("domains".into(), Value::Object(d));
@@ -264,19 +271,33 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 g.insert(symbol.to_owned(), value);
             }
             body.insert("grounding".into(), Value::Object(g));
+            // A flag the policy does not take is refused, as `POST /groups` refuses the field.
+            let unused = |flag: &str, given: bool| {
+                if given {
+                    Err(Failure(2, format!("--sync {sync}: takes no {flag}")))
+                } else {
+                    Ok(())
+                }
+            };
+            let period = period_ms.unwrap_or(100);
             let policy = match sync.as_str() {
                 "wait" => {
-                    json!({"policy": "wait", "period_ms": period_ms, "max_delay_ms": max_delay_ms.unwrap_or(5 * period_ms)})
+                    unused("--max-age-ms", max_age_ms.is_some())?;
+                    json!({"policy": "wait", "period_ms": period, "max_delay_ms": max_delay_ms.unwrap_or(5 * period)})
                 }
                 "hold" => {
-                    let mut p =
-                        json!({"policy": "hold", "period_ms": period_ms, "max_age_ms": max_age_ms});
+                    let mut p = json!({"policy": "hold", "period_ms": period, "max_age_ms": max_age_ms.unwrap_or(1000)});
                     if let Some(d) = max_delay_ms {
                         p["max_delay_ms"] = json!(d);
                     }
                     p
                 }
-                "event" => json!({"policy": "event"}),
+                "event" => {
+                    unused("--period-ms", period_ms.is_some())?;
+                    unused("--max-delay-ms", max_delay_ms.is_some())?;
+                    unused("--max-age-ms", max_age_ms.is_some())?;
+                    json!({"policy": "event"})
+                }
                 other => {
                     return Err(Failure(
                         2,
@@ -347,7 +368,7 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 .read_to_string()
                 .map_err(|e| Failure(1, e.to_string()))?;
             if r.status().as_u16() >= 400 {
-                return Err(Failure(2, format!("{}: {text}", r.status().as_u16())));
+                return Err(http_failure(r.status().as_u16(), &text));
             }
             print!("{text}");
             Ok(())
@@ -367,7 +388,7 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 .map_err(|e| Failure(2, format!("cannot reach {} ({e})", http.url)))?;
             if r.status().as_u16() >= 400 {
                 let text = r.body_mut().read_to_string().unwrap_or_default();
-                return Err(Failure(2, format!("{}: {text}", r.status().as_u16())));
+                return Err(http_failure(r.status().as_u16(), &text));
             }
             let reader = BufReader::new(r.into_body().into_reader());
             let mut seen = 0;

@@ -39,8 +39,16 @@ fn started(args: &[&str], preset: Option<&str>, marker: &str) -> (Killed, Option
     };
     let mut child = Killed(command.spawn().unwrap());
     wait_for_line(&mut child.0, marker);
-    // The same process (exec keeps the pid) now runs with the tunables.
+    // The same process (exec keeps the pid) now runs with the tunables, under its own name
+    // (re-executed through `/proc/self/exe` it was `exe`, which `pgrep dyknow` misses).
     let tunables = tunables_of(child.0.id());
+    let name = std::fs::read_to_string(format!("/proc/{}/comm", child.0.id())).unwrap();
+    let expected = std::path::Path::new(BIN)
+        .file_name()
+        .unwrap()
+        .to_str()
+        .unwrap();
+    assert_eq!(name.trim_end(), &expected[..expected.len().min(15)]);
     (child, tunables)
 }
 

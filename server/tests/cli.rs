@@ -348,11 +348,14 @@ fn start_up_refusals() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("without a token"));
     // Bad usage.
-    let out = Command::new(BIN)
-        .args(["serve", "--horizon", "-1"])
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
+    for horizon in ["-1", "0"] {
+        let out = Command::new(BIN)
+            .args(["serve", "--in-memory", &format!("--horizon={horizon}")])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "--horizon {horizon}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--horizon must be a positive"));
+    }
     let out = Command::new(BIN).args(["frobnicate"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
     for threads in ["65", "-1", "two"] {

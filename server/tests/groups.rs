@@ -10,7 +10,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
@@ -56,6 +56,24 @@ fn trace(service: &Service, label: &str) -> String {
         .limit(u64::MAX)
         .read_to_string()
         .unwrap()
+}
+
+/// How many verdict streams the service has answered (`GET /metrics`).
+fn verdict_streams(service: &Service) -> u64 {
+    let mut r = agent()
+        .get(&format!("{}/metrics", service.url))
+        .call()
+        .unwrap();
+    r.body_mut()
+        .read_to_string()
+        .unwrap()
+        .lines()
+        .filter(|l| {
+            l.starts_with("dyknow_http_requests_total{")
+                && l.contains("route=\"/groups/{label}/verdicts\"")
+        })
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<u64>().ok())
+        .sum()
 }
 
 /// `dyknow check` on the group's recorded trace: (formula, verdict, t) per line.
@@ -813,7 +831,29 @@ fn the_group_command_line() {
         text.starts_with("{\"domains\":{\"UAV\":[\"uav1\",\"uav2\"]}"),
         "{text}"
     );
+    // A watcher waiting for verdicts ends when the group stops: none can come after.
+    let watches = verdict_streams(&service);
+    // (Killed on drop, should it hang.)
+    let mut watcher = Killed(
+        Command::new(BIN)
+            .args(["group", "watch", "cli", "--url", &service.url])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    // Its stream is open once the service has answered it (`/metrics` counts the answer).
+    eventually("the watcher's stream", Duration::from_secs(30), || {
+        (verdict_streams(&service) > watches).then_some(())
+    });
     assert_eq!(cli(&["stop", "cli"]).0, 0);
+    let ended = eventually("the watcher to end", Duration::from_secs(30), || {
+        watcher.0.try_wait().unwrap()
+    });
+    assert!(ended.success(), "{ended}");
+    // And on a stopped group it replays what was recorded and ends.
+    let (code, replayed, err) = cli(&["watch", "cli", "--since", "0"]);
+    assert_eq!((code, replayed.as_str()), (0, out.as_str()), "{err}");
     let (code, _, err) = cli(&["start", "cli"]);
     assert_eq!(code, 2);
     assert!(err.contains("409"), "{err}");
@@ -825,4 +865,34 @@ fn the_group_command_line() {
     );
     assert_eq!(cli(&["destroy", "cli"]).0, 0);
     assert_eq!(cli(&["show", "cli"]).0, 2);
+    // Errors give the service's message, whichever subcommand met them.
+    for sub in [
+        &["show", "nope"][..],
+        &["watch", "nope"],
+        &["trace", "nope"],
+    ] {
+        let (code, _, err) = cli(sub);
+        assert_eq!(code, 2, "{sub:?}");
+        assert_eq!(
+            err.trim(),
+            "dyknow: 404: no group labelled \"nope\"",
+            "{sub:?}"
+        );
+    }
+    // A flag the policy does not take is refused, as `POST /groups` refuses the field.
+    let (code, _, err) = cli(&[
+        "create",
+        "--formula",
+        "p",
+        "--sync",
+        "event",
+        "--period-ms",
+        "100",
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("--sync event: takes no --period-ms"), "{err}");
+    let (code, _, err) = cli(&["create", "--formula", "p", "--domain", "UAV"]);
+    assert_eq!(code, 2);
+    assert_eq!(err.trim(), "dyknow: --domain UAV: expected NAME=a,b,...");
+    assert_eq!(cli(&["list"]).1, "");
 }

@@ -175,6 +175,9 @@ pub struct Group {
     core: Mutex<Core>,
     runner: Mutex<Option<Runner>>,
     events: broadcast::Sender<VerdictLine>,
+    /// Set once the group is stopped, after its last verdicts were sent on `events`: no verdict
+    /// comes after it, so watchers end their streams.
+    stopped: tokio::sync::watch::Sender<bool>,
 }
 
 impl Group {
@@ -352,11 +355,13 @@ impl Groups {
             writer,
         };
         self.restream(&mut core);
+        let stopped = tokio::sync::watch::Sender::new(core.def.phase == Phase::Stopped);
         Ok(Arc::new(Group {
             label: core.def.label.clone(),
             core: Mutex::new(core),
             runner: Mutex::new(None),
             events: broadcast::channel(4096).0,
+            stopped,
         }))
     }
 
@@ -449,11 +454,13 @@ impl Groups {
             writer,
         };
         self.restream(&mut core);
+        let stopped = tokio::sync::watch::Sender::new(core.def.phase == Phase::Stopped);
         let group = Arc::new(Group {
             label: label.clone(),
             core: Mutex::new(core),
             runner: Mutex::new(None),
             events: broadcast::channel(4096).0,
+            stopped,
         });
         map.insert(label, group.clone());
         drop(map);
@@ -599,6 +606,7 @@ impl Groups {
             core.def.phase = Phase::Stopped;
             let finals = core.prog.finish();
             self.publish(&g, &mut core, finals);
+            g.stopped.send_replace(true);
             core.writer.sync();
             self.persist(&core)?;
         }
@@ -1059,10 +1067,18 @@ impl Group {
     /// The verdicts recorded so far, and a receiver of the ones to come (subscribed before
     /// the snapshot, so none is missed; a formula's verdict may then come twice, and
     /// watchers skip formulas they have seen).
-    pub fn watch(&self) -> (Vec<VerdictLine>, broadcast::Receiver<VerdictLine>) {
+    /// The third is set once the group is stopped: every verdict sent before it.
+    pub fn watch(
+        &self,
+    ) -> (
+        Vec<VerdictLine>,
+        broadcast::Receiver<VerdictLine>,
+        tokio::sync::watch::Receiver<bool>,
+    ) {
         let rx = self.events.subscribe();
+        let stopped = self.stopped.subscribe();
         let recorded = self.core().verdicts.clone();
-        (recorded, rx)
+        (recorded, rx, stopped)
     }
 
     /// The recorded trace: the header line and one line per state.

@@ -15,6 +15,7 @@ use axum::{Json, Router};
 use dyknow_group::{GroupSpec, SpecError};
 use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
+use tokio::sync::broadcast::error::RecvError;
 use utoipa::ToSchema;
 
 use crate::app::{AppState, in_turn, typed};
@@ -362,7 +363,7 @@ pub async fn verdicts(
         )));
     }
     let group = state.groups.get(&label)?;
-    let (recorded, mut rx) = group.watch();
+    let (recorded, mut rx, mut stopped) = group.watch();
     let stream = async_stream_lite(move |tx| async move {
         let mut seen = BTreeSet::new();
         let event = |v: &dyknow_group::VerdictLine| {
@@ -378,8 +379,29 @@ pub async fn verdicts(
                 return;
             }
         }
+        // Verdicts until the group stops (or is destroyed): a stopped group's last verdicts
+        // were sent before its flag was set, so they are drained, then the stream ends.
+        let mut ending = false;
         loop {
-            match rx.recv().await {
+            let next = if ending {
+                match rx.try_recv() {
+                    Ok(v) => Ok(v),
+                    Err(tokio::sync::broadcast::error::TryRecvError::Lagged(n)) => {
+                        Err(RecvError::Lagged(n))
+                    }
+                    Err(_) => return,
+                }
+            } else {
+                tokio::select! {
+                    biased;
+                    next = rx.recv() => next,
+                    _ = stopped.wait_for(|s| *s) => {
+                        ending = true;
+                        continue;
+                    }
+                }
+            };
+            match next {
                 Ok(v) => {
                     if !seen.insert(v.formula) {
                         continue;
@@ -388,10 +410,10 @@ pub async fn verdicts(
                         return;
                     }
                 }
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => {
+                Err(RecvError::Lagged(n)) => {
                     tracing::warn!("a verdict watcher of group {label} lagged by {n}");
                 }
-                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+                Err(RecvError::Closed) => return,
             }
         }
     });
