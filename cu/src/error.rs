@@ -84,8 +84,73 @@ impl CuError {
     }
 }
 
+/// A Zenoh error's message for users: Zenoh appends the source location of each error it
+/// wraps (` at /…/registry/src/…/endpoint.rs:615.`), which says nothing to a user and leaks the
+/// build machine's paths; they are left out.
+pub fn zenoh_message(error: &dyn std::fmt::Display) -> String {
+    without_source_locations(&error.to_string())
+}
+
+/// `text` without ` at PATH.rs:LINE` (and the `.` after it).
+fn without_source_locations(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(i) = rest.find(" at ") {
+        let after = &rest[i + " at ".len()..];
+        let end = after
+            .find(|c: char| c.is_whitespace() || c == '"')
+            .unwrap_or(after.len());
+        let location = after[..end].trim_end_matches('.');
+        let is_location = location.rsplit_once(':').is_some_and(|(path, line)| {
+            path.ends_with(".rs") && !line.is_empty() && line.bytes().all(|b| b.is_ascii_digit())
+        });
+        if is_location {
+            out.push_str(&rest[..i]);
+            rest = &after[end..];
+        } else {
+            out.push_str(&rest[..i + " at ".len()]);
+            rest = after;
+        }
+    }
+    out.push_str(rest);
+    out.truncate(out.trim_end().len());
+    out
+}
+
 impl From<zenoh::Error> for CuError {
     fn from(e: zenoh::Error) -> Self {
-        Self::Zenoh(e.to_string())
+        Self::Zenoh(zenoh_message(&e))
+    }
+}
+
+#[cfg(test)]
+mod location_tests {
+    use super::without_source_locations;
+
+    #[test]
+    fn source_locations_are_left_out_and_nothing_else() {
+        assert_eq!(
+            without_source_locations(
+                "Json5Err(Message { msg: \"Endpoints must be of the form x: bogus at /root/.cargo/registry/src/a/zenoh-protocol/src/core/endpoint.rs:615.\", location: Some(Location { line: 1 }) }) at /root/.cargo/registry/src/b/config.rs:86."
+            ),
+            "Json5Err(Message { msg: \"Endpoints must be of the form x: bogus\", location: Some(Location { line: 1 }) })"
+        );
+        for kept in [
+            "cannot connect at once",
+            "look at main.rs",
+            "at /a/b.rs:12x.",
+            "no location here",
+            "",
+        ] {
+            assert_eq!(without_source_locations(kept), kept);
+        }
+        assert_eq!(
+            without_source_locations("refused at /x/y.rs:3. (is the router running?)"),
+            "refused (is the router running?)"
+        );
+        assert_eq!(
+            without_source_locations("refused!  at /x/y.rs:3."),
+            "refused!"
+        );
     }
 }

@@ -38,7 +38,7 @@ mod timers;
 mod transformation;
 mod unit;
 
-pub use error::{CuError, KeyError};
+pub use error::{CuError, KeyError, zenoh_message};
 pub use keys::Namespace;
 pub use pins::{KEPT as KEPT_KEYS, pinned_key};
 pub use process::{ProcessEnv, client_config, client_config_file, router_config, run_process};

@@ -904,7 +904,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         )
         .map_err(|e| Failure(2, format!("{e} (listening on {})", listen.join(", "))))?;
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
-            .map_err(|e| Failure(2, format!("zenoh: {e}")))?;
+            .map_err(|e| Failure(2, format!("zenoh: {}", dyknow_cu::zenoh_message(&e))))?;
         let fleet = Arc::new(fleet);
         let local = if args.no_executor {
             None
@@ -988,6 +988,10 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             .await?;
         Ok::<(), Failure>(())
     })?;
+    // The life-cycle and the forwarding of executor events stop first: the embedded
+    // executor's CUs stop below with the service, and its going is no crash to record (the
+    // model keeps them; the next start respawns them under their names).
+    runtime.shutdown_timeout(Duration::from_secs(10));
     // Running groups stay running on disk and resume at the next start.
     groups.shutdown();
     if let Some(local) = local {
@@ -1078,7 +1082,12 @@ fn publish(channel: &str, value: &str, client: &ClientArgs) -> Result<(), Failur
             .put(key, payload)
             .encoding(dyknow_cu::zenoh::bytes::Encoding::APPLICATION_JSON),
     )
-    .map_err(|e| Failure(2, format!("cannot publish: {e}")))?;
+    .map_err(|e| {
+        Failure(
+            2,
+            format!("cannot publish: {}", dyknow_cu::zenoh_message(&e)),
+        )
+    })?;
     let _ = dyknow_cu::zenoh::Wait::wait(session.close());
     Ok(())
 }
@@ -1092,8 +1101,13 @@ fn listen(
 ) -> Result<(), Failure> {
     use std::io::Write as _;
     let (session, key) = client.open(channel)?;
-    let subscriber = dyknow_cu::zenoh::Wait::wait(session.declare_subscriber(key))
-        .map_err(|e| Failure(2, format!("cannot subscribe: {e}")))?;
+    let subscriber =
+        dyknow_cu::zenoh::Wait::wait(session.declare_subscriber(key)).map_err(|e| {
+            Failure(
+                2,
+                format!("cannot subscribe: {}", dyknow_cu::zenoh_message(&e)),
+            )
+        })?;
     let mut seen = 0u64;
     let stdout = std::io::stdout();
     while count.is_none_or(|n| seen < n) {

@@ -160,9 +160,12 @@ pub fn router_config(
     let json = |v: &[String]| serde_json::to_string(v).unwrap_or_default();
     let mut config = file.map_or_else(zenoh::Config::default, |f| f.config.clone());
     let set = |config: &mut zenoh::Config, key: &str, value: &str| {
-        config
-            .insert_json5(key, value)
-            .map_err(|e| format!("zenoh configuration {key}: {e}"))
+        config.insert_json5(key, value).map_err(|e| {
+            format!(
+                "zenoh configuration {key}: {}",
+                dyknow_cu::zenoh_message(&e)
+            )
+        })
     };
     set(&mut config, "mode", "\"router\"")?;
     set(&mut config, "listen/endpoints", &json(listen))?;
@@ -198,9 +201,12 @@ pub fn client_config(
 
 /// Opens a session.
 pub fn open(config: zenoh::Config) -> Result<zenoh::Session, String> {
-    zenoh::open(config)
-        .wait()
-        .map_err(|e| format!("cannot open the Zenoh session: {e}"))
+    zenoh::open(config).wait().map_err(|e| {
+        format!(
+            "cannot open the Zenoh session: {}",
+            dyknow_cu::zenoh_message(&e)
+        )
+    })
 }
 
 /// Hands the fleet's events to the manager until the fleet is gone. Measured costs are

@@ -217,6 +217,48 @@ fn the_manager_restarts_and_the_streams_keep_flowing() {
     assert!(longest < Duration::from_secs(1), "a gap of {longest:?}");
 }
 
+/// A graceful stop (SIGTERM) is not a crash: the embedded executor's CUs stop with the
+/// service, but the model keeps them, so the restart respawns them under their names instead
+/// of recording crashes at shutdown and replanning new CUs.
+#[test]
+fn a_graceful_stop_keeps_the_model_and_the_restart_respawns_the_cus_under_their_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("store");
+    let data = data.to_str().unwrap();
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let service = Service::start_with(&["--data", data], &zenoh, &[]);
+    service.post("/transformations", &spec("live-pipeline.ttl"));
+    service.post("/targets", &spec("live-target.ttl"));
+    let before = settled(&service, 2);
+    let tail = service.tail.clone();
+    let status = service.sigterm();
+    assert!(status.success(), "{status}");
+    let crashes: Vec<String> = tail
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|l| l.contains("crashed"))
+        .cloned()
+        .collect();
+    assert!(
+        crashes.is_empty(),
+        "a graceful stop recorded crashes: {crashes:?}"
+    );
+
+    let service = Service::start_with(&["--data", data], &zenoh, &[]);
+    let after = settled(&service, 2);
+    assert_eq!(
+        after.keys().collect::<Vec<_>>(),
+        before.keys().collect::<Vec<_>>(),
+        "change sets: {:?}",
+        service.change_sets()
+    );
+    for set in service.change_sets() {
+        assert_ne!(set["cause"]["kind"], "cu-crashed", "{set}");
+    }
+    no_gaps(&service);
+}
+
 #[test]
 fn a_manager_killed_while_applying_a_change_set_is_reconciled_on_restart() {
     let dir = tempfile::tempdir().unwrap();

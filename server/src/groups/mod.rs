@@ -279,10 +279,12 @@ impl Groups {
                 at: now_ms(),
             };
             tracing::info!(
-                "group {}: resumed after a restart, from the next state (after {} states, last t {:?})",
+                "group {}: resumed after a restart, from the next state (after {} states{})",
                 g.label,
                 resumed.after_state,
-                resumed.last_t
+                resumed
+                    .last_t
+                    .map_or_else(String::new, |t| format!(", the last at t = {t}"))
             );
             core.def.resumed.push(resumed);
             self.persist(&core)?;
