@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A DyKnow process CU in Python (PyPI `eclipse-zenoh`): multiplies numeric samples.
 
-It speaks the CU protocol of docs/executor-protocol.md with nothing but a Zenoh binding:
+It speaks the CU protocol of docs/executors.md ("In any language") with nothing but a Zenoh binding:
 read the environment the executor sets, declare the control queryable, then the liveliness
 token, and answer bind-in / bind-out / statistics / stop until told to stop, until the
 executor (its parent process) dies, or until it crashes (exit status 1).

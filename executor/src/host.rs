@@ -146,9 +146,28 @@ impl std::fmt::Debug for Executor {
 impl Executor {
     /// Starts an executor on `session`: its services, its worker, its upkeep reports, then
     /// its token (so whoever sees the token can use the services).
+    ///
+    /// Names are unique on a data plane: the manager knows an executor by its name, so a
+    /// second executor of a name that is present is refused (an error, before anything is
+    /// declared). Were it let in, its leaving would make the first one look gone.
     pub fn start(session: &zenoh::Session, config: ExecutorConfig) -> Result<Self, CuError> {
         dyknow_cu::keys::check_name("executor name", &config.name)?;
         let ns = config.namespace.clone();
+        let present = session
+            .liveliness()
+            .get(ns.executor_token(&config.name))
+            .timeout(Duration::from_secs(2))
+            .wait()?;
+        while let Ok(reply) = present.recv() {
+            if reply.result().is_ok() {
+                return Err(CuError::failed(format!(
+                    "an executor named {} is present already on this data plane; names must be \
+                     unique (one cut off without its link closing counts until its Zenoh lease \
+                     expires)",
+                    config.name
+                )));
+            }
+        }
         let events = session
             .declare_publisher(ns.executor_events(&config.name))
             .encoding(Encoding::APPLICATION_JSON)

@@ -14,6 +14,14 @@ pub enum LifecycleError {
     /// No transformation has this label.
     #[error("no transformation labelled {0:?}")]
     UnknownTransformation(Tid),
+    /// The transformation is registered, but no executor can run it now (Spawn).
+    #[error("transformation {transformation:?} cannot run now: {why}")]
+    NotRunnable {
+        /// The transformation.
+        transformation: Tid,
+        /// Why not, as the executors say (`GET /transformations/{label}`'s `why`).
+        why: String,
+    },
     /// A computation unit of this name exists.
     #[error("a computation unit named {0:?} exists")]
     NameTaken(Cid),

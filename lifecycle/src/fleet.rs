@@ -119,7 +119,8 @@ struct Inner {
 /// The executors as the manager sees them.
 pub struct Fleet {
     inner: Arc<Inner>,
-    _subscribers: Vec<Subscriber<()>>,
+    /// The token and event subscribers, until [`Fleet::stop_watching`].
+    subscribers: Mutex<Vec<Subscriber<()>>>,
 }
 
 impl std::fmt::Debug for Fleet {
@@ -224,7 +225,7 @@ impl Fleet {
         Ok((
             Self {
                 inner,
-                _subscribers: vec![tokens, events],
+                subscribers: Mutex::new(vec![tokens, events]),
             },
             rx,
         ))
@@ -260,6 +261,14 @@ impl Fleet {
                 }
             })
             .collect()
+    }
+
+    /// Stops watching the executors' tokens and events (the service is stopping): its own
+    /// executor stopping next is not an executor vanishing.
+    pub fn stop_watching(&self) {
+        for subscriber in std::mem::take(&mut *lock(&self.subscribers)) {
+            let _ = subscriber.undeclare().wait();
+        }
     }
 
     /// Waits until an executor named `name` is present (for start-up and tests).

@@ -506,6 +506,18 @@ impl Manager {
         let mut configuration = lock(&self.configuration);
         let loaded = self.load()?;
         let Some(tf) = loaded.env.library.get(&request.transformation) else {
+            // Registered but left out of the library: no executor can run it now.
+            if let Some(spec) = loaded.specs.get(&request.transformation) {
+                let why = self
+                    .executor
+                    .runnable(spec)
+                    .err()
+                    .unwrap_or_else(|| "no executor can run it now".to_owned());
+                return Err(LifecycleError::NotRunnable {
+                    transformation: request.transformation,
+                    why,
+                });
+            }
             return Err(LifecycleError::UnknownTransformation(
                 request.transformation,
             ));

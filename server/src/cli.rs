@@ -847,6 +847,11 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "--query-timeout must be a positive number of seconds".into(),
         ));
     }
+    // The HTTP port first: taken, it is the one error, before the store, the Zenoh router
+    // and the embedded executor start (and stop again). Served once all is up.
+    let listener = std::net::TcpListener::bind(args.bind)
+        .and_then(|l| l.set_nonblocking(true).map(|()| l))
+        .map_err(|e| Failure(2, format!("cannot listen on {}: {e}", args.bind)))?;
     let kb = if args.in_memory {
         KnowledgeBase::in_memory()?
     } else {
@@ -906,6 +911,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
             .map_err(|e| Failure(2, format!("zenoh: {}", dyknow_cu::zenoh_message(&e))))?;
         let fleet = Arc::new(fleet);
+        let fleet_handle = fleet.clone();
         let local = if args.no_executor {
             None
         } else {
@@ -939,7 +945,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
                 group_store,
             )
             .map_err(|e| Failure(2, format!("groups: {e}")))?;
-        plane = Some((session, local, events));
+        plane = Some((session, local, events, fleet_handle));
         state
     };
     let kb = state.kb.clone();
@@ -947,9 +953,9 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
-    let (session, local, events) = match plane {
-        Some((session, local, events)) => (Some(session), local, Some(events)),
-        None => (None, None, None),
+    let (session, local, events, fleet) = match plane {
+        Some((session, local, events, fleet)) => (Some(session), local, Some(events), Some(fleet)),
+        None => (None, None, None, None),
     };
     runtime.block_on(async move {
         if let Some(events) = events {
@@ -963,8 +969,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
                 Duration::from_secs_f64(args.reconcile_grace),
             ));
         }
-        let listener = tokio::net::TcpListener::bind(args.bind)
-            .await
+        let listener = tokio::net::TcpListener::from_std(listener)
             .map_err(|e| Failure(2, format!("cannot listen on {}: {e}", args.bind)))?;
         tracing::info!(
             "DyKnow knowledge service listening on http://{} ({})",
@@ -992,6 +997,9 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     // executor's CUs stop below with the service, and its going is no crash to record (the
     // model keeps them; the next start respawns them under their names).
     runtime.shutdown_timeout(Duration::from_secs(10));
+    if let Some(fleet) = fleet {
+        fleet.stop_watching();
+    }
     // Running groups stay running on disk and resume at the next start.
     groups.shutdown();
     if let Some(local) = local {
@@ -1043,11 +1051,27 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     config.zenoh_config = zenoh_file.map(|f| f.path);
     let executor = dyknow_executor::Executor::start(&session, config)
         .map_err(|e| Failure(2, format!("executor: {e}")))?;
-    tracing::info!(
-        "executor {} connected to {}",
-        args.name,
-        args.connect.join(", ")
-    );
+    // Zenoh keeps trying an endpoint that does not answer yet: say which it is.
+    let info = session.info();
+    let linked = dyknow_cu::zenoh::Wait::wait(info.routers_zid())
+        .next()
+        .is_some()
+        || dyknow_cu::zenoh::Wait::wait(info.peers_zid())
+            .next()
+            .is_some();
+    if linked {
+        tracing::info!(
+            "executor {} connected to {}",
+            args.name,
+            args.connect.join(", ")
+        );
+    } else {
+        tracing::warn!(
+            "executor {} is up, but {} does not answer yet (Zenoh keeps trying)",
+            args.name,
+            args.connect.join(", ")
+        );
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;

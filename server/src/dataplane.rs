@@ -114,18 +114,34 @@ fn endpoint_setting<'a>(endpoint: &'a str, key: &str) -> Option<&'a str> {
         .map(|(_, v)| v.trim())
 }
 
+/// `endpoint` parses as a Zenoh endpoint, or the error says what it is not.
+fn well_formed(endpoint: &str) -> Result<(), String> {
+    endpoint
+        .parse::<zenoh::config::EndPoint>()
+        .map(|_| ())
+        .map_err(|e| {
+            format!(
+                "{endpoint:?} is not a Zenoh endpoint ({}); e.g. tcp/127.0.0.1:7447",
+                dyknow_cu::zenoh_message(&e)
+            )
+        })
+}
+
 /// The access rule (`docs/reliability.md`): the data plane carries every stream and lets any
 /// peer that reaches it host CUs, so a Zenoh endpoint that other machines can reach is only
 /// opened with access control denying by default (`access_control` in `--zenoh-config`) or,
 /// for `tls/` and `quic/` endpoints, mutual TLS (client certificates; the endpoint's own
 /// `#enable_mtls=` wins over the file's). TLS without client certificates encrypts but lets
 /// anyone in.
+/// A malformed endpoint is refused as such first.
 pub fn check_access(listen: &[String], file: Option<&ZenohFile>) -> Result<(), String> {
     if file.is_some_and(ZenohFile::access_control) {
         return Ok(());
     }
     let mutual_tls = file.is_some_and(ZenohFile::mutual_tls);
     for endpoint in listen {
+        // A malformed endpoint is that, not a non-loopback one.
+        well_formed(endpoint)?;
         let tls = endpoint.starts_with("tls/") || endpoint.starts_with("quic/");
         // An endpoint's own `#enable_mtls=…` overrides the file's.
         let mutual = endpoint_setting(endpoint, "enable_mtls").map_or(mutual_tls, |v| v == "true");
@@ -156,6 +172,9 @@ pub fn router_config(
         return Err(format!(
             "the Zenoh lease must be between 100 ms and one hour, not {lease_ms} ms"
         ));
+    }
+    for endpoint in listen.iter().chain(connect) {
+        well_formed(endpoint)?;
     }
     let json = |v: &[String]| serde_json::to_string(v).unwrap_or_default();
     let mut config = file.map_or_else(zenoh::Config::default, |f| f.config.clone());
@@ -196,6 +215,9 @@ pub fn client_config(
     file: Option<&std::path::Path>,
     connect: &[String],
 ) -> Result<zenoh::Config, String> {
+    for endpoint in connect {
+        well_formed(endpoint)?;
+    }
     dyknow_cu::client_config_file(file, connect).map_err(|e| e.to_string())
 }
 
@@ -301,6 +323,22 @@ mod tests {
         text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
             (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
         })
+    }
+
+    #[test]
+    fn a_malformed_endpoint_is_called_malformed() {
+        let e = check_access(&["garbage".to_owned()], None).unwrap_err();
+        assert!(
+            e.starts_with("\"garbage\" is not a Zenoh endpoint ("),
+            "{e}"
+        );
+        assert!(!e.contains(".rs:"), "{e}");
+        assert!(check_access(&["tcp/127.0.0.1:7447".to_owned()], None).is_ok());
+        let e = check_access(&["tcp/0.0.0.0:7447".to_owned()], None).unwrap_err();
+        assert!(
+            e.starts_with("refusing to listen on the non-loopback"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -161,6 +161,52 @@ fn post_counter_echo(service: &Service, period_ms: &str) {
     }
 }
 
+/// Executor names are unique: a second `local` (or any name present) is refused at start,
+/// and the first one, with its CUs, stays present. (Before, the second was let in, and its
+/// leaving made the service take `local` for gone for good: its CUs crashed in the model,
+/// nothing runnable.)
+#[test]
+fn a_second_executor_of_a_present_name_is_refused() {
+    let service = Service::start(&[]);
+    post_counter_echo(&service, "20");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let before = eventually("two running CUs", Duration::from_secs(30), || {
+        let cus = service.get("/cus");
+        let running = cus.as_array()?.iter().all(|c| c["state"] == "running");
+        (cus.as_array()?.len() == 2 && running).then_some(cus)
+    });
+    // (Killed on drop: were it let in, it would run until stopped.)
+    let mut second = Killed(
+        Command::new(BIN)
+            .args(["executor", "--name", "local", "--connect", &service.zenoh])
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let status = eventually("the second local to exit", Duration::from_secs(30), || {
+        second.0.try_wait().unwrap()
+    });
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut second.0.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("an executor named local is present already"),
+        "{err}"
+    );
+    let executors = service.get("/executors");
+    assert_eq!(executors[0]["name"], "local", "{executors}");
+    assert_eq!(executors[0]["present"], true, "{executors}");
+    assert_eq!(service.get("/cus"), before);
+    assert!(
+        service
+            .change_sets()
+            .iter()
+            .all(|c| c["cause"]["kind"] != "cu-crashed")
+    );
+}
+
 #[test]
 fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     let service = Service::start(&["--no-executor"]);
@@ -369,6 +415,23 @@ fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off(
             .unwrap()
             .contains("/nonexistent/program"),
         "{missing}"
+    );
+    // A Spawn of one says why it cannot run, rather than that it does not exist.
+    let mut r = agent()
+        .post(&format!("{}/cus", service.url))
+        .header("Content-Type", "application/json")
+        .send(json!({"transformation": "ghost"}).to_string().as_bytes())
+        .unwrap();
+    let status = r.status().as_u16();
+    let refusal: Value = serde_json::from_str(&r.body_mut().read_to_string().unwrap()).unwrap();
+    assert_eq!(status, 422, "{refusal}");
+    assert!(
+        refusal["error"]
+            .as_str()
+            .unwrap()
+            .contains("cannot run now")
+            && refusal["error"].as_str().unwrap().contains("dyknow/nope"),
+        "{refusal}"
     );
     service.post("/targets", &target("ghost-q", "/ghost", "Ghost"));
     service.post("/targets", &target("missing-q", "/missing", "Missing"));

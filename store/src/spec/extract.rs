@@ -721,7 +721,7 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         let (labour, upkeep) = self.costs(&root, root_iri);
         let (sources, _) = self.index.literals(&root, &[dkros::HAS_SOURCE]);
         if sources.len() > 1 {
-            self.violation("ROSTransformation has exactly 1 dkros:hasSource", &root);
+            self.violation("a transformation has at most 1 dkros:hasSource", &root);
         }
         let (types, _) = self.index.literals(&root, &[dkros::HAS_TYPE]);
         let (executors, _) = self.index.literals(&root, &[dkros::HAS_EXECUTOR]);
