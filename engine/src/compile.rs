@@ -10,17 +10,37 @@ use crate::explore::{Exploration, ExploreOptions, NodeKind, Plan};
 use crate::ids::{Channel, Cid, Ids, Qid};
 use crate::model::{Action, Environment};
 
-/// The estimated cost of a change set (Def. 34), as change set JSON gives it.
+/// The estimated cost of a change set (Def. 34), as change set JSON gives it: in JSON each
+/// number to 12 significant digits, so that sums of estimates such as 10 × 0.1 show as the
+/// `1.0` they stand for, not `1.0000000000000002` (the value itself is kept exact).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CostSummary {
     /// labour + horizon × upkeep.
+    #[serde(serialize_with = "significant")]
     pub total: f64,
     /// The labour of the spawned CUs (Def. 31).
+    #[serde(serialize_with = "significant")]
     pub labour: f64,
     /// The upkeep of the resulting environment for one time unit (Def. 32).
+    #[serde(serialize_with = "significant")]
     pub upkeep_per_time_unit: f64,
     /// The horizon H.
+    #[serde(serialize_with = "significant")]
     pub horizon: f64,
+}
+
+/// `x` to 12 significant digits (far below any estimate's own precision, far above the
+/// rounding errors of summing a few thousand of them).
+#[must_use]
+pub fn to_significant_digits(x: f64) -> f64 {
+    if !x.is_finite() || x == 0.0 {
+        return x;
+    }
+    format!("{x:.11e}").parse().unwrap_or(x)
+}
+
+fn significant<S: serde::Serializer>(x: &f64, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_f64(to_significant_digits(*x))
 }
 
 /// What COMPILE produces: the actions, their cost, and what the search could not do.
@@ -203,5 +223,40 @@ impl CostSummary {
             upkeep_per_time_unit: upkeep,
             horizon,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn change_set_costs_show_without_the_noise_of_summing() {
+        let cost = CostSummary {
+            // The Ch. 6 ceiling switch: 10 × 0.1 and Puff's 1.0 summed in the order of the
+            // CUs' names, 1.0 first (as a run with a crash before it names them).
+            total: 30.000_000_000_000_007,
+            labour: 0.1 + 0.2,
+            upkeep_per_time_unit: 2.000_000_000_000_001,
+            horizon: 10.0,
+        };
+        assert_ne!(cost.labour, 0.3, "the sum carries a rounding error");
+        assert_eq!(
+            serde_json::to_string(&cost).unwrap(),
+            r#"{"total":30.0,"labour":0.3,"upkeep_per_time_unit":2.0,"horizon":10.0}"#
+        );
+        // Every other value keeps its first 12 significant digits, and only those.
+        let mut x = 1.234_567_890_123_456_7e-7;
+        for _ in 0..40 {
+            let y = to_significant_digits(x);
+            assert!((y - x).abs() <= 5e-12 * x.abs(), "{x} became {y}");
+            assert_eq!(to_significant_digits(y), y);
+            x *= 7.3;
+        }
+        for exact in [0.0, -0.0, 1.0, 43.0, 411.6, 1e300, -2.5] {
+            assert_eq!(to_significant_digits(exact), exact);
+        }
+        assert!(to_significant_digits(f64::NAN).is_nan());
+        assert_eq!(to_significant_digits(f64::INFINITY), f64::INFINITY);
     }
 }

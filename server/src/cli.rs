@@ -747,8 +747,22 @@ fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
 }
 
 fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
+    // A file that is not there, or of no known type, is refused before a store is created.
+    let files = rdf_files(files)?;
+    for file in &files {
+        std::fs::File::open(file).map_err(|e| Failure(2, format!("{}: {e}", file.display())))?;
+        if InputFormat::from_path(file).is_none() {
+            return Err(Failure(
+                2,
+                format!(
+                    "{}: unknown file type (use .ttl, .nt or .jsonld)",
+                    file.display()
+                ),
+            ));
+        }
+    }
     let kb = open_store(data)?;
-    for file in rdf_files(files)? {
+    for file in files {
         println!("{}", load_file(&kb, &file)?);
     }
     kb.flush()?;

@@ -265,6 +265,20 @@ fn load_and_export_offline() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("store");
     let specs_dir = format!("{}/../specs/turtle", env!("CARGO_MANIFEST_DIR"));
+    // A file that is not there: refused before any store is created.
+    let missing = dir.path().join("nope.ttl");
+    let out = Command::new(BIN)
+        .args(["load", "--data", data.to_str().unwrap()])
+        .arg(&missing)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("nope.ttl: No such file"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!data.exists(), "a store was created for nothing");
     let out = Command::new(BIN)
         .args(["load", "--data", data.to_str().unwrap(), &specs_dir])
         .output()
