@@ -987,6 +987,12 @@ fn rejects_specs_posted_to_the_wrong_endpoint() {
         "this endpoint accepts transformation specs only",
     );
     assert!(has_constraint(&v, "/targets"), "{v:#?}");
+    // The spec is told by its label, not as "a blank node".
+    assert!(
+        v.iter()
+            .any(|x| x.subject == "the target spec \"undistortSub\""),
+        "{v:#?}"
+    );
     let v = assert_rejected(
         LISTING_5_3,
         SpecKind::Target,

@@ -249,7 +249,13 @@ fn extract(
                     kind.name(),
                     kind.name()
                 ),
-                describe(root, &HashMap::default()),
+                // A blank node is told by its label, when it has one.
+                match index.literals(root, &[rdfs::LABEL]).0.as_slice() {
+                    [label] if matches!(root, NamedOrBlankNode::BlankNode(_)) => {
+                        format!("the {} spec {:?}", kind.name(), label.value())
+                    }
+                    _ => describe(root, &HashMap::default()),
+                },
             ));
             continue;
         }
