@@ -218,6 +218,10 @@ async fn example_12_over_http() {
     // History: `?since`, one by id, its RDF delta, and SPARQL sees the records.
     let since = api.get("/changesets?since=cs-1").await.expect(200).json();
     assert_eq!(since.as_array().map(Vec::len), Some(1));
+    // By number when not kept: none after one not given yet; a non-id is a mistake.
+    let after = api.get("/changesets?since=cs-99").await.expect(200).json();
+    assert_eq!(after, json!([]));
+    api.get("/changesets?since=bogus").await.expect(400);
     api.get("/changesets/cs-2").await.expect(200);
     let nt = api
         .get_accept("/changesets/cs-2", "application/n-triples")

@@ -46,12 +46,25 @@ impl History {
         self.change_sets.push(change_set);
     }
 
-    /// The change sets after `since` (all when `None` or unknown), oldest first.
+    /// The change sets after `since` (all when `None`), oldest first. A `cs-N` no longer
+    /// kept (pruned), or never recorded, counts by its number: the kept ones numbered above
+    /// N (all of them after a pruned one, none after one not given yet). Any other id: all.
     pub(crate) fn since(&self, since: Option<&str>) -> Vec<Arc<ChangeSet>> {
-        let start = since
-            .and_then(|s| self.change_sets.iter().position(|c| c.id == s))
-            .map_or(0, |i| i + 1);
-        self.change_sets[start..].to_vec()
+        let Some(since) = since else {
+            return self.change_sets.clone();
+        };
+        if let Some(i) = self.change_sets.iter().position(|c| c.id == since) {
+            return self.change_sets[i + 1..].to_vec();
+        }
+        match ChangeSetId::new(since).number() {
+            Some(n) => self
+                .change_sets
+                .iter()
+                .filter(|c| c.id.number().is_none_or(|m| m > n))
+                .cloned()
+                .collect(),
+            None => self.change_sets.clone(),
+        }
     }
 
     /// The ids of the oldest change sets to prune so that, with one more recorded, at most
@@ -87,5 +100,47 @@ impl History {
         for cs in &self.change_sets {
             ids.observe_actions(&cs.actions);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dyknow_engine::{Cause, Compiled, CostSummary};
+
+    fn change_set(n: u64) -> ChangeSet {
+        ChangeSet::new(
+            ChangeSetId::numbered(n),
+            Cause::Review,
+            Compiled {
+                actions: Vec::new(),
+                cost: CostSummary {
+                    total: 0.0,
+                    labour: 0.0,
+                    upkeep_per_time_unit: 0.0,
+                    horizon: 10.0,
+                },
+                unsatisfied_targets: Vec::new(),
+                optimal: true,
+            },
+            Default::default(),
+        )
+    }
+
+    fn ids(v: &[Arc<ChangeSet>]) -> Vec<u64> {
+        v.iter().filter_map(|c| c.id.number()).collect()
+    }
+
+    #[test]
+    fn since_counts_an_id_no_longer_kept_or_not_given_yet_by_its_number() {
+        // cs-1 and cs-2 pruned, cs-5 taken but never recorded.
+        let history = History::new(vec![change_set(3), change_set(4), change_set(6)], &[]);
+        assert_eq!(ids(&history.since(None)), [3, 4, 6]);
+        assert_eq!(ids(&history.since(Some("cs-3"))), [4, 6]);
+        assert_eq!(ids(&history.since(Some("cs-6"))), [] as [u64; 0]);
+        assert_eq!(ids(&history.since(Some("cs-1"))), [3, 4, 6]);
+        assert_eq!(ids(&history.since(Some("cs-5"))), [6]);
+        assert_eq!(ids(&history.since(Some("cs-9"))), [] as [u64; 0]);
+        assert_eq!(ids(&history.since(Some("bogus"))), [3, 4, 6]);
     }
 }

@@ -10,7 +10,7 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use dyknow_engine::{ChangeSet, Cid, ComputationUnit, Invalidity};
+use dyknow_engine::{ChangeSet, ChangeSetId, Cid, ComputationUnit, Invalidity};
 use dyknow_lifecycle::{CuView, Observation, Perturbation, Phase, SpawnRequest};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
@@ -212,8 +212,17 @@ pub struct Since {
 /// The change sets, oldest first (`?since=<id>`: those after it).
 #[utoipa::path(get, path = "/changesets", tag = "reconfiguration",
     params(("since" = Option<String>, Query, description = "only change sets after this id")),
-    responses((status = 200, description = "change set JSON list (see docs/cli.md)")))]
+    responses((status = 200, description = "change set JSON list (see docs/cli.md)"), (status = 400, body = crate::error::ErrorBody)))]
 pub async fn list_change_sets(State(state): State<AppState>, Query(q): Query<Since>) -> Response {
+    // Change set ids are `cs-N`: anything else is a mistake, not "from the start".
+    if let Some(since) = q
+        .since
+        .as_deref()
+        .filter(|s| ChangeSetId::new(*s).number().is_none())
+    {
+        return ApiError::bad_request(format!("since={since:?} is not a change set id (cs-N)"))
+            .into_response();
+    }
     let change_sets = state.lifecycle.change_sets(q.since.as_deref());
     Json(
         change_sets
