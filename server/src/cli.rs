@@ -964,8 +964,12 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     };
     let kb = state.kb.clone();
     let groups = state.groups.clone();
+    // Large stacks (virtual memory, touched only as used): SPARQL's parser and evaluator
+    // recurse along a query's nesting and chains, which `ParsedQuery::parse` bounds to what
+    // this holds (`dyknow_store::MAX_QUERY_OPERATORS`).
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
+        .thread_stack_size(64 << 20)
         .build()?;
     let (session, local, events, fleet) = match plane {
         Some((session, local, events, fleet)) => (Some(session), local, Some(events), Some(fleet)),

@@ -169,7 +169,7 @@ impl From<SparqlQueryError> for ApiError {
                 ),
             ),
             SparqlQueryError::UnsupportedFormat(m) => Self::new(StatusCode::NOT_ACCEPTABLE, m),
-            SparqlQueryError::Unsupported(m) => Self::bad_request(m),
+            SparqlQueryError::Unsupported(m) | SparqlQueryError::TooDeep(m) => Self::bad_request(m),
             other => Self::internal(other),
         }
     }

@@ -663,3 +663,52 @@ fn explore_replans_an_exported_model_offline() {
     assert_eq!(spawned, ["tid3", "tid2", "tid5"]);
     server.kill9();
 }
+
+/// Queries nested or chained deeper than SPARQL's parser and evaluator can recurse are 400,
+/// and the service lives on (a 2 KB query of 1,000 nested parentheses, or 1,000 UNION
+/// branches, aborted it on a stack overflow).
+#[test]
+fn deep_sparql_queries_are_refused_and_the_service_lives_on() {
+    let server = Server::start(&["--in-memory"]);
+    let agent = agent();
+    let base = server.url.clone();
+    let nested = format!(
+        "SELECT * WHERE {{ FILTER({}1{}) }}",
+        "(".repeat(1_000),
+        ")".repeat(1_000)
+    );
+    let url = format!(
+        "{base}/sparql?query={}",
+        nested
+            .replace('(', "%28")
+            .replace(')', "%29")
+            .replace(' ', "%20")
+    );
+    let (status, body) = get(&agent, &url.replace('{', "%7B").replace('}', "%7D"));
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("nests brackets deeper than"), "{body}");
+    for branches in [1_000, 100_000] {
+        let unions = format!(
+            "SELECT * WHERE {{ {} }}",
+            vec!["{ ?s <urn:p> ?o }"; branches].join(" UNION ")
+        );
+        let (status, body) = post(
+            &agent,
+            &format!("{base}/sparql"),
+            "application/sparql-query",
+            &unions,
+        );
+        assert_eq!(status, 400, "{branches}: {body}");
+    }
+    let (status, _) = get(&agent, &format!("{base}/health"));
+    assert_eq!(status, 200);
+    let ok = "SELECT * WHERE { { ?s <urn:p> ?o } UNION { ?s <urn:q> ?o } }";
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        ok,
+    );
+    assert_eq!(status, 200, "{body}");
+    server.kill9();
+}

@@ -110,6 +110,10 @@ pub enum SparqlQueryError {
     /// Evaluation failed.
     #[error("query evaluation failed: {0}")]
     Evaluation(String),
+    /// The query nests deeper than the service parses or evaluates (its parser and evaluator
+    /// recurse once per level: past the limits they would overflow their thread's stack).
+    #[error("{0}")]
+    TooDeep(String),
 }
 
 /// Serialising the model failed.

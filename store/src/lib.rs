@@ -20,4 +20,7 @@ pub use knowledge_base::{
 };
 pub use oxigraph;
 pub use rdf_input::{InputFormat, parse_triples};
-pub use sparql::{ParsedQuery, QueryAnswer, QueryForm, ResultFormat};
+pub use sparql::{
+    MAX_QUERY_DEPTH, MAX_QUERY_NESTING, MAX_QUERY_OPERATORS, ParsedQuery, QueryAnswer, QueryForm,
+    ResultFormat,
+};

@@ -44,12 +44,309 @@ pub struct ParsedQuery {
     cancel: CancellationToken,
 }
 
+/// How deep a query may nest brackets (`(`, `{`, `[`, `<<`): the parser recurses once per
+/// level, and a 2 KB query of 1,000 nested parentheses overflowed a worker's stack (the whole
+/// service aborted).
+pub const MAX_QUERY_NESTING: usize = 128;
+
+/// How deep a query's algebra may be: the evaluator recurses once per operator, and a chain
+/// (`{…} UNION {…} UNION …`, `a || b || …`, one OPTIONAL after another) is a tree as deep as it
+/// is long; 1,000 UNION branches overflowed a worker's stack.
+pub const MAX_QUERY_DEPTH: usize = 256;
+
+/// How many operators that chain (`UNION`, `MINUS`, `OPTIONAL`, `||`, `&&`, `|`, `/`, `+`, `-`,
+/// `*`, `^`, `!`) a query may hold in all: the parser recurses along a chain as it does into
+/// brackets (1,000 UNION branches overflowed a 2 MiB stack in the parser itself), so their
+/// number bounds its recursion too; the service's threads have the stack for this many
+/// (`dyknow serve`: 64 MiB). Counted lexically, so a hyphen in a prefixed name counts as well:
+/// the bound is far above what a query of the configuration holds.
+pub const MAX_QUERY_OPERATORS: usize = 8_000;
+
+/// What is wrong with `query`'s shape, if anything, before it is parsed: brackets nested
+/// deeper than `limit`, or more than [`MAX_QUERY_OPERATORS`] chaining operators. Strings, IRIs
+/// and comments are skipped.
+fn shape_error(query: &str, limit: usize) -> Option<String> {
+    if let Some((line, column)) = nesting_beyond(query, limit) {
+        return Some(format!(
+            "the query nests brackets deeper than {limit} levels (line {line}, column {column})"
+        ));
+    }
+    let operators = operators(query);
+    (operators > MAX_QUERY_OPERATORS).then(|| {
+        format!(
+            "the query chains {operators} operators (UNION, OPTIONAL, ||, +, …); at most \
+             {MAX_QUERY_OPERATORS} are taken"
+        )
+    })
+}
+
+/// The chaining operators of `query` outside strings, IRIs and comments.
+fn operators(query: &str) -> usize {
+    let mut count = 0;
+    let mut word = String::new();
+    scan(query, |c, _| {
+        if c.is_alphanumeric() || c == '_' || c == ':' {
+            word.push(c);
+            return;
+        }
+        if ["UNION", "MINUS", "OPTIONAL"]
+            .iter()
+            .any(|k| word.eq_ignore_ascii_case(k))
+        {
+            count += 1;
+        }
+        word.clear();
+        if "|&/+-*^!".contains(c) {
+            count += 1;
+        }
+    });
+    count
+}
+
+/// Calls `f` with every character of `query` outside strings, IRIs and comments (a space for
+/// each of those), and its (line, column).
+fn scan(query: &str, mut f: impl FnMut(char, (usize, usize))) {
+    let chars: Vec<char> = query.chars().collect();
+    let (mut line, mut line_start) = (1usize, 0usize);
+    let mut i = 0;
+    while i < chars.len() {
+        let c = chars[i];
+        match c {
+            '#' => {
+                while i + 1 < chars.len() && chars[i + 1] != '\n' {
+                    i += 1;
+                }
+                f(' ', (line, i - line_start + 1));
+            }
+            '"' | '\'' => {
+                let long = chars.get(i + 1) == Some(&c) && chars.get(i + 2) == Some(&c);
+                i += if long { 3 } else { 1 };
+                while i < chars.len() {
+                    if chars[i] == '\\' {
+                        i += 2;
+                        continue;
+                    }
+                    if chars[i] == '\n' {
+                        line += 1;
+                        line_start = i + 1;
+                    }
+                    if chars[i] == c
+                        && (!long || (chars.get(i + 1) == Some(&c) && chars.get(i + 2) == Some(&c)))
+                    {
+                        i += if long { 2 } else { 0 };
+                        break;
+                    }
+                    i += 1;
+                }
+                f(' ', (line, i.saturating_sub(line_start) + 1));
+            }
+            '<' if chars.get(i + 1) != Some(&'<') => {
+                // An IRI runs to `>` through no forbidden character; otherwise it is `<`.
+                let end = chars[i + 1..]
+                    .iter()
+                    .position(|&d| d == '>' || d <= ' ' || "<\"{}|^`\\".contains(d));
+                match end.filter(|&n| chars[i + 1 + n] == '>') {
+                    Some(n) => {
+                        i += n + 1;
+                        f(' ', (line, i - line_start + 1));
+                    }
+                    None => f(c, (line, i - line_start + 1)),
+                }
+            }
+            '\n' => {
+                f(c, (line, i - line_start + 1));
+                line += 1;
+                line_start = i + 1;
+            }
+            _ => f(c, (line, i - line_start + 1)),
+        }
+        i += 1;
+    }
+}
+
+/// The first place `query` nests brackets (`(`, `{`, `[`, `<<`) deeper than `limit`, as
+/// (line, column): a lexical bound on the parser's recursion, checked before it runs.
+fn nesting_beyond(query: &str, limit: usize) -> Option<(usize, usize)> {
+    let mut depth = 0usize;
+    let mut previous = ' ';
+    let mut found = None;
+    scan(query, |c, at| {
+        match (previous, c) {
+            ('<', '<') => {
+                depth += 1;
+                previous = ' ';
+            }
+            ('>', '>') => {
+                depth = depth.saturating_sub(1);
+                previous = ' ';
+            }
+            (_, '(' | '{' | '[') => {
+                depth += 1;
+                previous = c;
+            }
+            (_, ')' | '}' | ']') => {
+                depth = depth.saturating_sub(1);
+                previous = c;
+            }
+            _ => previous = c,
+        }
+        if depth > limit && found.is_none() {
+            found = Some(at);
+        }
+    });
+    found
+}
+
+/// Whether `query`'s algebra is deeper than `limit` (walked with a stack of its own, so the
+/// walk itself never recurses).
+fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
+    use spargebra::algebra::PropertyPathExpression as Path;
+    use spargebra::algebra::{AggregateExpression, Expression, GraphPattern, OrderExpression};
+    enum Node<'a> {
+        Pattern(&'a GraphPattern),
+        Expr(&'a Expression),
+        Path(&'a Path),
+    }
+    let pattern = match query {
+        spargebra::Query::Select { pattern, .. }
+        | spargebra::Query::Construct { pattern, .. }
+        | spargebra::Query::Describe { pattern, .. }
+        | spargebra::Query::Ask { pattern, .. } => pattern,
+    };
+    let mut stack = vec![(Node::Pattern(pattern), 1usize)];
+    while let Some((node, depth)) = stack.pop() {
+        if depth > limit {
+            return true;
+        }
+        let d = depth + 1;
+        match node {
+            Node::Pattern(p) => match p {
+                GraphPattern::Bgp { .. } | GraphPattern::Values { .. } => {}
+                GraphPattern::Path { path, .. } => stack.push((Node::Path(path), d)),
+                GraphPattern::Join { left, right }
+                | GraphPattern::Lateral { left, right }
+                | GraphPattern::Union { left, right }
+                | GraphPattern::Minus { left, right } => {
+                    stack.push((Node::Pattern(left), d));
+                    stack.push((Node::Pattern(right), d));
+                }
+                GraphPattern::LeftJoin {
+                    left,
+                    right,
+                    expression,
+                } => {
+                    stack.push((Node::Pattern(left), d));
+                    stack.push((Node::Pattern(right), d));
+                    if let Some(e) = expression {
+                        stack.push((Node::Expr(e), d));
+                    }
+                }
+                GraphPattern::Filter { expr, inner } => {
+                    stack.push((Node::Expr(expr), d));
+                    stack.push((Node::Pattern(inner), d));
+                }
+                GraphPattern::Extend {
+                    inner, expression, ..
+                } => {
+                    stack.push((Node::Expr(expression), d));
+                    stack.push((Node::Pattern(inner), d));
+                }
+                GraphPattern::OrderBy { inner, expression } => {
+                    stack.push((Node::Pattern(inner), d));
+                    for o in expression {
+                        let (OrderExpression::Asc(e) | OrderExpression::Desc(e)) = o;
+                        stack.push((Node::Expr(e), d));
+                    }
+                }
+                GraphPattern::Group {
+                    inner, aggregates, ..
+                } => {
+                    stack.push((Node::Pattern(inner), d));
+                    for (_, a) in aggregates {
+                        if let AggregateExpression::FunctionCall { expr, .. } = a {
+                            stack.push((Node::Expr(expr), d));
+                        }
+                    }
+                }
+                GraphPattern::Graph { inner, .. }
+                | GraphPattern::Project { inner, .. }
+                | GraphPattern::Distinct { inner }
+                | GraphPattern::Reduced { inner }
+                | GraphPattern::Slice { inner, .. }
+                | GraphPattern::Service { inner, .. } => stack.push((Node::Pattern(inner), d)),
+            },
+            Node::Expr(e) => match e {
+                Expression::NamedNode(_)
+                | Expression::Literal(_)
+                | Expression::Variable(_)
+                | Expression::Bound(_) => {}
+                Expression::Or(a, b)
+                | Expression::And(a, b)
+                | Expression::Equal(a, b)
+                | Expression::SameTerm(a, b)
+                | Expression::Greater(a, b)
+                | Expression::GreaterOrEqual(a, b)
+                | Expression::Less(a, b)
+                | Expression::LessOrEqual(a, b)
+                | Expression::Add(a, b)
+                | Expression::Subtract(a, b)
+                | Expression::Multiply(a, b)
+                | Expression::Divide(a, b) => {
+                    stack.push((Node::Expr(a), d));
+                    stack.push((Node::Expr(b), d));
+                }
+                Expression::In(a, list) => {
+                    stack.push((Node::Expr(a), d));
+                    stack.extend(list.iter().map(|e| (Node::Expr(e), d)));
+                }
+                Expression::UnaryPlus(a) | Expression::UnaryMinus(a) | Expression::Not(a) => {
+                    stack.push((Node::Expr(a), d));
+                }
+                Expression::Exists(p) => stack.push((Node::Pattern(p), d)),
+                Expression::If(a, b, c) => {
+                    stack.push((Node::Expr(a), d));
+                    stack.push((Node::Expr(b), d));
+                    stack.push((Node::Expr(c), d));
+                }
+                Expression::Coalesce(list) | Expression::FunctionCall(_, list) => {
+                    stack.extend(list.iter().map(|e| (Node::Expr(e), d)));
+                }
+            },
+            Node::Path(p) => match p {
+                Path::NamedNode(_) | Path::NegatedPropertySet(_) => {}
+                Path::Reverse(a)
+                | Path::ZeroOrMore(a)
+                | Path::OneOrMore(a)
+                | Path::ZeroOrOne(a) => {
+                    stack.push((Node::Path(a), d));
+                }
+                Path::Sequence(a, b) | Path::Alternative(a, b) => {
+                    stack.push((Node::Path(a), d));
+                    stack.push((Node::Path(b), d));
+                }
+            },
+        }
+    }
+    false
+}
+
 impl ParsedQuery {
-    /// Parses `query`. Updates are recognised and refused; syntax errors carry line and column.
+    /// Parses `query`. Updates are recognised and refused; syntax errors carry line and column;
+    /// a query nested deeper than [`MAX_QUERY_NESTING`] brackets or [`MAX_QUERY_DEPTH`]
+    /// operators is refused ([`SparqlQueryError::TooDeep`]).
     pub fn parse(query: &str) -> Result<Self, SparqlQueryError> {
+        if let Some(message) = shape_error(query, MAX_QUERY_NESTING) {
+            return Err(SparqlQueryError::TooDeep(message));
+        }
         let cancel = CancellationToken::new();
         // One parse: the form is read from the algebra, which is then handed to the evaluator.
         match spargebra::SparqlParser::new().parse_query(query) {
+            Ok(algebra) if deeper_than(&algebra, MAX_QUERY_DEPTH) => {
+                Err(SparqlQueryError::TooDeep(format!(
+                    "the query's algebra is deeper than {MAX_QUERY_DEPTH} operators (a chain of \
+                     UNION, OPTIONAL, ||, && or + of that length, or nesting)"
+                )))
+            }
             Ok(algebra) => {
                 let form = match algebra {
                     spargebra::Query::Construct { .. } | spargebra::Query::Describe { .. } => {
@@ -233,6 +530,81 @@ pub(crate) fn prefixed(mut serializer: RdfSerializer) -> RdfSerializer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn too_deep(q: &str) -> bool {
+        matches!(ParsedQuery::parse(q), Err(SparqlQueryError::TooDeep(_)))
+    }
+
+    #[test]
+    fn queries_nested_deeper_than_the_limits_are_refused_before_they_recurse() {
+        // On a stack as large as the service's threads have (`dyknow serve`).
+        std::thread::Builder::new()
+            .stack_size(64 << 20)
+            .spawn(deep_queries)
+            .unwrap()
+            .join()
+            .unwrap();
+    }
+
+    fn deep_queries() {
+        let parens = |n: usize| {
+            format!(
+                "SELECT * WHERE {{ FILTER({}1{}) }}",
+                "(".repeat(n),
+                ")".repeat(n)
+            )
+        };
+        assert!(ParsedQuery::parse(&parens(100)).is_ok());
+        assert!(too_deep(&parens(1_000)));
+        assert!(too_deep(&parens(100_000)));
+        match ParsedQuery::parse(&format!("SELECT * WHERE {{\n  {}", "[".repeat(200))) {
+            Err(SparqlQueryError::TooDeep(m)) => {
+                assert!(m.contains("line 2, column"), "{m}");
+            }
+            other => panic!("{:?}", other.err()),
+        }
+        // Brackets in strings, IRIs and comments are not nesting.
+        let quoted = format!(
+            "SELECT * WHERE {{ ?s ?p \"{0}\" . ?s <urn:x:{0}> '''{0}''' # {0}\n }}",
+            "(".repeat(500)
+        );
+        assert!(ParsedQuery::parse(&quoted).is_ok(), "{quoted}");
+        assert!(ParsedQuery::parse("SELECT * WHERE { ?s ?p ?o FILTER(?o < 3 && ?o > 1) }").is_ok());
+        // Chains: a tree as deep as the chain is long.
+        let unions = |n: usize| {
+            format!(
+                "SELECT * WHERE {{ {} }}",
+                vec!["{ ?s <urn:p> ?o }"; n].join(" UNION ")
+            )
+        };
+        assert!(ParsedQuery::parse(&unions(200)).is_ok());
+        assert!(too_deep(&unions(1_000)));
+        assert!(too_deep(&unions(20_000)));
+        let ors = |n: usize| format!("ASK {{ FILTER({}) }}", vec!["?x"; n].join(" || "));
+        assert!(ParsedQuery::parse(&ors(200)).is_ok());
+        assert!(too_deep(&ors(5_000)));
+        let optionals = |n: usize| {
+            format!(
+                "SELECT * WHERE {{ ?s ?p ?o {} }}",
+                "OPTIONAL { ?s <urn:q> ?v } ".repeat(n)
+            )
+        };
+        assert!(ParsedQuery::parse(&optionals(100)).is_ok());
+        assert!(too_deep(&optionals(1_000)));
+        let path = |n: usize| format!("ASK {{ ?s {} ?o }}", vec!["<urn:p>"; n].join("|"));
+        assert!(ParsedQuery::parse(&path(100)).is_ok());
+        assert!(too_deep(&path(1_000)));
+        // The longest chain the lexical bound lets through parses on this stack, and is then
+        // refused for its depth.
+        assert!(too_deep(&unions(MAX_QUERY_OPERATORS)));
+        assert!(too_deep(&unions(MAX_QUERY_OPERATORS + 2)));
+        // Hyphens of prefixed names and IRIs with operators in them count only outside IRIs.
+        let flat = format!(
+            "PREFIX dyknow-ros: <http://e/a/b-c+d*e> SELECT * WHERE {{ {} }}",
+            "?s dyknow-ros:has-port ?o . ".repeat(500)
+        );
+        assert!(ParsedQuery::parse(&flat).is_ok());
+    }
 
     #[test]
     fn forms_are_recognised() {
