@@ -546,6 +546,33 @@ mod tests {
             .unwrap();
     }
 
+    #[test]
+    fn the_shape_check_takes_any_text() {
+        // Random texts over the characters the scanner treats specially (quotes, escapes,
+        // IRIs, comments, brackets, newlines): it never panics, and counts no more brackets
+        // or operators than there are characters.
+        let alphabet: Vec<char> = "()[]{}<>\"'\\#\n |&/+-*^!aU:?.é".chars().collect();
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..2_000 {
+            let mut next = || {
+                state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                z ^ (z >> 31)
+            };
+            let len = (next() % 64) as usize;
+            let text: String = (0..len)
+                .map(|_| alphabet[(next() % alphabet.len() as u64) as usize])
+                .collect();
+            assert!(operators(&text) <= text.chars().count(), "{text:?}");
+            if let Some((line, column)) = nesting_beyond(&text, 2) {
+                assert!(line >= 1 && column >= 1, "{text:?}");
+            }
+            let _ = shape_error(&text, 2);
+        }
+    }
+
     fn deep_queries() {
         let parens = |n: usize| {
             format!(

@@ -63,9 +63,17 @@ pub fn wait_for_line_keeping(child: &mut Child, marker: &str) -> (String, Tail) 
             .unwrap()
             .push_back("(standard error closed)".into());
     });
-    let line = rx
-        .recv_timeout(Duration::from_secs(60))
-        .expect("the process did not start");
+    let line = match rx.recv_timeout(Duration::from_secs(60)) {
+        Ok(line) => line,
+        // What it said before it went (or hung) tells why.
+        Err(e) => {
+            let said: Vec<String> = tail.lock().unwrap().iter().cloned().collect();
+            panic!(
+                "the process did not start ({e}); its last lines:\n{}",
+                said.join("\n")
+            )
+        }
+    };
     (line, tail)
 }
 
