@@ -64,14 +64,14 @@ pub const MAX_QUERY_OPERATORS: usize = 8_000;
 
 /// What is wrong with `query`'s shape, if anything, before it is parsed: brackets nested
 /// deeper than `limit`, or more than [`MAX_QUERY_OPERATORS`] chaining operators. Strings, IRIs
-/// and comments are skipped.
+/// and comments are skipped. One pass over the text (every query pays it).
 fn shape_error(query: &str, limit: usize) -> Option<String> {
-    if let Some((line, column)) = nesting_beyond(query, limit) {
+    let (nesting, operators) = shape(query, limit);
+    if let Some((line, column)) = nesting {
         return Some(format!(
             "the query nests brackets deeper than {limit} levels (line {line}, column {column})"
         ));
     }
-    let operators = operators(query);
     (operators > MAX_QUERY_OPERATORS).then(|| {
         format!(
             "the query chains {operators} operators (UNION, OPTIONAL, ||, +, …); at most \
@@ -80,11 +80,35 @@ fn shape_error(query: &str, limit: usize) -> Option<String> {
     })
 }
 
-/// The chaining operators of `query` outside strings, IRIs and comments.
-fn operators(query: &str) -> usize {
-    let mut count = 0;
-    let mut word = String::new();
-    scan(query, |c, _| {
+/// The first place `query` nests brackets (`(`, `{`, `[`, `<<`) deeper than `limit`, as
+/// (line, column) (a lexical bound on the parser's recursion), and the number of chaining
+/// operators outside strings, IRIs and comments.
+fn shape(query: &str, limit: usize) -> (Option<(usize, usize)>, usize) {
+    let (mut depth, mut previous, mut found) = (0usize, ' ', None);
+    let (mut operators, mut word) = (0usize, String::new());
+    scan(query, |c, at| {
+        match (previous, c) {
+            ('<', '<') => {
+                depth += 1;
+                previous = ' ';
+            }
+            ('>', '>') => {
+                depth = depth.saturating_sub(1);
+                previous = ' ';
+            }
+            (_, '(' | '{' | '[') => {
+                depth += 1;
+                previous = c;
+            }
+            (_, ')' | '}' | ']') => {
+                depth = depth.saturating_sub(1);
+                previous = c;
+            }
+            _ => previous = c,
+        }
+        if depth > limit && found.is_none() {
+            found = Some(at);
+        }
         if c.is_alphanumeric() || c == '_' || c == ':' {
             word.push(c);
             return;
@@ -93,14 +117,14 @@ fn operators(query: &str) -> usize {
             .iter()
             .any(|k| word.eq_ignore_ascii_case(k))
         {
-            count += 1;
+            operators += 1;
         }
         word.clear();
         if "|&/+-*^!".contains(c) {
-            count += 1;
+            operators += 1;
         }
     });
-    count
+    (found, operators)
 }
 
 /// Calls `f` with every character of `query` outside strings, IRIs and comments (a space for
@@ -162,39 +186,6 @@ fn scan(query: &str, mut f: impl FnMut(char, (usize, usize))) {
         }
         i += 1;
     }
-}
-
-/// The first place `query` nests brackets (`(`, `{`, `[`, `<<`) deeper than `limit`, as
-/// (line, column): a lexical bound on the parser's recursion, checked before it runs.
-fn nesting_beyond(query: &str, limit: usize) -> Option<(usize, usize)> {
-    let mut depth = 0usize;
-    let mut previous = ' ';
-    let mut found = None;
-    scan(query, |c, at| {
-        match (previous, c) {
-            ('<', '<') => {
-                depth += 1;
-                previous = ' ';
-            }
-            ('>', '>') => {
-                depth = depth.saturating_sub(1);
-                previous = ' ';
-            }
-            (_, '(' | '{' | '[') => {
-                depth += 1;
-                previous = c;
-            }
-            (_, ')' | '}' | ']') => {
-                depth = depth.saturating_sub(1);
-                previous = c;
-            }
-            _ => previous = c,
-        }
-        if depth > limit && found.is_none() {
-            found = Some(at);
-        }
-    });
-    found
 }
 
 /// Whether `query`'s algebra is deeper than `limit` (walked with a stack of its own, so the
@@ -565,8 +556,9 @@ mod tests {
             let text: String = (0..len)
                 .map(|_| alphabet[(next() % alphabet.len() as u64) as usize])
                 .collect();
-            assert!(operators(&text) <= text.chars().count(), "{text:?}");
-            if let Some((line, column)) = nesting_beyond(&text, 2) {
+            let (nesting, operators) = shape(&text, 2);
+            assert!(operators <= text.chars().count(), "{text:?}");
+            if let Some((line, column)) = nesting {
                 assert!(line >= 1 && column >= 1, "{text:?}");
             }
             let _ = shape_error(&text, 2);
