@@ -17,4 +17,4 @@ pub mod sync;
 
 pub use progression::{Progression, StreamKind, Taken, TraceHeader, VerdictLine};
 pub use spec::{Grounding, GroupSpec, SpecError, TargetTag};
-pub use sync::{Policy, StreamStats, SyncState, Synchroniser};
+pub use sync::{Policy, PolicyFields, StreamStats, SyncState, Synchroniser};

@@ -30,9 +30,10 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-/// How samples become states.
+/// How samples become states. Read with its defaults filled in ([`Policy::from`] a
+/// [`PolicyFields`]), written with every field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(tag = "policy", rename_all = "lowercase", deny_unknown_fields)]
+#[serde(tag = "policy", rename_all = "lowercase", from = "PolicyFields")]
 pub enum Policy {
     /// A state every `period_ms` once every stream has a sample valid at its time, or
     /// `max_delay_ms` after it.
@@ -58,6 +59,68 @@ pub enum Policy {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         max_delay_ms: Option<u64>,
     },
+}
+
+/// A policy as written, every parameter optional: `wait`'s `P` defaults to 100 ms and its `D`
+/// to `5 P` (the default policy is `wait` with 100 and 500); `hold`'s `P` to 100 ms and its `A`
+/// to 1,000 ms (`D` stays optional: `P`); `event`'s `D` stays optional (2 ms). The CLI's
+/// defaults are the same.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(tag = "policy", rename_all = "lowercase", deny_unknown_fields)]
+pub enum PolicyFields {
+    /// `wait`.
+    Wait {
+        /// `P`.
+        period_ms: Option<u64>,
+        /// `D`.
+        max_delay_ms: Option<u64>,
+    },
+    /// `hold`.
+    Hold {
+        /// `P`.
+        period_ms: Option<u64>,
+        /// `A`.
+        max_age_ms: Option<u64>,
+        /// `D`.
+        max_delay_ms: Option<u64>,
+    },
+    /// `event`.
+    Event {
+        /// `D`.
+        max_delay_ms: Option<u64>,
+    },
+}
+
+/// `wait`'s and `hold`'s period when none is given (ms).
+pub const DEFAULT_PERIOD_MS: u64 = 100;
+/// `hold`'s maximum age when none is given (ms).
+pub const DEFAULT_MAX_AGE_MS: u64 = 1_000;
+
+impl From<PolicyFields> for Policy {
+    fn from(f: PolicyFields) -> Self {
+        match f {
+            PolicyFields::Wait {
+                period_ms,
+                max_delay_ms,
+            } => {
+                let period_ms = period_ms.unwrap_or(DEFAULT_PERIOD_MS);
+                Self::Wait {
+                    period_ms,
+                    max_delay_ms: max_delay_ms.unwrap_or(period_ms.saturating_mul(5)),
+                }
+            }
+            PolicyFields::Hold {
+                period_ms,
+                max_age_ms,
+                max_delay_ms,
+            } => Self::Hold {
+                period_ms: period_ms.unwrap_or(DEFAULT_PERIOD_MS),
+                max_age_ms: max_age_ms.unwrap_or(DEFAULT_MAX_AGE_MS),
+                max_delay_ms,
+            },
+            PolicyFields::Event { max_delay_ms } => Self::Event { max_delay_ms },
+        }
+    }
 }
 
 impl Default for Policy {
@@ -450,5 +513,76 @@ impl<V: Clone> Synchroniser<V> {
             .collect();
         self.last_t = Some(t);
         SyncState { t, values }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read(text: &str) -> Result<Policy, String> {
+        serde_json::from_str(text).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn left_out_parameters_take_their_defaults() {
+        assert_eq!(read(r#"{"policy": "wait"}"#), Ok(Policy::default()));
+        assert_eq!(
+            read(r#"{"policy": "wait", "period_ms": 30}"#),
+            Ok(Policy::Wait {
+                period_ms: 30,
+                max_delay_ms: 150
+            })
+        );
+        assert_eq!(
+            read(r#"{"policy": "wait", "max_delay_ms": 0}"#),
+            Ok(Policy::Wait {
+                period_ms: 100,
+                max_delay_ms: 0
+            })
+        );
+        assert_eq!(
+            read(r#"{"policy": "hold"}"#),
+            Ok(Policy::Hold {
+                period_ms: 100,
+                max_age_ms: 1000,
+                max_delay_ms: None
+            })
+        );
+        assert_eq!(
+            read(r#"{"policy": "event"}"#),
+            Ok(Policy::Event { max_delay_ms: None })
+        );
+    }
+
+    #[test]
+    fn what_is_written_reads_back_the_same() {
+        for p in [
+            Policy::default(),
+            Policy::Hold {
+                period_ms: 7,
+                max_age_ms: 9,
+                max_delay_ms: Some(3),
+            },
+            Policy::Event {
+                max_delay_ms: Some(0),
+            },
+        ] {
+            let text = serde_json::to_string(&p).unwrap();
+            assert_eq!(read(&text), Ok(p), "{text}");
+        }
+    }
+
+    #[test]
+    fn unknown_fields_and_policies_are_refused() {
+        for text in [
+            r#"{"policy": "event", "period_ms": 5}"#,
+            r#"{"policy": "wait", "max_age_ms": 5}"#,
+            r#"{"period_ms": 5}"#,
+            r#"{"policy": "often"}"#,
+            r#"{"policy": "wait", "period_ms": -1}"#,
+        ] {
+            assert!(read(text).is_err(), "{text}");
+        }
     }
 }

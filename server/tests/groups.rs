@@ -681,8 +681,52 @@ fn bad_groups_are_refused_and_nothing_is_created() {
         targets(&service).keys().cloned().collect::<Vec<_>>(),
         ["symbol:p"]
     );
+    // The `symbol:` labels are the groups': a client may neither post one (which would replace
+    // the group's target, or be released behind its back) nor delete one a group needs.
+    let mine = |label: &str| {
+        format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n\
+             [] a dyknow:Target ; rdfs:label {label:?} ;\n\
+             dyknow:hasChannel [ a dyknow:Channel ; dyknow:hasChannelName \"/mine\" ] ;\n\
+             dyknow:hasTag [ a dyknow:Tag ; dyknow:hasValue \"p\" ] .\n"
+        )
+    };
+    let post_target = |label: &str| {
+        let mut r = agent()
+            .post(&format!("{}/targets", service.url))
+            .header("Content-Type", "text/turtle")
+            .send(mine(label))
+            .unwrap();
+        let status = r.status().as_u16();
+        (status, r.body_mut().read_to_string().unwrap())
+    };
+    for label in ["symbol:p", "symbol:q"] {
+        let (status, answer) = post_target(label);
+        assert_eq!(status, 422, "{label}: {answer}");
+        assert!(answer.contains("reserved"), "{answer}");
+    }
+    assert_eq!(
+        targets(&service).keys().cloned().collect::<Vec<_>>(),
+        ["symbol:p"]
+    );
+    assert_eq!(
+        targets(&service)["symbol:p"]["channel"],
+        "/dyknow/symbols/p"
+    );
+    let (status, answer) = send(&service, "DELETE", "/targets/symbol:p", None);
+    assert_eq!(status, 409, "{answer}");
+    assert!(
+        answer["error"].as_str().unwrap().contains("group(s) g:"),
+        "{answer}"
+    );
+    assert!(targets(&service).contains_key("symbol:p"));
+    // Another label with the same tag is the client's own.
+    assert_eq!(post_target("mine").0, 201);
+    assert_eq!(send(&service, "DELETE", "/targets/mine", None).0, 204);
     // Stop then start: 409.
     assert_eq!(send(&service, "POST", "/groups/g/stop", None).0, 200);
+    assert!(!targets(&service).contains_key("symbol:p"));
     assert_eq!(send(&service, "POST", "/groups/g/start", None).0, 409);
     assert_eq!(
         send(
@@ -694,6 +738,57 @@ fn bad_groups_are_refused_and_nothing_is_created() {
         .0,
         409
     );
+}
+
+/// `sync` parameters left out take the defaults `dyknow group create` has; a field the policy
+/// does not take, or no policy, is refused.
+#[test]
+fn sync_parameters_take_their_defaults() {
+    let service = Service::start(&["--model-only"]);
+    for (sync, shown) in [
+        (
+            json!({"policy": "wait"}),
+            json!({"policy": "wait", "period_ms": 100, "max_delay_ms": 500}),
+        ),
+        (
+            json!({"policy": "wait", "period_ms": 40}),
+            json!({"policy": "wait", "period_ms": 40, "max_delay_ms": 200}),
+        ),
+        (
+            json!({"policy": "hold"}),
+            json!({"policy": "hold", "period_ms": 100, "max_age_ms": 1000}),
+        ),
+        (
+            json!({"policy": "hold", "max_age_ms": 250, "max_delay_ms": 7}),
+            json!({"policy": "hold", "period_ms": 100, "max_age_ms": 250, "max_delay_ms": 7}),
+        ),
+        (json!({"policy": "event"}), json!({"policy": "event"})),
+    ] {
+        let (status, answer) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"formulas": ["p"], "sync": sync})),
+        );
+        assert_eq!(status, 201, "{sync}: {answer}");
+        assert_eq!(answer["sync"], shown, "{sync}");
+    }
+    for sync in [
+        json!({"policy": "event", "period_ms": 5}),
+        json!({"policy": "wait", "max_age_ms": 5}),
+        json!({"period_ms": 5}),
+        json!({"policy": "sometimes"}),
+        json!({"policy": "hold", "period_ms": 0}),
+    ] {
+        let (status, answer) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"formulas": ["p"], "sync": sync})),
+        );
+        assert_eq!(status, 422, "{sync}: {answer}");
+    }
+    assert_eq!(service.get("/groups").as_array().unwrap().len(), 5);
 }
 
 /// A service on disk restarted with `kill -9` while a group runs: the definition, the
@@ -752,8 +847,21 @@ fn groups_survive_a_restart() {
         Duration::from_secs(20),
         || (group(&service, "uav")["states"].as_u64()? > states_then + 5).then_some(()),
     );
+    let all_satisfied = |g: &Value, yes: bool| {
+        g["symbols"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|s| s["satisfied"] == json!(yes) && s["producer"].is_null() != yes)
+    };
+    eventually("the symbols' producers", Duration::from_secs(20), || {
+        all_satisfied(&group(&service, "uav"), true).then_some(())
+    });
     let (status, stopped) = send(&service, "POST", "/groups/uav/stop", None);
     assert_eq!(status, 200);
+    // A stopped group reads no stream: its answer does not show the producers that are about
+    // to go.
+    assert!(all_satisfied(&stopped, false), "{stopped}");
     let text = trace(&service, "uav");
     let ts: Vec<u64> = states(&text).iter().map(|s| s.0).collect();
     assert!(

@@ -1048,6 +1048,11 @@ pub fn status(groups: &Groups, g: &Group) -> Json {
         });
         (value, channels)
     };
+    // A stopped group reads no stream and needs no target: its symbols are not satisfied,
+    // whatever another group or the engine's next review does with their targets.
+    if value["state"] == json!(Phase::Stopped) {
+        return value;
+    }
     let mut producers: BTreeMap<String, Option<String>> = BTreeMap::new();
     for (i, channel) in channels.iter().enumerate() {
         let producer = producers

@@ -166,22 +166,22 @@ pub enum SyncJson {
     /// `max_delay_ms` after it.
     #[serde(deny_unknown_fields)]
     Wait {
-        /// `P`.
+        /// `P` (default 100).
         #[schema(minimum = 1, maximum = 3_600_000)]
-        period_ms: u64,
-        /// `D`.
+        period_ms: Option<u64>,
+        /// `D` (default `5 P`).
         #[schema(maximum = 86_400_000)]
-        max_delay_ms: u64,
+        max_delay_ms: Option<u64>,
     },
     /// A state every `period_ms`; values held while younger than `max_age_ms`.
     #[serde(deny_unknown_fields)]
     Hold {
-        /// `P`.
+        /// `P` (default 100).
         #[schema(minimum = 1, maximum = 3_600_000)]
-        period_ms: u64,
-        /// `A`.
+        period_ms: Option<u64>,
+        /// `A` (default 1,000).
         #[schema(maximum = 86_400_000)]
-        max_age_ms: u64,
+        max_age_ms: Option<u64>,
         /// `D` (default `P`).
         #[schema(maximum = 86_400_000)]
         max_delay_ms: Option<u64>,

@@ -220,7 +220,10 @@ async fn post_specs(
 ) -> Result<Response, ApiError> {
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
-    let report = in_turn(&state, move || Ok(kb.post_specs(&body, format, kind)?)).await?;
+    let report = in_turn(&state, move || {
+        Ok(kb.post_specs_checked(&body, format, kind, &reserved_label)?)
+    })
+    .await?;
     match kind {
         SpecKind::Target => {
             for label in &report.labels {
@@ -305,6 +308,20 @@ async fn get_spec(
     Ok(Json(value).into_response())
 }
 
+/// Why a posted spec may not be written: the labels of group targets (`symbol:…`) are the
+/// service's. A client's target of that name would be replaced or released behind its back
+/// whenever the groups' needs change.
+fn reserved_label(spec: &Spec) -> Option<String> {
+    match spec {
+        Spec::Target(t) if t.label.starts_with(crate::groups::TARGET_PREFIX) => Some(format!(
+            "target labels beginning with {:?} are reserved for the targets formula groups make \
+             (groups.md); choose another label",
+            crate::groups::TARGET_PREFIX
+        )),
+        _ => None,
+    }
+}
+
 async fn delete_spec(
     state: AppState,
     kind: SpecKind,
@@ -312,7 +329,24 @@ async fn delete_spec(
 ) -> Result<StatusCode, ApiError> {
     let kb = state.kb.clone();
     let label2 = label.clone();
-    in_turn(&state, move || Ok(kb.remove_spec(kind, &label2)?)).await?;
+    let groups = state.groups.clone();
+    in_turn(&state, move || {
+        // A group's target goes when its groups no longer need it, not before.
+        if kind == SpecKind::Target
+            && let Some(users) = groups.target_users().get(&label2)
+        {
+            return Err(ApiError::new(
+                StatusCode::CONFLICT,
+                format!(
+                    "target {label2:?} is the stream of formula group(s) {}: stop or delete them, \
+                     or remove their formulas, and it is released",
+                    users.join(", ")
+                ),
+            ));
+        }
+        Ok(kb.remove_spec(kind, &label2)?)
+    })
+    .await?;
     // Whether a review follows at once is the life-cycle's call: a released target always, a
     // deregistered transformation when CUs of it are left invalid.
     state.lifecycle.report(match kind {
@@ -410,7 +444,7 @@ pub async fn get_target(
 /// RemoveTarget (a perturbation: release).
 #[utoipa::path(delete, path = "/targets/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
-    responses((status = 204), (status = 404, body = ErrorBody)))]
+    responses((status = 204), (status = 404, body = ErrorBody), (status = 409, body = ErrorBody)))]
 pub async fn delete_target(
     State(s): State<AppState>,
     Path(label): Path<String>,

@@ -498,6 +498,39 @@ mod tests {
         ));
     }
 
+    #[test]
+    fn a_refused_spec_writes_nothing_of_its_document() {
+        let kb = kb();
+        let doc = ttl(
+            "[] a dyknow:Target ; rdfs:label \"mine\" ;
+               dyknow:hasChannel [ dyknow:hasChannelName \"/a\" ] ; dyknow:hasTag [ dyknow:hasValue \"X\" ] .
+             [] a dyknow:Target ; rdfs:label \"reserved:b\" ;
+               dyknow:hasChannel [ dyknow:hasChannelName \"/b\" ] ; dyknow:hasTag [ dyknow:hasValue \"X\" ] .",
+        );
+        let refuse = |s: &crate::spec::Spec| {
+            s.label()
+                .starts_with("reserved:")
+                .then(|| "reserved".to_owned())
+        };
+        let before = kb.store.len().expect("len");
+        let Err(IngestError::Invalid(SpecValidationError(v))) =
+            kb.post_specs_checked(&doc, InputFormat::Turtle, SpecKind::Target, &refuse)
+        else {
+            panic!("refused")
+        };
+        assert_eq!(
+            v.iter()
+                .map(|v| (v.constraint.as_str(), v.subject.as_str()))
+                .collect::<Vec<_>>(),
+            [("reserved", "reserved:b")]
+        );
+        assert_eq!(kb.store.len().expect("len"), before);
+        let report = kb
+            .post_specs_checked(&doc, InputFormat::Turtle, SpecKind::Target, &|_| None)
+            .expect("nothing refused");
+        assert_eq!(report.labels, ["mine", "reserved:b"]);
+    }
+
     /// A service that keeps writing small environment parts flushes its memtables every
     /// [`write::FLUSH_AFTER_QUADS`] quads (in the background), and loses nothing by it.
     #[cfg(feature = "rocksdb")]

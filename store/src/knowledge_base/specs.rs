@@ -43,8 +43,29 @@ impl KnowledgeBase {
         format: InputFormat,
         kind: SpecKind,
     ) -> Result<PostReport, IngestError> {
+        self.post_specs_checked(body, format, kind, &|_| None)
+    }
+
+    /// [`post_specs`](Self::post_specs), refusing the document when `refuse` says why one of
+    /// its specs may not be written (the service reserves labels for what it makes itself):
+    /// a [`SpecValidationError`] naming every such spec, and nothing written.
+    pub fn post_specs_checked(
+        &self,
+        body: &[u8],
+        format: InputFormat,
+        kind: SpecKind,
+        refuse: &dyn Fn(&Spec) -> Option<String>,
+    ) -> Result<PostReport, IngestError> {
         let triples = parse_triples(body, format)?;
         let doc = extract_specs(&triples, &self.classes(), Some(kind))?;
+        let refused: Vec<Violation> = doc
+            .specs
+            .iter()
+            .filter_map(|s| refuse(&s.spec).map(|why| Violation::new(why, s.spec.label())))
+            .collect();
+        if !refused.is_empty() {
+            return Err(SpecValidationError(refused).into());
+        }
         let mut reasoner = self.lock();
         self.check_identities(&doc.specs)?;
         let graphs: Vec<(&NamedNode, &[Triple])> = doc
