@@ -6,7 +6,7 @@ use utoipa::openapi::{Ref, ResponseBuilder};
 use utoipa::{Modify, OpenApi};
 
 use crate::error::ErrorBody;
-use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, specs};
+use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, specs, ui};
 
 /// The API description served at `/openapi.json`.
 #[derive(OpenApi)]
@@ -58,6 +58,10 @@ use crate::routes::{executors, groups, model, ontology, ops, reconfig, sparql, s
         ops::health,
         ops::metrics,
         ops::openapi,
+        ui::root,
+        ui::ui_bare,
+        ui::page,
+        ui::file,
     ),
     components(schemas(
         ErrorBody,
@@ -150,4 +154,54 @@ fn add(operation: &mut Operation, status: &str, description: &str) {
                 .build()
                 .into()
         });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The paths the routers register, read from their source: `.route("/path", ...)`.
+    fn routed() -> Vec<String> {
+        let sources = [
+            include_str!("routes/executors.rs"),
+            include_str!("routes/groups.rs"),
+            include_str!("routes/model.rs"),
+            include_str!("routes/ontology.rs"),
+            include_str!("routes/ops.rs"),
+            include_str!("routes/reconfig.rs"),
+            include_str!("routes/sparql.rs"),
+            include_str!("routes/specs.rs"),
+            include_str!("routes/ui.rs"),
+            include_str!("routes/mod.rs"),
+            include_str!("app.rs"),
+        ];
+        let mut out = Vec::new();
+        for source in sources {
+            for part in source.split(".route(").skip(1) {
+                let part = part.trim_start();
+                let Some(rest) = part.strip_prefix('"') else {
+                    continue;
+                };
+                let path = &rest[..rest.find('"').expect("a closing quote")];
+                // axum's catch-all `{*file}` is OpenAPI's `{file}`.
+                out.push(path.replace("{*", "{"));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn every_route_is_described() {
+        let doc = ApiDoc::openapi();
+        let routed = routed();
+        assert!(routed.len() > 30, "{routed:?}");
+        let missing: Vec<&String> = routed
+            .iter()
+            .filter(|p| !doc.paths.paths.contains_key(p.as_str()))
+            .collect();
+        assert!(
+            missing.is_empty(),
+            "routes without a description: {missing:?}"
+        );
+    }
 }

@@ -9,7 +9,7 @@ use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 
 use crate::app::AppState;
-use crate::error::ApiError;
+use crate::error::{ApiError, ErrorBody};
 
 /// One embedded file: its path under `/ui/`, media type and bytes.
 struct Asset {
@@ -51,15 +51,45 @@ const ASSETS: &[Asset] = &[
 /// The routes: `/` and `/ui` lead to `/ui/`, the page; `/ui/{file}` the embedded files.
 pub fn router() -> Router<AppState> {
     Router::new()
-        .route("/", get(|| async { Redirect::to("/ui/") }))
-        .route("/ui", get(|| async { Redirect::to("/ui/") }))
-        .route("/ui/", get(|headers: HeaderMap| async move { serve("index.html", &headers) }))
-        .route(
-            "/ui/{*file}",
-            get(|Path(file): Path<String>, headers: HeaderMap| async move {
-                serve(&file, &headers)
-            }),
-        )
+        .route("/", get(root))
+        .route("/ui", get(ui_bare))
+        .route("/ui/", get(page))
+        .route("/ui/{*file}", get(file))
+}
+
+/// The service's root leads to the web view.
+#[utoipa::path(get, path = "/", tag = "web view",
+    responses((status = 303, description = "`Location: /ui/`")))]
+pub async fn root() -> Redirect {
+    Redirect::to("/ui/")
+}
+
+/// `/ui` leads to `/ui/` (the page's files are relative to it).
+#[utoipa::path(get, path = "/ui", tag = "web view",
+    responses((status = 303, description = "`Location: /ui/`")))]
+pub async fn ui_bare() -> Redirect {
+    Redirect::to("/ui/")
+}
+
+/// The web view's page: the live computation graph and its control panel (`docs/ui.md`).
+#[utoipa::path(get, path = "/ui/", tag = "web view",
+    params(("If-None-Match" = Option<String>, Header, description = "an entity tag of the page seen before")),
+    responses((status = 200, content_type = "text/html", body = String, description = "the page, with `ETag`, `Cache-Control: no-cache` and a `Content-Security-Policy`"),
+              (status = 304, description = "the page is unchanged")))]
+pub async fn page(headers: HeaderMap) -> Response {
+    serve("index.html", &headers)
+}
+
+/// One of the page's files: its scripts, style and vendored libraries with their licences.
+#[utoipa::path(get, path = "/ui/{file}", tag = "web view",
+    params(("file" = String, Path, description = "the file's path under `/ui/`, e.g. `app.js` or `vendor/cytoscape.min.js`"),
+           ("If-None-Match" = Option<String>, Header, description = "an entity tag of the file seen before")),
+    responses((status = 200, description = "the file, with `ETag` and `Cache-Control: no-cache`",
+                content((String = "text/javascript"), (String = "text/css"), (String = "text/plain"), (String = "text/markdown"))),
+              (status = 304, description = "the file is unchanged"),
+              (status = 404, body = ErrorBody)))]
+pub async fn file(Path(file): Path<String>, headers: HeaderMap) -> Response {
+    serve(&file, &headers)
 }
 
 /// An embedded file, with an entity tag of its content (the binary's files change only with the
