@@ -12,6 +12,9 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+mod support;
+use support::free_port;
+
 /// (command, expected output) pairs of the tour section.
 fn tour(readme: &str, name: &str) -> Vec<(String, String)> {
     let start = readme
@@ -53,13 +56,6 @@ fn tour(readme: &str, name: &str) -> Vec<(String, String)> {
         }
     }
     steps
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
 }
 
 #[test]
