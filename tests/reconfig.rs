@@ -151,25 +151,37 @@ async fn example_12_over_http() {
         json!({"kind": "target-added", "target": "qid1"})
     );
     assert_eq!(spawned(&sets[0]), ["tid1", "tid4", "tid2"]);
-    // The JSON model lists the CUs as `GET /cus` does, and names each channel's producer.
+    // The JSON model lists the CUs as `GET /cus` does, and every channel with its producer
+    // and subscribers: the targets' and the one between the CUs (tid4 feeds tid1 and tid2).
     let model = api.get("/model?format=dyknow").await.expect(200).json();
     assert_eq!(model["cus"].as_array().map(Vec::len), Some(3));
     assert_eq!(model["cus"], api.get("/cus").await.expect(200).json());
-    let producers: BTreeSet<String> = model["channels"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(|c| c["producer"].as_str().map(str::to_owned))
-        .collect();
-    assert_eq!(
-        producers,
-        BTreeSet::from([cu_of(&api, "tid1").await, cu_of(&api, "tid2").await])
-    );
     let (c1, c2, c4) = (
         cu_of(&api, "tid1").await,
         cu_of(&api, "tid2").await,
         cu_of(&api, "tid4").await,
     );
+    let channels = model["channels"].as_array().cloned().unwrap_or_default();
+    let producers: BTreeSet<String> = channels
+        .iter()
+        .filter_map(|c| c["producer"].as_str().map(str::to_owned))
+        .collect();
+    assert_eq!(
+        producers,
+        BTreeSet::from([c1.clone(), c2.clone(), c4.clone()])
+    );
+    let fed = channels
+        .iter()
+        .find(|c| c["producer"] == c4.as_str())
+        .expect("tid4's channel");
+    let subscribers: BTreeSet<&str> = fed["subscribers"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .collect();
+    assert_eq!(subscribers, BTreeSet::from([c1.as_str(), c2.as_str()]));
+    assert_eq!(fed["targets"], json!([]));
     assert_eq!(
         depends_on(&api).await,
         BTreeSet::from([(c1.clone(), c4.clone()), (c2.clone(), c4.clone())])
@@ -449,6 +461,23 @@ async fn bad_input_changes_nothing() {
     .await
     .expect_error(404);
     api.delete("/cus/nope").await.expect_error(404);
+    // A name executors cannot address on the data plane (one key chunk) is the client's
+    // error, found before any change set is made.
+    for name in ["a/b", "x*", "@x", "what?"] {
+        let answer = api
+            .post(
+                "/cus",
+                "application/json",
+                json!({"transformation": "tid3", "name": name}).to_string(),
+            )
+            .await;
+        let body = answer.json();
+        answer.expect_error(422);
+        assert!(
+            body["error"].as_str().unwrap_or("").contains("CU name"),
+            "{name}: {body}"
+        );
+    }
     assert_eq!(api.snapshot().await, snapshot);
 
     // Spawn and Destroy; a protected CU cannot be destroyed.
@@ -607,4 +636,72 @@ async fn spawns_racing_reviews_get_unique_names_and_no_cu_is_lost() {
         .expect(202);
     let env = settle(&api, n + 1).await;
     assert_eq!(env["valid"], true, "{env}");
+}
+
+/// SetConfig keeps one publisher per channel within a CU too: two out ports of one CU bound
+/// to one channel is 422, nothing changed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_config_refuses_two_out_ports_of_one_cu_on_one_channel() {
+    use axum::http::Method;
+    let api = api();
+    api.post_turtle(
+        "/transformations",
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+         [] a dyknow:Transformation ; rdfs:label \"split\" ;
+            dyknow:hasOutPort [ dyknow:hasName \"a\" ; dyknow:hasTag [ dyknow:hasValue \"A\" ] ] ;
+            dyknow:hasOutPort [ dyknow:hasName \"b\" ; dyknow:hasTag [ dyknow:hasValue \"B\" ] ] .",
+    )
+    .await
+    .expect(201);
+    let cu = api
+        .post(
+            "/cus",
+            "application/json",
+            json!({"transformation": "split", "protected": true}).to_string(),
+        )
+        .await
+        .expect(201)
+        .json();
+    let name = cu["name"].as_str().unwrap_or("").to_owned();
+    let put = |body: Value| {
+        let api = &api;
+        let uri = format!("/cus/{name}/config");
+        async move {
+            api.send(dyknow_acceptance::request(
+                Method::PUT,
+                &uri,
+                &[("content-type", "application/json")],
+                body.to_string().into(),
+            ))
+            .await
+        }
+    };
+    let snapshot = api.snapshot().await;
+    for body in [
+        json!({"outputs": {"a": "x", "b": "x"}}),
+        json!({"outputs": {"a": "y"}}),
+    ] {
+        if body["outputs"]["a"] == "y" {
+            // First bind b to y alone (accepted), then a to y too (refused).
+            put(json!({"outputs": {"b": "y"}})).await.expect(200);
+        }
+        let answer = put(body.clone()).await;
+        let error = answer.json();
+        answer.expect_error(422);
+        assert!(
+            error["error"]
+                .as_str()
+                .unwrap_or("")
+                .contains("one publisher per channel"),
+            "{body}: {error}"
+        );
+        if body["outputs"]["a"] == "x" {
+            assert_eq!(api.snapshot().await, snapshot, "nothing changed");
+        }
+    }
+    // Different channels are fine.
+    put(json!({"outputs": {"a": "x", "b": "z"}}))
+        .await
+        .expect(200);
 }

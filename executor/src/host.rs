@@ -63,6 +63,7 @@ impl ExecutorConfig {
     }
 }
 
+#[derive(Clone)]
 enum Hosted {
     Builtin(Unit),
     Process(Arc<ProcessCu>),
@@ -188,9 +189,28 @@ impl Executor {
             .name(format!("executor-{}", config.name))
             .spawn(move || worker_inner.work(&rx))
             .map_err(|e| CuError::failed(format!("cannot start the worker: {e}")))?;
+        // `info` and `check` are answered on a thread of their own: they only read, and a
+        // change set that starts processes keeps the worker for seconds, longer than the
+        // manager waits for an answer (it would take every CU here for crashed).
+        let (reads, reads_rx) = mpsc::channel::<Job>();
+        let reader_inner = inner.clone();
+        std::thread::Builder::new()
+            .name(format!("executor-{}-reads", config.name))
+            .spawn(move || {
+                while let Ok(job) = reads_rx.recv() {
+                    if let Job::Query(query, service) = job {
+                        reader_inner.answer(&query, service);
+                    }
+                }
+            })
+            .map_err(|e| CuError::failed(format!("cannot start the reader: {e}")))?;
         let mut queryables = Vec::new();
         for service in ["apply", "info", "check"] {
-            let jobs = inner.jobs.clone();
+            let jobs = if service == "apply" {
+                inner.jobs.clone()
+            } else {
+                reads.clone()
+            };
             queryables.push(
                 session
                     .declare_queryable(ns.executor_service(&config.name, service))
@@ -325,8 +345,11 @@ impl Inner {
             processes: true,
             cus: {
                 let generations = lock(&self.generations).clone();
-                lock(&self.cus)
-                    .values()
+                // Reported outside the lock: a process CU's report asks the process, and a
+                // change set being applied meanwhile must not wait for that.
+                let hosted: Vec<Hosted> = lock(&self.cus).values().cloned().collect();
+                hosted
+                    .iter()
                     .map(|hosted| {
                         let mut report = hosted.report();
                         report.generation = generations.get(&report.cu).copied().unwrap_or(0);

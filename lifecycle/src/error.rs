@@ -31,6 +31,10 @@ pub enum LifecycleError {
     /// A computation unit's name must not be empty (or blank).
     #[error("a computation unit's name must not be empty")]
     EmptyName,
+    /// A computation unit's name must be one key chunk (`executors.md`: executors address
+    /// CUs by name on the data plane).
+    #[error("{0}")]
+    InvalidName(String),
     /// An observed cost must be a finite, non-negative number.
     #[error("{what} must be a finite non-negative number, not {value}")]
     InvalidCost {

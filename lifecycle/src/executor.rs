@@ -99,6 +99,15 @@ pub trait Executor: Send + Sync {
             .collect()
     }
 
+    /// The model dropped these CUs though their executors did not say they ended (a client
+    /// reported them crashed, or an action on them failed or was not acknowledged): they are
+    /// forgotten and, where they may still run, stopped in the background, so that no orphan
+    /// keeps publishing beside its replacement. Best effort: an executor that cannot be
+    /// reached stops them when it reconciles.
+    fn abandon(&self, cus: &[Cid]) {
+        let _ = cus;
+    }
+
     /// What the running system says of several CUs (`GET /cus?statistics=true`); those it
     /// says nothing of are missing. Executors that can answer for many CUs at once override
     /// it.

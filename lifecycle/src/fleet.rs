@@ -410,6 +410,62 @@ impl Inner {
         self.query_for(name, service, payload, QUERY_TIMEOUT).ok()
     }
 
+    /// Asks `executor` to destroy `cus` (one request, labelled `what`); those it could not
+    /// destroy, with why.
+    fn destroy(
+        &self,
+        executor: &str,
+        cus: &[Cid],
+        what: &str,
+        generation: u64,
+    ) -> Vec<(Cid, String)> {
+        if cus.is_empty() {
+            return Vec::new();
+        }
+        let request = ApplyRequest {
+            change_set: what.to_owned(),
+            generation,
+            actions: cus
+                .iter()
+                .map(|cu| CuAction::Destroy { cu: cu.to_string() })
+                .collect(),
+        };
+        let payload = serde_json::to_vec(&request).unwrap_or_default();
+        match self.query_for::<ApplyReply>(executor, "apply", payload, QUERY_TIMEOUT) {
+            Ok(reply) => reply
+                .failures
+                .into_iter()
+                .map(|f| (f.cu.into(), f.reason))
+                .collect(),
+            Err(why) => cus.iter().map(|cu| (cu.clone(), why.clone())).collect(),
+        }
+    }
+
+    /// [`Inner::destroy`] of CUs the model dropped, on a thread of its own: the caller (a
+    /// review, a request) does not wait for an executor that may not answer. One that does
+    /// not runs them until it reconciles, which stops what the model lacks.
+    fn stop_in_background(inner: &Arc<Self>, orphans: BTreeMap<String, Vec<Cid>>, generation: u64) {
+        if orphans.is_empty() {
+            return;
+        }
+        let inner = inner.clone();
+        let _ = std::thread::Builder::new()
+            .name("fleet-orphans".into())
+            .spawn(move || {
+                for (executor, cus) in orphans {
+                    let failed = inner.destroy(&executor, &cus, "orphans", generation);
+                    for cu in cus.iter().filter(|c| !failed.iter().any(|(f, _)| f == *c)) {
+                        tracing::info!(
+                            "stopped {cu} on {executor}: the model dropped it (crash reported or action failed)"
+                        );
+                    }
+                    for (cu, why) in failed {
+                        tracing::debug!("could not stop {cu} on {executor} (it may be gone): {why}");
+                    }
+                }
+            });
+    }
+
     fn query_for<T: serde::de::DeserializeOwned>(
         &self,
         name: &str,
@@ -526,8 +582,19 @@ impl Executor for Fleet {
     fn apply(&self, change_set: &ChangeSet, specs: &BTreeMap<Tid, TransformationSpec>) -> Applied {
         let inner = &self.inner;
         let mut failures: Vec<ActionFailure> = Vec::new();
-        // Per executor, in order of first appearance: (index in the change set, action).
+        // Per executor, in order of first appearance: (index in the change set, action). The
+        // destroys come after every other batch: a change set makes before it breaks (COMPILE
+        // puts destroys last), and across executors too, so a producer on one executor is not
+        // stopped before its replacement on another runs. (A CU's destroy is its last action:
+        // its order with its own actions stays.)
         let mut batches: Vec<(String, Vec<(usize, CuAction)>)> = Vec::new();
+        let mut destroys: Vec<(String, Vec<(usize, CuAction)>)> = Vec::new();
+        let last_action: BTreeMap<&Cid, usize> = change_set
+            .actions
+            .iter()
+            .enumerate()
+            .filter_map(|(i, a)| Some((a.cu()?, i)))
+            .collect();
         let mut placed: BTreeMap<Cid, String> = lock(&inner.placement).clone();
         let mut spawned_processes: BTreeMap<String, u32> = BTreeMap::new();
         let mut spawned: Vec<(Cid, String)> = Vec::new();
@@ -603,6 +670,13 @@ impl Executor for Fleet {
                     (executor, cu_action)
                 }
             };
+            let batches = if matches!(cu_action, CuAction::Destroy { .. })
+                && last_action.get(cu) == Some(&index)
+            {
+                &mut destroys
+            } else {
+                &mut batches
+            };
             match batches.iter_mut().find(|(e, _)| *e == executor) {
                 Some((_, actions)) => actions.push((index, cu_action)),
                 None => batches.push((executor, vec![(index, cu_action)])),
@@ -619,14 +693,20 @@ impl Executor for Fleet {
                 placement.insert(cu, executor);
             }
         }
-        for (executor, actions) in batches {
+        let destroying = batches.len();
+        batches.extend(destroys);
+        for (batch, (executor, actions)) in batches.into_iter().enumerate() {
             let indices: Vec<usize> = actions.iter().map(|(i, _)| *i).collect();
             let request = ApplyRequest {
                 change_set: change_set.id.to_string(),
                 generation: change_set.id.number().unwrap_or(0),
                 actions: actions.into_iter().map(|(_, a)| a).collect(),
             };
-            let processes = spawned_processes.get(&executor).copied().unwrap_or(0);
+            let processes = if batch < destroying {
+                spawned_processes.get(&executor).copied().unwrap_or(0)
+            } else {
+                0
+            };
             let timeout = QUERY_TIMEOUT + Duration::from_secs(10) * processes;
             let payload = serde_json::to_vec(&request).unwrap_or_default();
             match inner.query_for::<ApplyReply>(&executor, "apply", payload, timeout) {
@@ -682,9 +762,15 @@ impl Executor for Fleet {
                 running.remove(cu);
             }
         }
+        let mut orphans: BTreeMap<String, Vec<Cid>> = BTreeMap::new();
         for failure in &failures {
-            placement.remove(&failure.cu);
             running.remove(&failure.cu);
+            if let Some(executor) = placement.remove(&failure.cu) {
+                orphans
+                    .entry(executor)
+                    .or_default()
+                    .push(failure.cu.clone());
+            }
         }
         // Acknowledged: a spawned CU runs once its executor answered (it waits for it).
         for (cu, outcome) in &cus {
@@ -697,8 +783,26 @@ impl Executor for Fleet {
         }
         drop(running);
         drop(placement);
+        // The model drops them: where one may still run (a rewiring failed, the executor did
+        // not answer in time), it is stopped, not left publishing beside its replacement.
+        Inner::stop_in_background(inner, orphans, change_set.id.number().unwrap_or(0));
         failures.sort_by_key(|f| f.action);
         Applied { failures, cus }
+    }
+
+    fn abandon(&self, cus: &[Cid]) {
+        let mut orphans: BTreeMap<String, Vec<Cid>> = BTreeMap::new();
+        {
+            let mut placement = lock(&self.inner.placement);
+            let mut running = lock(&self.inner.running);
+            for cu in cus {
+                running.remove(cu);
+                if let Some(executor) = placement.remove(cu) {
+                    orphans.entry(executor).or_default().push(cu.clone());
+                }
+            }
+        }
+        Inner::stop_in_background(&self.inner, orphans, 0);
     }
 
     fn describe(&self, cu: &Cid) -> Option<CuView> {
@@ -719,29 +823,12 @@ impl Executor for Fleet {
     }
 
     fn stop(&self, executor: &str, cus: &[Cid], generation: u64) -> Vec<(Cid, String)> {
-        if cus.is_empty() {
-            return Vec::new();
-        }
-        let request = ApplyRequest {
-            change_set: format!("reconcile@{generation}"),
+        self.inner.destroy(
+            executor,
+            cus,
+            &format!("reconcile@{generation}"),
             generation,
-            actions: cus
-                .iter()
-                .map(|cu| CuAction::Destroy { cu: cu.to_string() })
-                .collect(),
-        };
-        let payload = serde_json::to_vec(&request).unwrap_or_default();
-        match self
-            .inner
-            .query_for::<ApplyReply>(executor, "apply", payload, QUERY_TIMEOUT)
-        {
-            Ok(reply) => reply
-                .failures
-                .into_iter()
-                .map(|f| (f.cu.into(), f.reason))
-                .collect(),
-            Err(why) => cus.iter().map(|cu| (cu.clone(), why.clone())).collect(),
-        }
+        )
     }
 
     /// The placement and what the acknowledgements and events said: no query.
@@ -785,9 +872,16 @@ impl Executor for Fleet {
         }
         for (executor, hosted) in by_executor {
             let info: Option<ExecutorInfo> = self.inner.query(executor, "info", Vec::new());
-            let mut reports: BTreeMap<String, CuReport> = info
-                .map(|i| i.cus.into_iter().map(|c| (c.cu.clone(), c)).collect())
-                .unwrap_or_default();
+            // No answer in time (a busy or cut-off executor): what was last heard of its CUs,
+            // not a crash nobody saw (a crash is an event of its own, or the executor's token
+            // going).
+            let Some(info) = info else {
+                let cus: Vec<Cid> = hosted.into_iter().cloned().collect();
+                views.extend(self.last_heard(&cus));
+                continue;
+            };
+            let mut reports: BTreeMap<String, CuReport> =
+                info.cus.into_iter().map(|c| (c.cu.clone(), c)).collect();
             for cu in hosted {
                 let view = match reports.remove(cu.as_str()) {
                     Some(report) => CuView {

@@ -450,10 +450,13 @@ impl Manager {
     }
 
     /// Records a perturbation. A crash removes the CU from the model first (an error if no
-    /// CU has that name); a short-term negative perturbation starts a review at once.
+    /// CU has that name) and stops it where it may still run (hung, not crashed: the
+    /// client saw what its executor did not); a short-term negative perturbation starts a
+    /// review at once.
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
+            self.executor.abandon(std::slice::from_ref(cu));
             // A crash a client reports is reviewed at once (`POST /perturbations`); those the
             // executors detect are spaced (`Manager::handle`, `Settings::review_spacing`).
             lock(&self.schedule).urgent();
@@ -529,6 +532,9 @@ impl Manager {
                 return Err(LifecycleError::NameTaken(name));
             }
             Some(name) => {
+                // Refused here, not by the executor after a failed change set.
+                dyknow_cu::keys::check_name("CU name", &name)
+                    .map_err(|e| LifecycleError::InvalidName(e.to_string()))?;
                 ids.reserve_cu(&name);
                 name
             }
@@ -615,6 +621,19 @@ impl Manager {
                 return Err(LifecycleError::SharedChannel {
                     channel: channel.to_string(),
                     publisher: other.0.into(),
+                });
+            }
+        }
+        // Nor two out ports of this CU on one channel, as bound after the change.
+        let mut bound: BTreeMap<&Channel, &String> = BTreeMap::new();
+        for (port, now) in &cu.outputs {
+            let channel = outputs.get(port).unwrap_or(now);
+            if let Some(channel) = channel
+                && let Some(first) = bound.insert(channel, port)
+            {
+                return Err(LifecycleError::SharedChannel {
+                    channel: channel.to_string(),
+                    publisher: format!("{cid}, out port {first:?}").into(),
                 });
             }
         }

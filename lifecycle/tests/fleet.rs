@@ -293,12 +293,14 @@ fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
     let applied = applying.join().expect("apply returns");
     assert!(applied.failures.is_empty(), "{applied:?}");
     until_heard(&fleet, "c1", Some("x"), "running");
-    // Asking the executor gets no answer: that view has it lost.
+    // Asking the executor gets no answer: what was last heard, not a crash nobody saw.
     let c1 = Cid::from("c1");
+    let asked = fleet.describe_all(std::slice::from_ref(&c1))[&c1].clone();
     assert_eq!(
-        fleet.describe_all(std::slice::from_ref(&c1))[&c1].state,
-        "crashed"
+        (asked.executor.as_deref(), asked.state.as_str()),
+        (Some("x"), "running")
     );
+    assert_eq!(asked.statistics, serde_json::json!({}));
 
     // Its executor says it crashed: crashed, hosted nowhere.
     let crashed = Event::CuCrashed {
@@ -321,5 +323,133 @@ fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
     assert!(
         infos.load(Ordering::SeqCst) >= 2,
         "describe_all asked x's info"
+    );
+}
+
+/// What the fake executors were asked to apply: (executor, "action cu" of each action), in
+/// the order the requests arrived.
+type ApplyLog = Arc<std::sync::Mutex<Vec<(String, Vec<String>)>>>;
+
+/// An executor's fake services: `info` (a relay builtin, no CUs) and `apply`, which records
+/// each request's actions, in the order requests arrive, and acknowledges them.
+struct FakeExecutor {
+    _queryables: Vec<zenoh::query::Queryable<()>>,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+fn fake_executor(
+    client: &zenoh::Session,
+    namespace: &Namespace,
+    name: &'static str,
+    log: &ApplyLog,
+) -> FakeExecutor {
+    use dyknow_cu::protocol::{ApplyReply, ApplyRequest};
+    let info = client
+        .declare_queryable(namespace.executor_service(name, "info"))
+        .callback(move |query| {
+            let info = ExecutorInfo {
+                name: name.into(),
+                builtins: vec!["dyknow/relay".into()],
+                processes: false,
+                cus: Vec::new(),
+            };
+            reply_json(&query, &info);
+        })
+        .wait()
+        .expect("a queryable");
+    let log = log.clone();
+    let apply = client
+        .declare_queryable(namespace.executor_service(name, "apply"))
+        .callback(move |query| {
+            let request: ApplyRequest =
+                serde_json::from_slice(&query.payload().expect("a payload").to_bytes())
+                    .expect("an apply request");
+            let actions = request
+                .actions
+                .iter()
+                .map(|a| {
+                    serde_json::to_value(a).expect("json")["action"]
+                        .as_str()
+                        .unwrap_or("?")
+                        .to_owned()
+                        + " "
+                        + a.cu()
+                })
+                .collect();
+            log.lock()
+                .expect("the log")
+                .push((name.to_owned(), actions));
+            reply_json(
+                &query,
+                &ApplyReply {
+                    failures: Vec::new(),
+                },
+            );
+        })
+        .wait()
+        .expect("a queryable");
+    let token = client
+        .liveliness()
+        .declare_token(namespace.executor_token(name))
+        .wait()
+        .expect("a token");
+    FakeExecutor {
+        _queryables: vec![info, apply],
+        _token: token,
+    }
+}
+
+/// A change set across executors makes before it breaks: a destroy on one executor is sent
+/// after the spawns on every other (before, each executor got its actions in one request, in
+/// order of its first action: x's destroy went before y's spawn, and the stream stopped
+/// before its new producer ran).
+#[test]
+fn destroys_are_sent_after_every_executors_other_actions() {
+    use dyknow_engine::{Action, Cid};
+    let (router, client) = sessions();
+    let namespace = Namespace::new("order").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let _x = fake_executor(&client, &namespace, "x", &log);
+    until_appeared(&mut events, "x", 0);
+    let _y = fake_executor(&client, &namespace, "y", &log);
+    until_appeared(&mut events, "y", 0);
+    let mut on_y = relay_spec();
+    on_y.label = "u".into();
+    on_y.iri = "urn:u".into();
+    on_y.executor = Some("y".into());
+    let mut on_x = relay_spec();
+    on_x.executor = Some("x".into());
+    let specs = BTreeMap::from([
+        (dyknow_engine::Tid::from("t"), on_x),
+        (dyknow_engine::Tid::from("u"), on_y),
+    ]);
+    fleet.adopt("x", &[Cid::from("old")]);
+    let applied = fleet.apply(
+        &change_set(
+            1,
+            vec![
+                Action::Spawn {
+                    cu: "a".into(),
+                    transformation: "t".into(),
+                },
+                Action::Spawn {
+                    cu: "new".into(),
+                    transformation: "u".into(),
+                },
+                Action::Destroy { cu: "old".into() },
+            ],
+        ),
+        &specs,
+    );
+    assert!(applied.failures.is_empty(), "{applied:?}");
+    let log = log.lock().expect("the log").clone();
+    assert_eq!(
+        log,
+        [
+            ("x".to_owned(), vec!["spawn a".to_owned()]),
+            ("y".to_owned(), vec!["spawn new".to_owned()]),
+            ("x".to_owned(), vec!["destroy old".to_owned()]),
+        ]
     );
 }

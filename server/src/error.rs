@@ -203,6 +203,7 @@ impl From<LifecycleError> for ApiError {
                 Self::new(StatusCode::CONFLICT, e.to_string())
             }
             LifecycleError::EmptyName
+            | LifecycleError::InvalidName(_)
             | LifecycleError::NotRunnable { .. }
             | LifecycleError::InvalidCost { .. }
             | LifecycleError::UnknownPort { .. }

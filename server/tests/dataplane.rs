@@ -161,6 +161,76 @@ fn post_counter_echo(service: &Service, period_ms: &str) {
     }
 }
 
+/// A crash a client reports of a CU its executor still runs (hung, say, or the client is
+/// wrong): the model drops it and the executor stops it, so that its replacement is not a
+/// second publisher on the channel. (Before, it ran on, unknown to the model, until its
+/// executor reconnected.)
+#[test]
+fn a_cu_a_client_reports_crashed_is_stopped_where_it_still_runs() {
+    let service = Service::start(&[]);
+    post_counter_echo(&service, "20");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let echo = eventually("the echo to run", Duration::from_secs(30), || {
+        let cu = service.cu_of("echo")?;
+        (cu["state"] == "running").then(|| cu["name"].as_str().unwrap().to_owned())
+    });
+    // What the executor itself runs (its `info` service), not where the manager thinks CUs
+    // are.
+    let session = service.session();
+    let key = Namespace::default().executor_service("local", "info");
+    let hosted = |_: &Service| -> Vec<String> {
+        let replies = session.get(&key).wait().unwrap();
+        let reply = replies
+            .recv_timeout(Duration::from_secs(10))
+            .unwrap()
+            .expect("an answer");
+        let info: Value =
+            serde_json::from_slice(&reply.result().unwrap().payload().to_bytes()).unwrap();
+        let mut cus: Vec<String> = info["cus"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["cu"].as_str().unwrap().to_owned())
+            .collect();
+        cus.sort();
+        cus
+    };
+    assert!(hosted(&service).contains(&echo));
+    let mut r = agent()
+        .post(&format!("{}/perturbations", service.url))
+        .header("Content-Type", "application/json")
+        .send(json!({"kind": "cu-crashed", "cu": echo}).to_string())
+        .unwrap();
+    assert_eq!(
+        r.status().as_u16(),
+        202,
+        "{}",
+        r.body_mut().read_to_string().unwrap()
+    );
+    // Repaired by a new echo, and the executor runs what the model has, not the old one too.
+    let (model, running) = eventually(
+        "the executor to run the model's CUs",
+        Duration::from_secs(30),
+        || {
+            let cus = service.get("/cus");
+            let cus = cus.as_array()?;
+            let echo_now = cus.iter().find(|c| c["transformation"] == "echo")?;
+            if echo_now["name"] == echo.as_str() || echo_now["state"] != "running" {
+                return None;
+            }
+            let mut model: Vec<String> = cus
+                .iter()
+                .map(|c| c["name"].as_str().unwrap().to_owned())
+                .collect();
+            model.sort();
+            let running = hosted(&service);
+            (running == model).then_some((model, running))
+        },
+    );
+    assert!(!running.contains(&echo), "{running:?}");
+    assert_eq!(model.len(), 2, "{model:?}");
+}
+
 /// Executor names are unique: a second `local` (or any name present) is refused at start,
 /// and the first one, with its CUs, stays present. (Before, the second was let in, and its
 /// leaving made the service take `local` for gone for good: its CUs crashed in the model,
