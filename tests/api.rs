@@ -679,6 +679,30 @@ async fn sparql_construct_as_turtle_and_ntriples() {
     api.get_accept(&uri, "application/sparql-results+json")
         .await
         .expect_error(406);
+
+    // The model's OWL formats too ("as RDF formats above"): one ontology of the triples,
+    // through horned-owl, those without an OWL reading counted.
+    let classes = "CONSTRUCT { ?t a <http://www.dyknow.eu/ontology/dyknow#Transformation> . <http://www.dyknow.eu/ontology/dyknow#Transformation> a <http://www.w3.org/2002/07/owl#Class> } WHERE { ?t a <http://www.dyknow.eu/ontology/dyknow#Transformation> }";
+    let uri = format!("/sparql?query={}", encode(classes));
+    let answer = api.get_accept(&uri, "text/owl-functional").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "text/owl-functional");
+    let text = answer.text();
+    assert!(text.contains("Ontology(<urn:dyknow:sparql>"), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.trim_start().starts_with("ClassAssertion(") && l.contains("Undistort")),
+        "{text}"
+    );
+    assert_eq!(answer.header("x-dyknow-unparsed-triples"), Some("0"));
+    let answer = api.get_accept(&uri, "application/owl+xml").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "application/owl+xml");
+    assert!(
+        answer.text().contains("<ClassAssertion>"),
+        "{}",
+        answer.text()
+    );
 }
 
 #[tokio::test]
@@ -1668,4 +1692,44 @@ async fn ontology_violations_are_422_and_nothing_is_written() {
         "cls-maxqc1",
     )
     .await;
+}
+
+/// Endpoints with one representation honour `Accept` too: a read whose answer the client
+/// excludes is 406 (the contract's "406 unsupported `Accept`"), one it accepts, or any answer
+/// to a client that says nothing, is as before; a write is never refused for its answer.
+#[tokio::test]
+async fn reads_with_one_representation_refuse_an_accept_that_excludes_it() {
+    let api = api_with_undistort().await;
+    for (uri, accept) in [
+        ("/health", "text/turtle"),
+        ("/health", "text/*"),
+        ("/transformations/Undistort%28cam1%29", "image/png"),
+        ("/ontology", "application/n-triples"),
+        ("/openapi.json", "text/html"),
+    ] {
+        let answer = api.get_accept(uri, accept).await;
+        answer.expect_error(406);
+    }
+    for (uri, accept) in [
+        ("/health", "application/json"),
+        ("/health", "application/*"),
+        ("/health", "*/*"),
+        ("/health", "text/html, application/json;q=0.1"),
+        ("/ontology", "application/json; charset=utf-8"),
+    ] {
+        let answer = api.get_accept(uri, accept).await;
+        answer.expect(200);
+        assert_eq!(answer.media_type(), "application/json", "{uri} {accept}");
+    }
+    api.get("/health").await.expect(200);
+    // A write answers what it did, whatever its Accept says.
+    let answer = api
+        .send(request(
+            Method::POST,
+            "/transformations",
+            &[("content-type", TURTLE), ("accept", "image/png")],
+            Body::from(UNDISTORT),
+        ))
+        .await;
+    answer.expect(201);
 }

@@ -35,9 +35,17 @@ pub struct Header {
 }
 
 impl Header {
-    /// Adds what `other` declares (domains of the same name are replaced).
+    /// Adds what `other` declares (`mstl.md`: the flags "add to the header"): a domain of a
+    /// name this one has gets the constants it lacks, after its own.
     pub fn extend(&mut self, other: Self) {
-        self.domains.extend(other.domains);
+        for (name, constants) in other.domains {
+            let domain = self.domains.entry(name).or_default();
+            for c in constants {
+                if !domain.contains(&c) {
+                    domain.push(c);
+                }
+            }
+        }
         self.landmarks.extend(other.landmarks);
         self.static_regions.extend(other.static_regions);
     }

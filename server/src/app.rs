@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use axum::Router;
 use axum::body::{Body, BodyDataStream, Bytes, HttpBody, to_bytes};
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
-use axum::http::{Method, StatusCode, header};
+use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use dyknow_lifecycle::{Executor, Fleet, LifecycleError, Manager, ModelOnly, Settings};
@@ -197,6 +197,7 @@ pub fn app(state: AppState) -> Router {
         .merge(routes::groups::router())
         .merge(routes::ui::router())
         .route_layer(middleware::from_fn_with_state(state.clone(), authorize))
+        .route_layer(middleware::from_fn(acceptable))
         .fallback(not_found)
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::from_fn_with_state(state.clone(), linger))
@@ -212,6 +213,48 @@ async fn not_found(method: Method, uri: axum::http::Uri) -> ApiError {
     ApiError::not_found(format!("no resource at {method} {}", uri.path()))
 }
 
+/// A read whose answer the client's `Accept` excludes is 406 (`http-api.md`), also where the
+/// endpoint has one representation (JSON, an event stream, a trace) and so does not
+/// negotiate: its answer's type is checked here. Reads only: a write is done before its
+/// answer's type is known, and a refused request must change nothing. A `?format=` the client
+/// names (`GET /model`) overrides its `Accept`.
+async fn acceptable(request: Request, next: Next) -> Response {
+    let named = request
+        .uri()
+        .query()
+        .is_some_and(|q| q.split('&').any(|p| p.split('=').next() == Some("format")));
+    let accept = (matches!(*request.method(), Method::GET | Method::HEAD) && !named)
+        .then(|| request.headers().get(header::ACCEPT).cloned())
+        .flatten();
+    let response = next.run(request).await;
+    let Some(accept) = accept else {
+        return response;
+    };
+    if !response.status().is_success() {
+        return response;
+    }
+    let Some(media) = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(|v| {
+            v.split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_ascii_lowercase()
+        })
+    else {
+        return response;
+    };
+    let mut asked = HeaderMap::new();
+    asked.insert(header::ACCEPT, accept);
+    match crate::negotiate::negotiate(&asked, &[media.as_str()]) {
+        Ok(_) => response,
+        Err(refused) => refused.into_response(),
+    }
+}
+
 /// Mutating requests need the bearer token when one is configured; reads (including SPARQL
 /// queries sent with POST) never do.
 async fn authorize(State(state): State<AppState>, request: Request, next: Next) -> Response {
@@ -224,8 +267,7 @@ async fn authorize(State(state): State<AppState>, request: Request, next: Next) 
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "))
-            .map(str::trim);
+            .and_then(bearer_credentials);
         if !given.is_some_and(|g| constant_time_eq(g.as_bytes(), token.as_bytes())) {
             return ApiError::new(
                 StatusCode::UNAUTHORIZED,
@@ -235,6 +277,15 @@ async fn authorize(State(state): State<AppState>, request: Request, next: Next) 
         }
     }
     next.run(request).await
+}
+
+/// The credentials of an `Authorization: Bearer <token>` value. The scheme's name is
+/// case-insensitive (RFC 9110, 11.1), so `bearer` and `BEARER` are the same scheme.
+fn bearer_credentials(value: &str) -> Option<&str> {
+    let (scheme, credentials) = value.trim_start().split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then(|| credentials.trim())
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
@@ -427,6 +478,17 @@ mod tests {
     use tower::ServiceExt;
 
     use super::*;
+
+    #[test]
+    fn the_bearer_scheme_is_case_insensitive_and_the_token_is_not() {
+        for value in ["Bearer t0k", "bearer t0k", "BEARER  t0k ", " Bearer t0k"] {
+            assert_eq!(bearer_credentials(value), Some("t0k"), "{value:?}");
+        }
+        for value in ["Basic dDBr", "Bearert0k", "Bearer", "t0k", ""] {
+            assert_eq!(bearer_credentials(value), None, "{value:?}");
+        }
+        assert_eq!(bearer_credentials("Bearer T0K"), Some("T0K"));
+    }
 
     fn state(store_concurrency: usize) -> AppState {
         let kb = KnowledgeBase::in_memory().expect("in-memory knowledge base");

@@ -101,9 +101,10 @@ pub enum Command {
     /// (not the asserted ones) as sorted N-Triples; with --check prints the ontology violations
     /// instead, one per line, and exits 1 if there is any.
     Reason {
-        /// Ontology files (Turtle, N-Triples, JSON-LD) to add to the built-in DyKnow and
-        /// DyKnow-ROS ontologies.
-        #[arg(long, value_name = "FILE", num_args = 1..)]
+        /// An ontology file (Turtle, N-Triples, JSON-LD) to add to the built-in DyKnow and
+        /// DyKnow-ROS ontologies; repeat the flag for several. (One file a flag, so that
+        /// `--ontology o.ttl data.ttl` leaves data.ttl a data file.)
+        #[arg(long, value_name = "FILE")]
         ontology: Vec<PathBuf>,
         /// Print the violations of the consistency rules instead of the inferences.
         #[arg(long, conflicts_with = "unsupported")]
@@ -153,7 +154,8 @@ pub enum Command {
         /// Static regions, added to the trace header's.
         #[arg(long = "static", value_name = "r1,r2", value_delimiter = ',')]
         static_regions: Vec<String>,
-        /// A named domain for quantifiers, `NAME=a,b` (repeatable; replaces the header's).
+        /// A named domain for quantifiers, `NAME=a,b` (repeatable; added to the header's: a
+        /// domain of the same name gets these constants too).
         #[arg(long = "domain", value_name = "NAME=a,b")]
         domains: Vec<String>,
     },
@@ -689,7 +691,10 @@ fn check(
     };
     for d in domains {
         let (name, constants) = parse_domain(d).map_err(|e| Failure(2, e))?;
-        extra.domains.insert(name, constants);
+        extra.extend(Header {
+            domains: [(name, constants)].into(),
+            ..Header::default()
+        });
     }
     let stdout = std::io::stdout();
     let mut out = stdout.lock();

@@ -71,6 +71,15 @@ fn seed_formulas_true_false_unknown() {
             "true",
             0,
         ),
+        // A flag adds to the header's domain (`mstl.md`): uav1 stays in it and still drops
+        // (replaced by uav3 alone, never observed, it would be unknown).
+        (
+            F5_12,
+            "uav-altitude.jsonl",
+            &["--domain", "UAV=uav3"],
+            "false",
+            200,
+        ),
         // (6.1): inside for the whole day (decided at 1440 min, whatever follows); leaves
         // after an hour; lost from view at 1 min.
         (F6_1, "ball-circle.jsonl", &[], "true", 86_400_000),

@@ -549,6 +549,49 @@ fn reason_check_reports_violations_and_exits_1() {
         .expect("run");
     assert!(ok.status.success());
     assert!(ok.stdout.is_empty());
+    // The contract's form, `--ontology FILE... FILE...`: an ontology file before the data
+    // (once read as two ontology files and no data: exit 2), and the flag repeated.
+    let ontology = dir.path().join("o.ttl");
+    let more = dir.path().join("o2.ttl");
+    let data = dir.path().join("d.ttl");
+    let owl =
+        "@prefix owl: <http://www.w3.org/2002/07/owl#> .\n@prefix ex: <http://example.org/x#> .\n";
+    std::fs::write(&ontology, format!("{owl}ex:A owl:disjointWith ex:B .")).expect("write");
+    std::fs::write(&more, format!("{owl}ex:C owl:equivalentClass ex:B .")).expect("write");
+    std::fs::write(&data, format!("{owl}ex:x a ex:A , ex:C .")).expect("write");
+    for args in [
+        vec![
+            "--ontology",
+            ontology.to_str().unwrap(),
+            "--ontology",
+            more.to_str().unwrap(),
+        ],
+        vec![
+            "--ontology",
+            ontology.to_str().unwrap(),
+            more.to_str().unwrap(),
+        ],
+    ] {
+        let out = Command::new(BIN)
+            .args(["reason", "--check"])
+            .args(&args)
+            .arg(&data)
+            .output()
+            .expect("run");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(
+            out.status.code(),
+            Some(1),
+            "{args:?}: {stdout}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.starts_with("cax-dw") && l.contains("x#x")),
+            "{args:?}: {stdout}"
+        );
+    }
     // Bad input is exit 2 with file, line and column.
     let broken = dir.path().join("broken.ttl");
     std::fs::write(&broken, "@prefix ex: <http://example.org/> .\nex:a ex:b ;;").expect("write");

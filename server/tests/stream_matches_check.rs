@@ -270,15 +270,15 @@ fn drive(
             "--landmarks" => landmarks.extend(list()),
             "--static" => statics.extend(list()),
             "--domain" => {
+                // Added to the header's (`mstl.md`): a domain of that name gets the constants
+                // it lacks.
                 let (name, constants) = value.split_once('=').unwrap();
-                domains.insert(
-                    name.to_owned(),
-                    constants
-                        .split(',')
-                        .filter(|c| !c.is_empty())
-                        .map(str::to_owned)
-                        .collect(),
-                );
+                let domain: &mut Vec<String> = domains.entry(name.to_owned()).or_default();
+                for c in constants.split(',').filter(|c| !c.is_empty()) {
+                    if !domain.iter().any(|d| d == c) {
+                        domain.push(c.to_owned());
+                    }
+                }
             }
             other => unreachable!("flag {other}"),
         }

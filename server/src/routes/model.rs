@@ -64,6 +64,8 @@ pub struct ChannelJson {
     pub targets: Vec<String>,
     /// The CU publishing on it, if any.
     pub producer: Option<String>,
+    /// The CUs subscribed to it.
+    pub subscribers: Vec<String>,
 }
 
 /// The DyKnow JSON form of the model.
@@ -98,15 +100,38 @@ pub fn model_json(
     let loaded = dyknow_store::model::load(kb)?;
     let names: Vec<Cid> = loaded.env.cus.keys().cloned().collect();
     let views = describe(&names);
-    let mut channels = Vec::new();
-    for (name, targets) in kb.channels()? {
-        let producer = kb.channel_producer(&name)?;
-        channels.push(ChannelJson {
-            name,
-            targets,
-            producer,
-        });
+    // Every channel of the model: those targets name and those CUs are bound to.
+    let mut by_name: BTreeMap<String, ChannelJson> = BTreeMap::new();
+    fn channel<'a>(
+        by_name: &'a mut BTreeMap<String, ChannelJson>,
+        name: &str,
+    ) -> &'a mut ChannelJson {
+        by_name
+            .entry(name.to_owned())
+            .or_insert_with(|| ChannelJson {
+                name: name.to_owned(),
+                targets: Vec::new(),
+                producer: None,
+                subscribers: Vec::new(),
+            })
     }
+    for (name, targets) in kb.channels()? {
+        channel(&mut by_name, &name).targets = targets;
+    }
+    for cu in loaded.env.cus.values() {
+        for bound in cu.inputs.values().flatten() {
+            let subscribers = &mut channel(&mut by_name, bound.as_str()).subscribers;
+            if !subscribers.contains(&cu.cid.to_string()) {
+                subscribers.push(cu.cid.to_string());
+            }
+        }
+    }
+    for (name, publishers) in loaded.env.publishers() {
+        // The first by name if, invalidly, several publish.
+        channel(&mut by_name, name).producer =
+            publishers.iter().map(|(c, _)| (*c).to_owned()).min();
+    }
+    let channels: Vec<ChannelJson> = by_name.into_values().collect();
     Ok(ModelJson {
         transformations: kb
             .specs(SpecKind::Transformation)?

@@ -10,6 +10,7 @@ use axum::extract::{Query, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::Response;
 use axum::routing::get;
+use dyknow_ontology::OwlSyntax;
 use dyknow_store::oxigraph::io::RdfFormat;
 use dyknow_store::oxigraph::sparql::results::QueryResultsFormat;
 use dyknow_store::{ParsedQuery, QueryForm, ResultFormat, SparqlQueryError};
@@ -43,12 +44,39 @@ const SOLUTION_TYPES: [&str; 6] = [
     "application/json",
     "application/xml",
 ];
-const GRAPH_TYPES: [&str; 4] = [
+/// The model's formats (`GET /model`): RDF, and OWL through horned-owl.
+const GRAPH_TYPES: [&str; 6] = [
     "text/turtle",
     "application/n-triples",
     "application/rdf+xml",
     "application/ld+json",
+    "application/owl+xml",
+    "text/owl-functional",
 ];
+
+/// The OWL syntax a graph query's answer is asked in, if any (then the query is run as
+/// N-Triples and converted).
+fn owl_syntax(form: QueryForm, headers: &HeaderMap) -> Result<Option<OwlSyntax>, ApiError> {
+    Ok(match form {
+        QueryForm::Graph => match negotiate(headers, &GRAPH_TYPES)? {
+            "application/owl+xml" => Some(OwlSyntax::OwlXml),
+            "text/owl-functional" => Some(OwlSyntax::Functional),
+            _ => None,
+        },
+        QueryForm::Solutions => None,
+    })
+}
+
+/// A graph query's triples (N-Triples) as one OWL ontology: horned-owl reads axioms and facts
+/// of an ontology, so the triples get one (`urn:dyknow:sparql`), as `GET /model` gets
+/// `urn:dyknow:model`. Triples that are no OWL construct are counted, not shown.
+fn to_owl(ntriples: &[u8], syntax: OwlSyntax) -> Result<(Vec<u8>, usize), ApiError> {
+    let mut document = b"<urn:dyknow:sparql> <http://www.w3.org/1999/02/22-rdf-syntax-ns#type> <http://www.w3.org/2002/07/owl#Ontology> .\n".to_vec();
+    document.extend_from_slice(ntriples);
+    let owl = dyknow_ontology::rdf_to_owl(&document, RdfFormat::NTriples, syntax)
+        .map_err(ApiError::internal)?;
+    Ok((owl.text.into_bytes(), owl.unparsed_triples))
+}
 
 fn result_format(form: QueryForm, headers: &HeaderMap) -> Result<ResultFormat, ApiError> {
     Ok(match form {
@@ -81,7 +109,11 @@ async fn answer(
         .query
         .ok_or_else(|| ApiError::bad_request("no query: pass it as ?query=, as form field query=, or as an application/sparql-query body"))?;
     let parsed = ParsedQuery::parse(&query)?;
-    let format = result_format(parsed.form(), &headers)?;
+    let owl = owl_syntax(parsed.form(), &headers)?;
+    let format = match owl {
+        Some(_) => ResultFormat::Rdf(RdfFormat::NTriples),
+        None => result_format(parsed.form(), &headers)?,
+    };
     let timeout = state.config.query_timeout;
     // The watchdog cancels the evaluation when its time is up (the time waiting for a turn
     // included); oxigraph notices between solutions, the serialisation between rows, and the
@@ -95,9 +127,28 @@ async fn answer(
             .map_err(ApiError::internal)?;
     }
     let kb = state.kb.clone();
-    let answer = in_turn(&state, move || Ok(kb.run_query(parsed, format, timeout)?)).await?;
+    let answer = in_turn(&state, move || {
+        let answer = kb.run_query(parsed, format, timeout)?;
+        Ok(match owl {
+            Some(syntax) => {
+                let (body, unparsed) = to_owl(&answer.body, syntax)?;
+                (syntax.media_type(), body, Some(unparsed))
+            }
+            None => (answer.media_type, answer.body, None),
+        })
+    })
+    .await?;
     drop(cancel);
-    Ok(typed(StatusCode::OK, answer.media_type, answer.body))
+    let (media_type, body, unparsed) = answer;
+    let mut response = typed(StatusCode::OK, media_type, body);
+    if let Some(n) = unparsed {
+        // As `GET /model` says it: triples no OWL construct holds.
+        response.headers_mut().insert(
+            "x-dyknow-unparsed-triples",
+            axum::http::HeaderValue::from(n),
+        );
+    }
+    Ok(response)
 }
 
 /// A query as `?query=`.
