@@ -463,7 +463,17 @@ async fn bad_input_changes_nothing() {
     api.delete("/cus/nope").await.expect_error(404);
     // A name executors cannot address on the data plane (one key chunk) is the client's
     // error, found before any change set is made.
-    for name in ["a/b", "x*", "@x", "what?"] {
+    let long = "n".repeat(201);
+    for name in [
+        "a/b",
+        "x*",
+        "@x",
+        "what?",
+        "a\u{0}b",
+        "tab\there",
+        "line\n",
+        long.as_str(),
+    ] {
         let answer = api
             .post(
                 "/cus",

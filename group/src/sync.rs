@@ -179,6 +179,27 @@ impl Policy {
         Ok(())
     }
 
+    /// The policy with its optional values filled in as they apply (`hold`'s `D` is `P`,
+    /// `event`'s 2), as `GET /groups/{label}` shows it.
+    #[must_use]
+    pub fn filled(self) -> Self {
+        match self {
+            Self::Wait { .. } => self,
+            Self::Hold {
+                period_ms,
+                max_age_ms,
+                ..
+            } => Self::Hold {
+                period_ms,
+                max_age_ms,
+                max_delay_ms: Some(self.max_delay()),
+            },
+            Self::Event { .. } => Self::Event {
+                max_delay_ms: Some(self.max_delay()),
+            },
+        }
+    }
+
     fn period(&self) -> Option<u64> {
         match *self {
             Self::Wait { period_ms, .. } | Self::Hold { period_ms, .. } => Some(period_ms),
@@ -553,6 +574,30 @@ mod tests {
             read(r#"{"policy": "event"}"#),
             Ok(Policy::Event { max_delay_ms: None })
         );
+    }
+
+    #[test]
+    fn filled_shows_the_delays_that_apply() {
+        let hold = read(r#"{"policy": "hold", "period_ms": 40}"#).unwrap();
+        assert_eq!(
+            hold.filled(),
+            Policy::Hold {
+                period_ms: 40,
+                max_age_ms: 1000,
+                max_delay_ms: Some(40)
+            }
+        );
+        assert_eq!(
+            Policy::Event { max_delay_ms: None }.filled(),
+            Policy::Event {
+                max_delay_ms: Some(2)
+            }
+        );
+        assert_eq!(Policy::default().filled(), Policy::default());
+        // Filling changes nothing the synchroniser does.
+        for p in [hold, Policy::Event { max_delay_ms: None }] {
+            assert_eq!(p.filled().max_delay(), p.max_delay());
+        }
     }
 
     #[test]

@@ -305,7 +305,11 @@ fn policies_are_validated() {
             max_delay_ms: None
         }
     );
-    assert!(serde_json::from_str::<Policy>(r#"{"policy": "wait", "period_ms": 100}"#).is_err());
+    // A parameter left out takes its default (`wait`'s D is 5 P).
+    assert_eq!(
+        serde_json::from_str::<Policy>(r#"{"policy": "wait", "period_ms": 100}"#).unwrap(),
+        wait(100, 500)
+    );
     assert!(serde_json::from_str::<Policy>(r#"{"policy": "sometimes"}"#).is_err());
     assert_eq!(
         serde_json::from_str::<Policy>(r#"{"policy": "event"}"#).unwrap(),

@@ -693,6 +693,13 @@ impl Executor for Fleet {
                 placement.insert(cu, executor);
             }
         }
+        // The last executor's destroys can ride with its other actions: every other executor
+        // has had its turn by then (one request, not two, when a single executor is involved).
+        if let Some((last, actions)) = batches.last_mut()
+            && let Some(k) = destroys.iter().position(|(e, _)| e == last)
+        {
+            actions.extend(destroys.remove(k).1);
+        }
         let destroying = batches.len();
         batches.extend(destroys);
         for (batch, (executor, actions)) in batches.into_iter().enumerate() {

@@ -25,6 +25,9 @@ use crate::history::History;
 use crate::perturbation::Perturbation;
 use crate::schedule::{Schedule, Status};
 
+/// The longest CU name `POST /cus` takes, in characters (as a group label).
+pub const MAX_CU_NAME: usize = 200;
+
 /// The life-cycle's settings.
 #[derive(Debug, Clone, Copy)]
 pub struct Settings {
@@ -532,9 +535,15 @@ impl Manager {
                 return Err(LifecycleError::NameTaken(name));
             }
             Some(name) => {
-                // Refused here, not by the executor after a failed change set.
+                // Refused here, not by the executor after a failed change set; and names go
+                // into every export of the model, where a control character breaks XML.
                 dyknow_cu::keys::check_name("CU name", &name)
                     .map_err(|e| LifecycleError::InvalidName(e.to_string()))?;
+                if name.chars().count() > MAX_CU_NAME || name.chars().any(char::is_control) {
+                    return Err(LifecycleError::InvalidName(format!(
+                        "a CU name is 1 to {MAX_CU_NAME} characters without control characters"
+                    )));
+                }
                 ids.reserve_cu(&name);
                 name
             }

@@ -443,13 +443,47 @@ fn destroys_are_sent_after_every_executors_other_actions() {
         &specs,
     );
     assert!(applied.failures.is_empty(), "{applied:?}");
-    let log = log.lock().expect("the log").clone();
+    let sent = log.lock().expect("the log").clone();
     assert_eq!(
-        log,
+        sent,
         [
             ("x".to_owned(), vec!["spawn a".to_owned()]),
             ("y".to_owned(), vec!["spawn new".to_owned()]),
             ("x".to_owned(), vec!["destroy old".to_owned()]),
+        ]
+    );
+    // The last executor's destroys ride with its other actions: one request each.
+    log.lock().expect("the log").clear();
+    fleet.adopt("y", &[Cid::from("older")]);
+    let applied = fleet.apply(
+        &change_set(
+            2,
+            vec![
+                Action::Spawn {
+                    cu: "b".into(),
+                    transformation: "t".into(),
+                },
+                Action::Spawn {
+                    cu: "newer".into(),
+                    transformation: "u".into(),
+                },
+                Action::Destroy { cu: "a".into() },
+                Action::Destroy { cu: "older".into() },
+            ],
+        ),
+        &specs,
+    );
+    assert!(applied.failures.is_empty(), "{applied:?}");
+    let sent = log.lock().expect("the log").clone();
+    assert_eq!(
+        sent,
+        [
+            ("x".to_owned(), vec!["spawn b".to_owned()]),
+            (
+                "y".to_owned(),
+                vec!["spawn newer".to_owned(), "destroy older".to_owned()]
+            ),
+            ("x".to_owned(), vec!["destroy a".to_owned()]),
         ]
     );
 }

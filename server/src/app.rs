@@ -219,11 +219,14 @@ async fn not_found(method: Method, uri: axum::http::Uri) -> ApiError {
 /// answer's type is known, and a refused request must change nothing. A `?format=` the client
 /// names (`GET /model`) overrides its `Accept`.
 async fn acceptable(request: Request, next: Next) -> Response {
+    if !matches!(*request.method(), Method::GET | Method::HEAD) {
+        return next.run(request).await;
+    }
     let named = request
         .uri()
         .query()
         .is_some_and(|q| q.split('&').any(|p| p.split('=').next() == Some("format")));
-    let accept = (matches!(*request.method(), Method::GET | Method::HEAD) && !named)
+    let accept = (!named)
         .then(|| request.headers().get(header::ACCEPT).cloned())
         .flatten();
     let response = next.run(request).await;

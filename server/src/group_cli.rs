@@ -58,7 +58,7 @@ pub enum GroupCommand {
         /// The state period P (wait, hold) [default: 100].
         #[arg(long, value_name = "MS")]
         period_ms: Option<u64>,
-        /// The maximum delay D (wait, hold) [default: 5 P for wait, P for hold].
+        /// The maximum delay D [default: 5 P for wait, P for hold, 2 for event].
         #[arg(long, value_name = "MS")]
         max_delay_ms: Option<u64>,
         /// The maximum age A (hold) [default: 1000].
@@ -294,9 +294,12 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 }
                 "event" => {
                     unused("--period-ms", period_ms.is_some())?;
-                    unused("--max-delay-ms", max_delay_ms.is_some())?;
                     unused("--max-age-ms", max_age_ms.is_some())?;
-                    json!({"policy": "event"})
+                    let mut p = json!({"policy": "event"});
+                    if let Some(d) = max_delay_ms {
+                        p["max_delay_ms"] = json!(d);
+                    }
+                    p
                 }
                 other => {
                     return Err(Failure(

@@ -49,7 +49,9 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
         })?;
         let value: Value = serde_json::from_slice(&body).map_err(|e| {
             ApiError::bad_request(format!("the body is not JSON: {e}")).with_details(vec![
-                json!({"line": e.line(), "column": e.column(), "message": e.to_string()}),
+                // serde_json counts columns from 1, but says 0 for an error before the first
+                // character (an empty body): positions here are 1-based.
+                json!({"line": e.line().max(1), "column": e.column().max(1), "message": e.to_string()}),
             ])
         })?;
         if !value.is_object() {
@@ -151,5 +153,22 @@ mod tests {
             (Some(2), Some(11))
         );
         assert!(e.message.contains("line 2 column 11"), "{}", e.message);
+        // An empty body: the error is before the first character, at column 1.
+        let request = Request::builder()
+            .method("POST")
+            .uri("/")
+            .header("content-type", "application/json")
+            .body(Body::empty())
+            .unwrap();
+        let e = JsonBody::<Shape>::from_request(request, &())
+            .await
+            .unwrap_err();
+        assert_eq!(
+            (
+                e.details[0]["line"].as_u64(),
+                e.details[0]["column"].as_u64()
+            ),
+            (Some(1), Some(1))
+        );
     }
 }

@@ -91,7 +91,7 @@ pub struct ApiDoc;
 /// The answers every operation of a kind can give, whatever its handler does: an operation
 /// with a body can answer 400 (malformed), 413 (over `--max-body`) and 415 (another
 /// `Content-Type`); a mutating one (every POST, PUT and DELETE but `POST /sparql`) 401 when
-/// the server has a token.
+/// the server has a token; every read 406 (its `Accept` excludes the answer).
 struct CommonResponses;
 
 impl Modify for CommonResponses {
@@ -122,6 +122,13 @@ impl Modify for CommonResponses {
                         operation,
                         "415",
                         "The body's `Content-Type` is not one of those listed.",
+                    );
+                }
+                if !writes {
+                    add(
+                        operation,
+                        "406",
+                        "The `Accept` header excludes every media type this answer comes in.",
                     );
                 }
                 if writes && path != "/sparql" {
@@ -203,5 +210,15 @@ mod tests {
             missing.is_empty(),
             "routes without a description: {missing:?}"
         );
+    }
+
+    #[test]
+    fn every_read_lists_406() {
+        let doc = ApiDoc::openapi();
+        for (path, item) in &doc.paths.paths {
+            if let Some(get) = &item.get {
+                assert!(get.responses.responses.contains_key("406"), "GET {path}");
+            }
+        }
     }
 }

@@ -756,13 +756,16 @@ fn sync_parameters_take_their_defaults() {
         ),
         (
             json!({"policy": "hold"}),
-            json!({"policy": "hold", "period_ms": 100, "max_age_ms": 1000}),
+            json!({"policy": "hold", "period_ms": 100, "max_age_ms": 1000, "max_delay_ms": 100}),
         ),
         (
             json!({"policy": "hold", "max_age_ms": 250, "max_delay_ms": 7}),
             json!({"policy": "hold", "period_ms": 100, "max_age_ms": 250, "max_delay_ms": 7}),
         ),
-        (json!({"policy": "event"}), json!({"policy": "event"})),
+        (
+            json!({"policy": "event"}),
+            json!({"policy": "event", "max_delay_ms": 2}),
+        ),
     ] {
         let (status, answer) = send(
             &service,
@@ -789,6 +792,54 @@ fn sync_parameters_take_their_defaults() {
         assert_eq!(status, 422, "{sync}: {answer}");
     }
     assert_eq!(service.get("/groups").as_array().unwrap().len(), 5);
+}
+
+/// DestroyGroup stops the group as StopGroup does: a watcher gets the undecided formulas'
+/// final `unknown` verdicts, then its stream ends. (Before, it ended with nothing.)
+#[test]
+fn destroying_a_group_gives_its_final_verdicts() {
+    let service = Service::start(&["--model-only"]);
+    let (status, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "d", "formulas": ["eventually p", "always q"], "start": true})),
+    );
+    assert_eq!(status, 201, "{answer}");
+    let watches = verdict_streams(&service);
+    let watcher = Command::new(BIN)
+        .args(["group", "watch", "d", "--url", &service.url])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut watcher = Killed(watcher);
+    eventually("the watcher's stream", Duration::from_secs(30), || {
+        (verdict_streams(&service) > watches).then_some(())
+    });
+    assert_eq!(send(&service, "DELETE", "/groups/d", None).0, 204);
+    let ended = eventually("the watcher to end", Duration::from_secs(30), || {
+        watcher.0.try_wait().unwrap()
+    });
+    assert!(ended.success(), "{ended}");
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut watcher.0.stdout.take().unwrap(), &mut out).unwrap();
+    let verdicts: BTreeSet<(u64, String)> = out
+        .lines()
+        .map(|l| {
+            let v: Value = serde_json::from_str(l).unwrap();
+            (
+                v["formula"].as_u64().unwrap(),
+                v["verdict"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        verdicts,
+        BTreeSet::from([(0, "unknown".to_owned()), (1, "unknown".to_owned())]),
+        "{out}"
+    );
+    assert_eq!(send(&service, "GET", "/groups/d", None).0, 404);
 }
 
 /// A service on disk restarted with `kill -9` while a group runs: the definition, the
@@ -999,6 +1050,24 @@ fn the_group_command_line() {
     ]);
     assert_eq!(code, 2);
     assert!(err.contains("--sync event: takes no --period-ms"), "{err}");
+    // One it takes is passed on (`event`'s D), and the policy shows every value.
+    let (code, out, err) = cli(&[
+        "create",
+        "--label",
+        "ev",
+        "--formula",
+        "p",
+        "--sync",
+        "event",
+        "--max-delay-ms",
+        "9",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        serde_json::from_str::<Value>(&out).unwrap()["sync"],
+        json!({"policy": "event", "max_delay_ms": 9})
+    );
+    assert_eq!(cli(&["destroy", "ev"]).0, 0);
     let (code, _, err) = cli(&["create", "--formula", "p", "--domain", "UAV"]);
     assert_eq!(code, 2);
     assert_eq!(err.trim(), "dyknow: --domain UAV: expected NAME=a,b,...");

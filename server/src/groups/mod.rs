@@ -615,10 +615,21 @@ impl Groups {
         self.sync_targets()
     }
 
-    /// DestroyGroup: stops it, forgets it, releases targets no other group needs.
+    /// DestroyGroup: stops it (undecided formulas get their final `unknown`, as StopGroup
+    /// gives them: watchers see them before their stream ends), forgets it, releases targets
+    /// no other group needs.
     pub fn destroy(self: &Arc<Self>, label: &str) -> Result<(), GroupError> {
         let g = self.get(label)?;
         Self::stop_runner(&g);
+        {
+            let mut core = g.core();
+            if core.def.phase != Phase::Stopped {
+                core.def.phase = Phase::Stopped;
+                let finals = core.prog.finish();
+                self.publish(&g, &mut core, finals);
+            }
+            g.stopped.send_replace(true);
+        }
         self.map().remove(label);
         if let Some(s) = &self.store {
             s.remove(label).map_err(GroupError::Internal)?;
@@ -1037,7 +1048,7 @@ pub fn status(groups: &Groups, g: &Group) -> Json {
             "symbols": symbols,
             "states": core.prog.states(),
             "last_t": core.prog.last_t(),
-            "sync": core.def.sync,
+            "sync": core.def.sync.filled(),
             "domains": core.def.header.domains,
             "landmarks": core.def.header.landmarks,
             "static": core.def.header.static_regions,
