@@ -236,18 +236,7 @@ async fn acceptable(request: Request, next: Next) -> Response {
     if !response.status().is_success() {
         return response;
     }
-    let Some(media) = response
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .map(|v| {
-            v.split(';')
-                .next()
-                .unwrap_or("")
-                .trim()
-                .to_ascii_lowercase()
-        })
-    else {
+    let Some(media) = crate::negotiate::content_type(response.headers()) else {
         return response;
     };
     let mut asked = HeaderMap::new();

@@ -64,7 +64,8 @@ pub fn negotiate<'a>(headers: &HeaderMap, offers: &[&'a str]) -> Result<&'a str,
         .ok_or_else(|| ApiError::not_acceptable(offers))
 }
 
-/// The media type of the request body, without parameters, lower-cased.
+/// The media type of a message's body (a request's or an answer's), without parameters,
+/// lower-cased.
 pub fn content_type(headers: &HeaderMap) -> Option<String> {
     headers
         .get(header::CONTENT_TYPE)

@@ -213,6 +213,44 @@ mod tests {
     }
 
     #[test]
+    fn negotiated_reads_list_each_media_type() {
+        let doc = ApiDoc::openapi();
+        for (path, types) in [
+            ("/transformations", &["application/json", "text/turtle"][..]),
+            (
+                "/transformations/{label}",
+                &["application/json", "text/turtle"],
+            ),
+            ("/targets", &["application/json", "text/turtle"]),
+            ("/targets/{label}", &["application/json", "text/turtle"]),
+            (
+                "/model",
+                &[
+                    "text/turtle",
+                    "application/rdf+xml",
+                    "application/owl+xml",
+                    "text/owl-functional",
+                    "application/n-triples",
+                    "application/ld+json",
+                    "application/json",
+                ],
+            ),
+            (
+                "/changesets/{id}",
+                &["application/json", "application/n-triples", "text/turtle"],
+            ),
+        ] {
+            let get = doc.paths.paths[path].get.as_ref().expect("a GET");
+            let utoipa::openapi::RefOr::T(ok) = &get.responses.responses["200"] else {
+                panic!("{path}: 200 is a reference")
+            };
+            for t in types {
+                assert!(ok.content.contains_key(*t), "GET {path}: {t}");
+            }
+        }
+    }
+
+    #[test]
     fn every_read_lists_406() {
         let doc = ApiDoc::openapi();
         for (path, item) in &doc.paths.paths {

@@ -155,7 +155,10 @@ pub fn model_json(
 
 /// GetModel: negotiated by `Accept` or `?format=`.
 #[utoipa::path(get, path = "/model", tag = "model", params(ModelParams),
-    responses((status = 200, description = "the model in the negotiated format"),
+    responses((status = 200, description = "the model in the negotiated format",
+                content((String = "text/turtle"), (String = "application/rdf+xml"), (String = "application/owl+xml"),
+                        (String = "text/owl-functional"), (String = "application/n-triples"), (serde_json::Value = "application/ld+json"),
+                        (ModelJson = "application/json"))),
               (status = 400, body = ErrorBody), (status = 406, body = ErrorBody)))]
 pub async fn get_model(
     State(state): State<AppState>,

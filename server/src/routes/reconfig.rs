@@ -236,7 +236,9 @@ pub async fn list_change_sets(State(state): State<AppState>, Query(q): Query<Sin
 /// One change set; `Accept: application/n-triples` or `text/turtle` gives its RDF delta.
 #[utoipa::path(get, path = "/changesets/{id}", tag = "reconfiguration",
     params(("id" = String, Path, description = "cs-N")),
-    responses((status = 200, description = "change set JSON, or its delta as RDF"), (status = 404, body = crate::error::ErrorBody)))]
+    responses((status = 200, description = "change set JSON, or its delta as RDF (`docs/http-api.md`)",
+                content((serde_json::Value = "application/json"), (String = "application/n-triples"), (String = "text/turtle"))),
+              (status = 404, body = crate::error::ErrorBody)))]
 pub async fn get_change_set(
     State(state): State<AppState>,
     headers: HeaderMap,

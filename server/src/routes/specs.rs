@@ -377,7 +377,9 @@ pub async fn post_transformations(
 
 /// The transformation specs, sorted by label (`Accept: text/turtle` gives them as Turtle).
 #[utoipa::path(get, path = "/transformations", tag = "specs",
-    responses((status = 200, body = [TransformationJson]), (status = 406, body = ErrorBody)))]
+    responses((status = 200, description = "the specs; `Accept: text/turtle` gives them as Turtle",
+                content((Vec<TransformationJson> = "application/json"), (String = "text/turtle"))),
+              (status = 406, body = ErrorBody)))]
 pub async fn list_transformations(
     State(s): State<AppState>,
     h: HeaderMap,
@@ -388,7 +390,9 @@ pub async fn list_transformations(
 /// One transformation spec.
 #[utoipa::path(get, path = "/transformations/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
-    responses((status = 200, body = TransformationJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
+    responses((status = 200, description = "the spec; `Accept: text/turtle` gives it as Turtle",
+                content((TransformationJson = "application/json"), (String = "text/turtle"))),
+              (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
 pub async fn get_transformation(
     State(s): State<AppState>,
     h: HeaderMap,
@@ -424,7 +428,9 @@ pub async fn post_targets(
 
 /// The target specs, sorted by label.
 #[utoipa::path(get, path = "/targets", tag = "specs",
-    responses((status = 200, body = [TargetJson]), (status = 406, body = ErrorBody)))]
+    responses((status = 200, description = "the specs; `Accept: text/turtle` gives them as Turtle",
+                content((Vec<TargetJson> = "application/json"), (String = "text/turtle"))),
+              (status = 406, body = ErrorBody)))]
 pub async fn list_targets(State(s): State<AppState>, h: HeaderMap) -> Result<Response, ApiError> {
     list_specs(s, h, SpecKind::Target).await
 }
@@ -432,7 +438,9 @@ pub async fn list_targets(State(s): State<AppState>, h: HeaderMap) -> Result<Res
 /// One target spec.
 #[utoipa::path(get, path = "/targets/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
-    responses((status = 200, body = TargetJson), (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
+    responses((status = 200, description = "the spec; `Accept: text/turtle` gives it as Turtle",
+                content((TargetJson = "application/json"), (String = "text/turtle"))),
+              (status = 404, body = ErrorBody), (status = 406, body = ErrorBody)))]
 pub async fn get_target(
     State(s): State<AppState>,
     h: HeaderMap,
