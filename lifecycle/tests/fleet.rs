@@ -424,66 +424,49 @@ fn destroys_are_sent_after_every_executors_other_actions() {
         (dyknow_engine::Tid::from("t"), on_x),
         (dyknow_engine::Tid::from("u"), on_y),
     ]);
+    // Applies change set `n` of spawns (cu, transformation) and destroys; returns what the
+    // executors were sent, in order, as (executor, ["action cu", ...]).
+    let apply = |n: u64, spawns: &[(&str, &str)], destroys: &[&str]| {
+        log.lock().expect("the log").clear();
+        let actions = spawns
+            .iter()
+            .map(|(cu, t)| Action::Spawn {
+                cu: (*cu).into(),
+                transformation: (*t).into(),
+            })
+            .chain(
+                destroys
+                    .iter()
+                    .map(|cu| Action::Destroy { cu: (*cu).into() }),
+            )
+            .collect();
+        let applied = fleet.apply(&change_set(n, actions), &specs);
+        assert!(applied.failures.is_empty(), "{applied:?}");
+        log.lock().expect("the log").clone()
+    };
+    let sent = |requests: &[(&str, &[&str])]| -> Vec<(String, Vec<String>)> {
+        requests
+            .iter()
+            .map(|(e, a)| ((*e).to_owned(), a.iter().map(|s| (*s).to_owned()).collect()))
+            .collect()
+    };
     fleet.adopt("x", &[Cid::from("old")]);
-    let applied = fleet.apply(
-        &change_set(
-            1,
-            vec![
-                Action::Spawn {
-                    cu: "a".into(),
-                    transformation: "t".into(),
-                },
-                Action::Spawn {
-                    cu: "new".into(),
-                    transformation: "u".into(),
-                },
-                Action::Destroy { cu: "old".into() },
-            ],
-        ),
-        &specs,
-    );
-    assert!(applied.failures.is_empty(), "{applied:?}");
-    let sent = log.lock().expect("the log").clone();
     assert_eq!(
-        sent,
-        [
-            ("x".to_owned(), vec!["spawn a".to_owned()]),
-            ("y".to_owned(), vec!["spawn new".to_owned()]),
-            ("x".to_owned(), vec!["destroy old".to_owned()]),
-        ]
+        apply(1, &[("a", "t"), ("new", "u")], &["old"]),
+        sent(&[
+            ("x", &["spawn a"]),
+            ("y", &["spawn new"]),
+            ("x", &["destroy old"]),
+        ])
     );
     // The last executor's destroys ride with its other actions: one request each.
-    log.lock().expect("the log").clear();
     fleet.adopt("y", &[Cid::from("older")]);
-    let applied = fleet.apply(
-        &change_set(
-            2,
-            vec![
-                Action::Spawn {
-                    cu: "b".into(),
-                    transformation: "t".into(),
-                },
-                Action::Spawn {
-                    cu: "newer".into(),
-                    transformation: "u".into(),
-                },
-                Action::Destroy { cu: "a".into() },
-                Action::Destroy { cu: "older".into() },
-            ],
-        ),
-        &specs,
-    );
-    assert!(applied.failures.is_empty(), "{applied:?}");
-    let sent = log.lock().expect("the log").clone();
     assert_eq!(
-        sent,
-        [
-            ("x".to_owned(), vec!["spawn b".to_owned()]),
-            (
-                "y".to_owned(),
-                vec!["spawn newer".to_owned(), "destroy older".to_owned()]
-            ),
-            ("x".to_owned(), vec!["destroy a".to_owned()]),
-        ]
+        apply(2, &[("b", "t"), ("newer", "u")], &["a", "older"]),
+        sent(&[
+            ("x", &["spawn b"]),
+            ("y", &["spawn newer", "destroy older"]),
+            ("x", &["destroy a"]),
+        ])
     );
 }

@@ -223,18 +223,7 @@ mod tests {
             ),
             ("/targets", &["application/json", "text/turtle"]),
             ("/targets/{label}", &["application/json", "text/turtle"]),
-            (
-                "/model",
-                &[
-                    "text/turtle",
-                    "application/rdf+xml",
-                    "application/owl+xml",
-                    "text/owl-functional",
-                    "application/n-triples",
-                    "application/ld+json",
-                    "application/json",
-                ],
-            ),
+            ("/model", &crate::routes::model::OFFERS[..]),
             (
                 "/changesets/{id}",
                 &["application/json", "application/n-triples", "text/turtle"],

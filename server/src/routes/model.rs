@@ -81,7 +81,7 @@ pub struct ModelJson {
     pub channels: Vec<ChannelJson>,
 }
 
-const OFFERS: [&str; 7] = [
+pub(crate) const OFFERS: [&str; 7] = [
     "text/turtle",
     "application/rdf+xml",
     "application/owl+xml",
