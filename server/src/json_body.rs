@@ -47,24 +47,28 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
                 ApiError::new(e.status(), e.body_text())
             }
         })?;
-        let value: Value = serde_json::from_slice(&body).map_err(|e| {
-            ApiError::bad_request(format!("the body is not JSON: {e}")).with_details(vec![
-                // serde_json counts columns from 1, but says 0 for an error before the first
-                // character (an empty body): positions here are 1-based.
-                json!({"line": e.line().max(1), "column": e.column().max(1), "message": e.to_string()}),
-            ])
-        })?;
+        let value: Value = serde_json::from_slice(&body)
+            .map_err(|e| at(&e, format!("the body is not JSON: {e}")))?;
         if !value.is_object() {
             return Err(ApiError::bad_request(
                 "the body must be a JSON object (see /openapi.json)",
             ));
         }
-        serde_json::from_value(value).map(Self).map_err(|e| {
-            ApiError::bad_request(format!(
-                "Failed to deserialize the JSON body into the target type: {e}"
-            ))
-        })
+        // Read again from the text, not the value: a field of the wrong type or an unknown
+        // one is then named with its line and column too.
+        serde_json::from_slice(&body)
+            .map(Self)
+            .map_err(|e| at(&e, format!("the body does not fit: {e}")))
     }
+}
+
+/// A 400 whose `details` give where in the body `e` is.
+fn at(e: &serde_json::Error, message: String) -> ApiError {
+    ApiError::bad_request(message).with_details(vec![
+        // serde_json counts columns from 1, but says 0 for an error before the first
+        // character (an empty body): positions here are 1-based.
+        json!({"line": e.line().max(1), "column": e.column().max(1), "message": e.to_string()}),
+    ])
 }
 
 #[cfg(test)]
@@ -170,5 +174,27 @@ mod tests {
             ),
             (Some(1), Some(1))
         );
+        // A field of the wrong type, or one the body may not have: where it is.
+        for (body, line) in [
+            ("{\n  \"name\": 7\n}", 2),
+            ("{\"name\": \"a\",\n\n \"x\": 1}", 3),
+        ] {
+            let request = Request::builder()
+                .method("POST")
+                .uri("/")
+                .header("content-type", "application/json")
+                .body(Body::from(body))
+                .unwrap();
+            let e = JsonBody::<Shape>::from_request(request, &())
+                .await
+                .unwrap_err();
+            assert_eq!(e.status, StatusCode::BAD_REQUEST);
+            assert!(
+                e.message.starts_with("the body does not fit: "),
+                "{}",
+                e.message
+            );
+            assert_eq!(e.details[0]["line"].as_u64(), Some(line), "{body}: {e:?}");
+        }
     }
 }
