@@ -769,16 +769,7 @@ impl Executor for Fleet {
                 running.remove(cu);
             }
         }
-        let mut orphans: BTreeMap<String, Vec<Cid>> = BTreeMap::new();
-        for failure in &failures {
-            running.remove(&failure.cu);
-            if let Some(executor) = placement.remove(&failure.cu) {
-                orphans
-                    .entry(executor)
-                    .or_default()
-                    .push(failure.cu.clone());
-            }
-        }
+        let orphans = forget(&mut placement, &mut running, failures.iter().map(|f| &f.cu));
         // Acknowledged: a spawned CU runs once its executor answered (it waits for it).
         for (cu, outcome) in &cus {
             if outcome.state == CuOutcomeState::Running
@@ -798,17 +789,11 @@ impl Executor for Fleet {
     }
 
     fn abandon(&self, cus: &[Cid]) {
-        let mut orphans: BTreeMap<String, Vec<Cid>> = BTreeMap::new();
-        {
-            let mut placement = lock(&self.inner.placement);
-            let mut running = lock(&self.inner.running);
-            for cu in cus {
-                running.remove(cu);
-                if let Some(executor) = placement.remove(cu) {
-                    orphans.entry(executor).or_default().push(cu.clone());
-                }
-            }
-        }
+        let orphans = forget(
+            &mut lock(&self.inner.placement),
+            &mut lock(&self.inner.running),
+            cus,
+        );
         Inner::stop_in_background(&self.inner, orphans, 0);
     }
 
@@ -907,6 +892,22 @@ impl Executor for Fleet {
         }
         views
     }
+}
+
+/// Forgets where `cus` run: those that were placed, by executor (to be stopped there).
+fn forget<'a>(
+    placement: &mut BTreeMap<Cid, String>,
+    running: &mut BTreeSet<Cid>,
+    cus: impl IntoIterator<Item = &'a Cid>,
+) -> BTreeMap<String, Vec<Cid>> {
+    let mut orphans: BTreeMap<String, Vec<Cid>> = BTreeMap::new();
+    for cu in cus {
+        running.remove(cu);
+        if let Some(executor) = placement.remove(cu) {
+            orphans.entry(executor).or_default().push(cu.clone());
+        }
+    }
+    orphans
 }
 
 /// The CU an executor's event is about.

@@ -98,26 +98,6 @@ impl IntoResponse for ApiError {
     }
 }
 
-/// A JSON body axum could not read: 415 when it is not declared as JSON (`application/json`
-/// or `application/*+json`), 413 when it is larger than `--max-body`, otherwise 400 (not JSON,
-/// or not the expected shape: a missing or unknown field).
-impl From<axum::extract::rejection::JsonRejection> for ApiError {
-    fn from(e: axum::extract::rejection::JsonRejection) -> Self {
-        use axum::extract::rejection::JsonRejection;
-        match e {
-            JsonRejection::MissingJsonContentType(_) => Self::new(
-                StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "the body must be declared as JSON: use Content-Type application/json",
-            ),
-            e if e.status() == StatusCode::PAYLOAD_TOO_LARGE => Self::new(
-                StatusCode::PAYLOAD_TOO_LARGE,
-                "the request body is larger than the server accepts",
-            ),
-            e => Self::bad_request(e.body_text()),
-        }
-    }
-}
-
 impl From<IngestError> for ApiError {
     fn from(e: IngestError) -> Self {
         match e {

@@ -62,8 +62,9 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
     }
 }
 
-/// A 400 whose `details` give where in the body `e` is.
-fn at(e: &serde_json::Error, message: String) -> ApiError {
+/// A 400 whose `details` give where in the body `e` is (1-based, as the contract's syntax
+/// errors are).
+pub(crate) fn at(e: &serde_json::Error, message: String) -> ApiError {
     ApiError::bad_request(message).with_details(vec![
         // serde_json counts columns from 1, but says 0 for an error before the first
         // character (an empty body): positions here are 1-based.

@@ -602,17 +602,27 @@ impl Groups {
         Self::stop_runner(&g);
         {
             let mut core = g.core();
-            if core.def.phase == Phase::Stopped {
+            if !self.end(&g, &mut core) {
                 return Ok(());
             }
-            core.def.phase = Phase::Stopped;
-            let finals = core.prog.finish();
-            self.publish(&g, &mut core, finals);
-            g.stopped.send_replace(true);
             core.writer.sync();
             self.persist(&core)?;
         }
         self.sync_targets()
+    }
+
+    /// Ends a group's progression for good (its runner stopped): undecided formulas get their
+    /// final `unknown`, published before watchers are told it stopped. Whether it was not
+    /// stopped already.
+    fn end(&self, g: &Group, core: &mut Core) -> bool {
+        let ended = core.def.phase != Phase::Stopped;
+        if ended {
+            core.def.phase = Phase::Stopped;
+            let finals = core.prog.finish();
+            self.publish(g, core, finals);
+        }
+        g.stopped.send_replace(true);
+        ended
     }
 
     /// DestroyGroup: stops it (undecided formulas get their final `unknown`, as StopGroup
@@ -621,15 +631,7 @@ impl Groups {
     pub fn destroy(self: &Arc<Self>, label: &str) -> Result<(), GroupError> {
         let g = self.get(label)?;
         Self::stop_runner(&g);
-        {
-            let mut core = g.core();
-            if core.def.phase != Phase::Stopped {
-                core.def.phase = Phase::Stopped;
-                let finals = core.prog.finish();
-                self.publish(&g, &mut core, finals);
-            }
-            g.stopped.send_replace(true);
-        }
+        self.end(&g, &mut g.core());
         self.map().remove(label);
         if let Some(s) = &self.store {
             s.remove(label).map_err(GroupError::Internal)?;

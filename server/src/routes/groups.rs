@@ -80,13 +80,8 @@ fn json_body<T: serde::de::DeserializeOwned>(
             &["application/json"],
         ));
     }
-    let value: Value = serde_json::from_slice(body).map_err(|e| {
-        ApiError::bad_request(format!("the body is not JSON: {e}")).with_details(vec![
-            // serde_json counts columns from 1, but says 0 for an error before the first
-            // character (an empty body): positions here are 1-based.
-            json!({"line": e.line().max(1), "column": e.column().max(1), "message": e.to_string()}),
-        ])
-    })?;
+    let value: Value = serde_json::from_slice(body)
+        .map_err(|e| crate::json_body::at(&e, format!("the body is not JSON: {e}")))?;
     // serde reads a JSON array as a struct, field by field: refuse it.
     if !value.is_object() {
         return Err(ApiError::new(
