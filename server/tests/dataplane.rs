@@ -363,14 +363,18 @@ fn an_executor_that_vanishes_mid_change_set_fails_it_and_its_cus_count_as_crashe
     wait_for_line(&mut executor, "connected to");
     let mut executor = Killed(executor);
     out.next();
-    let hosted: Vec<String> = service
-        .get("/cus")
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["name"].as_str().unwrap().to_owned())
-        .collect();
-    assert_eq!(hosted.len(), 2);
+    // The stream flows as soon as the executor has started the CUs; the model lists them once
+    // the manager has heard the executor's answer, a moment later.
+    let hosted: Vec<String> = eventually("both CUs in the model", Duration::from_secs(30), || {
+        let cus = service.get("/cus");
+        let names: Vec<String> = cus
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["name"].as_str().unwrap().to_owned())
+            .collect();
+        (names.len() == 2).then_some(names)
+    });
 
     // The change set spawning `mute` is under way: the executor has started `sleep`.
     service.post("/targets", &target("muted", "/muted", "Muted"));
