@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs DyKnow's benchmarks with their peers side by side (docs/benchmarks.md).
 #   benches/run.sh             every benchmark
-#   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`
+#   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`; the SPARQL guard's cost
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments against an exact MILP peer (HiGHS); eight seeds of each)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
@@ -44,6 +44,8 @@ dist_binary() {
 case "$which" in all|knowledge|load) dist_binary ;; esac
 if [ "$which" = all ] || [ "$which" = knowledge ]; then
   cargo bench --locked --workspace --bench knowledge_service
+  # The cost of the SPARQL cancellation guard, in process (no peer: oxigraph's own evaluator).
+  cargo bench --locked --workspace --bench sparql_guard
 fi
 if [ "$which" = all ] || [ "$which" = reasoning ]; then
   cargo bench --locked --workspace --bench reasoning

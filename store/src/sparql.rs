@@ -5,10 +5,12 @@ use std::io::Write;
 
 use oxigraph::io::{RdfFormat, RdfSerializer};
 use oxigraph::sparql::results::{QueryResultsFormat, QueryResultsSerializer};
-use oxigraph::sparql::{CancellationToken, QueryEvaluationError, QueryResults, SparqlEvaluator};
+use oxigraph::sparql::{CancellationToken, QueryEvaluationError, QueryResults};
 
 use crate::error::{SparqlQueryError, SyntaxErrorDetail};
 use crate::knowledge_base::KnowledgeBase;
+
+mod guard;
 
 /// The form of a query, which decides the result formats on offer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -345,9 +347,7 @@ impl ParsedQuery {
                     }
                     _ => QueryForm::Solutions,
                 };
-                let mut prepared = SparqlEvaluator::new()
-                    .with_cancellation_token(cancel.clone())
-                    .for_query(algebra);
+                let mut prepared = guard::prepare(query, algebra, &cancel);
                 if prepared.dataset().is_default_dataset() {
                     prepared.dataset_mut().set_default_graph_as_union();
                 }
@@ -454,57 +454,73 @@ impl KnowledgeBase {
             }
             other => SparqlQueryError::Evaluation(other.to_string()),
         };
-        let results = query
-            .prepared
-            .on_store(self.store())
-            .execute()
-            .map_err(map)?;
-        let io = |e: std::io::Error| SparqlQueryError::Evaluation(e.to_string());
-        let mut body = Vec::new();
-        let media_type = match (results, format) {
-            (QueryResults::Boolean(value), ResultFormat::Results(f)) => {
-                QueryResultsSerializer::from_format(f)
-                    .serialize_boolean_to_writer(&mut body, value)
-                    .map_err(io)?;
-                f.media_type()
-            }
-            (QueryResults::Solutions(solutions), ResultFormat::Results(f)) => {
-                let mut serializer = QueryResultsSerializer::from_format(f)
-                    .serialize_solutions_to_writer(&mut body, solutions.variables().to_vec())
-                    .map_err(io)?;
-                for solution in solutions {
-                    serializer.serialize(&solution.map_err(map)?).map_err(io)?;
-                }
-                serializer.finish().map_err(io)?;
-                f.media_type()
-            }
-            (QueryResults::Graph(triples), ResultFormat::Rdf(f)) => {
-                let mut serializer = prefixed(RdfSerializer::from_format(f)).for_writer(&mut body);
-                for triple in triples {
-                    serializer
-                        .serialize_triple(&triple.map_err(map)?)
-                        .map_err(io)?;
-                }
-                serializer.finish().map_err(io)?;
-                f.media_type()
-            }
-            (QueryResults::Graph(_), ResultFormat::Results(_)) => {
-                return Err(SparqlQueryError::UnsupportedFormat(
-                    "CONSTRUCT and DESCRIBE answer in an RDF format".into(),
-                ));
-            }
-            (_, ResultFormat::Rdf(_)) => {
-                return Err(SparqlQueryError::UnsupportedFormat(
-                    "SELECT and ASK answer in a SPARQL results format".into(),
-                ));
-            }
-        };
+        // Evaluation (serialisation included: solutions are computed as they are written)
+        // happens inside `guard::evaluate`, which turns an evaluation the guard unwinds into a
+        // timeout.
+        let (media_type, mut body) = guard::evaluate(timeout, || {
+            let results = query
+                .prepared
+                .on_store(self.store())
+                .execute()
+                .map_err(map)?;
+            serialize(results, format, map)
+        })?;
         if cancel.is_cancelled() {
             return Err(SparqlQueryError::Timeout(timeout));
         }
-        body.flush().map_err(io)?;
+        body.flush()
+            .map_err(|e| SparqlQueryError::Evaluation(e.to_string()))?;
         Ok(QueryAnswer { media_type, body })
     }
+}
+
+/// Writes `results` in `format`; `map` reports evaluation errors met on the way.
+fn serialize(
+    results: QueryResults<'_>,
+    format: ResultFormat,
+    map: impl Fn(QueryEvaluationError) -> SparqlQueryError + Copy,
+) -> Result<(&'static str, Vec<u8>), SparqlQueryError> {
+    let io = |e: std::io::Error| SparqlQueryError::Evaluation(e.to_string());
+    let mut body = Vec::new();
+    let media_type = match (results, format) {
+        (QueryResults::Boolean(value), ResultFormat::Results(f)) => {
+            QueryResultsSerializer::from_format(f)
+                .serialize_boolean_to_writer(&mut body, value)
+                .map_err(io)?;
+            f.media_type()
+        }
+        (QueryResults::Solutions(solutions), ResultFormat::Results(f)) => {
+            let mut serializer = QueryResultsSerializer::from_format(f)
+                .serialize_solutions_to_writer(&mut body, solutions.variables().to_vec())
+                .map_err(io)?;
+            for solution in solutions {
+                serializer.serialize(&solution.map_err(map)?).map_err(io)?;
+            }
+            serializer.finish().map_err(io)?;
+            f.media_type()
+        }
+        (QueryResults::Graph(triples), ResultFormat::Rdf(f)) => {
+            let mut serializer = prefixed(RdfSerializer::from_format(f)).for_writer(&mut body);
+            for triple in triples {
+                serializer
+                    .serialize_triple(&triple.map_err(map)?)
+                    .map_err(io)?;
+            }
+            serializer.finish().map_err(io)?;
+            f.media_type()
+        }
+        (QueryResults::Graph(_), ResultFormat::Results(_)) => {
+            return Err(SparqlQueryError::UnsupportedFormat(
+                "CONSTRUCT and DESCRIBE answer in an RDF format".into(),
+            ));
+        }
+        (_, ResultFormat::Rdf(_)) => {
+            return Err(SparqlQueryError::UnsupportedFormat(
+                "SELECT and ASK answer in a SPARQL results format".into(),
+            ));
+        }
+    };
+    Ok((media_type, body))
 }
 
 /// Adds the DyKnow prefixes to a serializer (ignored by formats without prefixes).

@@ -1772,6 +1772,183 @@ fn sparql_formats_must_fit_the_query_form() {
     );
 }
 
+/// What a query answers, run as the service runs it (guarded, `ParsedQuery`) or as oxigraph
+/// runs it unchanged: TSV rows, sorted unless the query orders them.
+fn answer_rows(kb: &KnowledgeBase, query: &str, guarded: bool) -> Vec<String> {
+    use dyknow_store::oxigraph::sparql::{QueryResults, SparqlEvaluator};
+    let (body, graph) = if guarded {
+        let parsed = ParsedQuery::parse(query).expect("parses");
+        let graph = parsed.form() == dyknow_store::QueryForm::Graph;
+        let format = if graph {
+            ResultFormat::Rdf(RdfFormat::NTriples)
+        } else {
+            ResultFormat::Results(QueryResultsFormat::Tsv)
+        };
+        let answer = kb
+            .run_query(parsed, format, Duration::from_secs(60))
+            .expect("runs");
+        (answer.body, graph)
+    } else {
+        let mut prepared = SparqlEvaluator::new().parse_query(query).expect("parses");
+        prepared.dataset_mut().set_default_graph_as_union();
+        let mut body = Vec::new();
+        let graph = match prepared.on_store(kb.store()).execute().expect("runs") {
+            QueryResults::Solutions(solutions) => {
+                let mut w =
+                    dyknow_store::oxigraph::sparql::results::QueryResultsSerializer::from_format(
+                        QueryResultsFormat::Tsv,
+                    )
+                    .serialize_solutions_to_writer(&mut body, solutions.variables().to_vec())
+                    .unwrap();
+                for s in solutions {
+                    w.serialize(&s.unwrap()).unwrap();
+                }
+                w.finish().unwrap();
+                false
+            }
+            QueryResults::Boolean(b) => {
+                dyknow_store::oxigraph::sparql::results::QueryResultsSerializer::from_format(
+                    QueryResultsFormat::Tsv,
+                )
+                .serialize_boolean_to_writer(&mut body, b)
+                .unwrap();
+                false
+            }
+            QueryResults::Graph(triples) => {
+                for t in triples {
+                    body.extend_from_slice(format!("{} .\n", t.unwrap()).as_bytes());
+                }
+                true
+            }
+        };
+        (body, graph)
+    };
+    let text = String::from_utf8(body).expect("UTF-8");
+    let mut rows: Vec<String> = text.lines().map(str::to_owned).collect();
+    if graph || !query.contains("ORDER BY") {
+        rows.sort();
+    }
+    rows
+}
+
+/// The cancellation guard (`store/src/sparql/guard.rs`) rewrites every query: differential
+/// test against oxigraph running the query unchanged, over the query shapes the guard treats
+/// differently (solution modifiers, sub-SELECTs, GROUP BY, OPTIONAL, UNION, MINUS, EXISTS,
+/// BIND, VALUES, paths, GRAPH, the four forms) on the ontology and Example 12.
+#[test]
+fn the_cancellation_guard_changes_no_answer() {
+    let kb = seeded();
+    post_tf(&kb, EXAMPLE_12).expect("Example 12");
+    post_tg(&kb, EXAMPLE_12_TARGETS).expect("Example 12 targets");
+    let p = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#>
+PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#>
+PREFIX owl: <http://www.w3.org/2002/07/owl#>
+";
+    let queries = [
+        "SELECT * WHERE { ?s ?p ?o }",
+        "SELECT ?t ?l WHERE { ?t a dyknow:Transformation ; rdfs:label ?l }",
+        "SELECT ?c ?l WHERE { ?c a owl:Class OPTIONAL { ?c rdfs:label ?l } }",
+        "SELECT ?c ?l WHERE { ?c a owl:Class OPTIONAL { ?c rdfs:comment ?l FILTER(STRLEN(?l) > 40) } }",
+        "SELECT ?x WHERE { { ?x a owl:Class } UNION { ?x a owl:ObjectProperty } }",
+        "SELECT ?x WHERE { ?x a owl:Class MINUS { ?x rdfs:subClassOf ?y } }",
+        "SELECT ?x ?n WHERE { ?x rdfs:label ?l BIND(STRLEN(?l) AS ?n) FILTER(?n > 5) }",
+        "SELECT ?p (COUNT(*) AS ?n) WHERE { ?s ?p ?o } GROUP BY ?p HAVING (COUNT(*) > 2) ORDER BY DESC(?n) ?p LIMIT 7 OFFSET 1",
+        "SELECT ?p (SAMPLE(?o) AS ?any) (MIN(?o) AS ?lo) (GROUP_CONCAT(STR(?o); SEPARATOR=\"|\") AS ?all) WHERE { ?s ?p ?o FILTER(isLiteral(?o)) } GROUP BY ?p ORDER BY ?p",
+        "SELECT (COUNT(*) AS ?n) WHERE { ?s ?p ?o }",
+        "SELECT (COUNT(DISTINCT ?s) AS ?n) WHERE { ?s ?p ?o }",
+        "SELECT ?s ?l WHERE { ?s rdfs:label ?l { SELECT ?s WHERE { ?s a dyknow:Transformation } ORDER BY ?s LIMIT 3 } }",
+        "SELECT ?s ?n WHERE { { SELECT ?s (COUNT(?p) AS ?n) WHERE { ?s ?p ?o } GROUP BY ?s } FILTER(?n > 3) }",
+        "SELECT ?c WHERE { VALUES ?c { owl:Class owl:Thing dyknow:Transformation } ?c ?p ?o }",
+        "SELECT ?a ?b WHERE { ?a rdfs:subClassOf* ?b }",
+        "SELECT ?a WHERE { ?a rdfs:subClassOf+ dyknow:Transformation }",
+        "SELECT ?x WHERE { ?x a owl:Class FILTER EXISTS { ?x rdfs:comment ?c } }",
+        "SELECT ?x WHERE { ?x a owl:Class FILTER NOT EXISTS { ?y rdfs:subClassOf ?x } }",
+        "SELECT DISTINCT ?p WHERE { ?s ?p ?o }",
+        "SELECT REDUCED ?p WHERE { ?s ?p ?o }",
+        "SELECT ?g (COUNT(*) AS ?n) WHERE { GRAPH ?g { ?s ?p ?o } } GROUP BY ?g",
+        "SELECT (COUNT(*) AS ?n) WHERE { ?a a dyknow:Transformation . ?b a dyknow:Target }",
+        "SELECT ?l WHERE { ?t rdfs:label ?l } ORDER BY DESC(?l) LIMIT 5",
+        "SELECT (STRLEN(?l) AS ?n) WHERE { ?t rdfs:label ?l } ORDER BY ?n ?l",
+        "SELECT * WHERE { ?t a dyknow:Transformation OPTIONAL { ?t dyknow:hasInPort ?i OPTIONAL { ?i dyknow:hasName ?n } } }",
+        "SELECT * WHERE { }",
+        "SELECT * WHERE { VALUES ?x { 1 2 3 } }",
+        "ASK { ?t a dyknow:Transformation }",
+        "ASK { <urn:nothing> ?p ?o }",
+        "ASK { dyknow:Transformation a owl:Class }",
+        "CONSTRUCT { ?t rdfs:label ?l } WHERE { ?t a dyknow:Transformation ; rdfs:label ?l }",
+        "CONSTRUCT WHERE { ?s a owl:ObjectProperty }",
+        "CONSTRUCT { ?s ?p ?o } WHERE { ?s ?p ?o } ORDER BY ?s LIMIT 10",
+        "DESCRIBE dyknow:Transformation",
+        "DESCRIBE ?t WHERE { ?t a dyknow:Target }",
+    ];
+    for q in queries {
+        let query = format!("{p}{q}");
+        let guarded = answer_rows(&kb, &query, true);
+        let plain = answer_rows(&kb, &query, false);
+        assert_eq!(guarded, plain, "{q}");
+    }
+    // The comparison compares something: the corpus has answers.
+    let n = answer_rows(&kb, &format!("{p}{}", queries[0]), true).len();
+    assert!(n > 500, "{n}");
+    // The guard's function is `true` for a query that calls it itself.
+    assert_eq!(
+        answer_rows(
+            &kb,
+            &format!(
+                "{p}SELECT ?x WHERE {{ ?x a owl:Class . ?x ?q ?y FILTER(<urn:dyknow:sparql:alive>()) }}"
+            ),
+            true
+        ),
+        answer_rows(
+            &kb,
+            &format!("{p}SELECT ?x WHERE {{ ?x a owl:Class . ?x ?q ?y }}"),
+            false
+        )
+    );
+}
+
+/// A query whose work is in combining what it read, not in reading, is cancelled at once when
+/// its token is: the guard checks once per solution. Oxigraph alone checks where it reads quads:
+/// this 4-way cartesian product over 709 triples went on for seconds after its cancellation.
+#[test]
+fn a_cartesian_product_is_cancelled_promptly() {
+    let kb = seeded();
+    post_tf(&kb, EXAMPLE_12).expect("Example 12");
+    let query = "PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#>
+        SELECT (COUNT(*) AS ?n) WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i . ?j ?k ?l }";
+    for format in [
+        ResultFormat::Results(QueryResultsFormat::Json),
+        ResultFormat::Results(QueryResultsFormat::Csv),
+    ] {
+        let parsed = ParsedQuery::parse(query).expect("parses");
+        let token = parsed.cancellation_token();
+        let started = std::time::Instant::now();
+        let canceller = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            token.cancel();
+            std::time::Instant::now()
+        });
+        let result = kb.run_query(parsed, format, Duration::from_millis(300));
+        let returned = std::time::Instant::now();
+        let cancelled = canceller.join().unwrap();
+        match result {
+            Err(SparqlQueryError::Timeout(d)) => assert_eq!(d, Duration::from_millis(300)),
+            other => panic!(
+                "expected a timeout after {:?}, got {:?}",
+                started.elapsed(),
+                other.map(|a| String::from_utf8_lossy(&a.body).into_owned())
+            ),
+        }
+        let late = returned.saturating_duration_since(cancelled);
+        assert!(
+            late < Duration::from_secs(3),
+            "the query ran on {late:?} after it was cancelled"
+        );
+    }
+    // The panic the guard unwinds with does not poison anything: the store answers on.
+    assert!(!select(&kb, "SELECT ?s WHERE { ?s ?p ?o } LIMIT 1").is_empty());
+}
+
 #[test]
 fn a_cancelled_query_reports_a_timeout() {
     let kb = seeded();
@@ -2430,4 +2607,124 @@ fn rejects_a_channel_name_that_is_not_a_key_expression() {
    dyknow:hasChannel [ dyknow:hasChannelName "/ball/position" ] ; dyknow:hasTag [ dyknow:hasValue "T" ] ."#),
     )
     .expect("a key expression is fine");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Property: the cancellation guard changes no answer (generated queries)
+// ---------------------------------------------------------------------------------------------
+
+mod guarded_queries {
+    use super::*;
+    use proptest::prelude::*;
+    use proptest::sample::select;
+    use std::sync::OnceLock;
+
+    fn shared() -> &'static KnowledgeBase {
+        static KB: OnceLock<KnowledgeBase> = OnceLock::new();
+        KB.get_or_init(|| {
+            let kb = seeded();
+            post_tf(&kb, EXAMPLE_12).expect("Example 12");
+            post_tg(&kb, EXAMPLE_12_TARGETS).expect("Example 12 targets");
+            kb
+        })
+    }
+
+    const PREDICATES: [&str; 9] = [
+        "a",
+        "rdfs:label",
+        "rdfs:comment",
+        "rdfs:subClassOf",
+        "dyknow:hasInPort",
+        "dyknow:hasOutPort",
+        "dyknow:hasTag",
+        "dyknow:hasValue",
+        "dyknow:hasName",
+    ];
+    const OBJECTS: [&str; 3] = ["owl:Class", "dyknow:Transformation", "dyknow:Target"];
+
+    /// A connected BGP: each triple's subject is a variable an earlier triple bound, so no
+    /// cartesian product makes the test slow.
+    fn bgp(first: &'static str) -> impl Strategy<Value = String> {
+        proptest::collection::vec(
+            (
+                0usize..8,
+                select(&PREDICATES[..]),
+                prop_oneof![3 => Just(None), 1 => select(&OBJECTS[..]).prop_map(Some)],
+            ),
+            1..4,
+        )
+        .prop_map(move |triples| {
+            let mut bound = vec![first.to_owned()];
+            let mut out = Vec::new();
+            for (i, (s, p, o)) in triples.into_iter().enumerate() {
+                let subject = bound[s % bound.len()].clone();
+                let object = match o {
+                    Some(c) => c.to_owned(),
+                    None => {
+                        let v = format!("{first}{i}");
+                        bound.push(v.clone());
+                        v
+                    }
+                };
+                out.push(format!("{subject} {p} {object}"));
+            }
+            out.join(" . ")
+        })
+    }
+
+    fn pattern() -> impl Strategy<Value = String> {
+        (
+            bgp("?a"),
+            prop_oneof![
+                Just(String::new()),
+                bgp("?a").prop_map(|b| format!("OPTIONAL {{ {b} }}")),
+                bgp("?a").prop_map(|b| format!("MINUS {{ {b} }}")),
+                Just("FILTER(isIRI(?a))".to_owned()),
+                Just("BIND(STR(?a) AS ?z)".to_owned()),
+                Just("VALUES ?a { dyknow:Transformation owl:Class }".to_owned()),
+                bgp("?a").prop_map(|b| format!("FILTER EXISTS {{ {b} }}")),
+            ],
+            prop_oneof![Just(None), bgp("?a").prop_map(Some)],
+        )
+            .prop_map(|(main, extra, union)| match union {
+                Some(other) => format!("{{ {main} {extra} }} UNION {{ {other} }}"),
+                None => format!("{main} {extra}"),
+            })
+    }
+
+    fn query() -> impl Strategy<Value = String> {
+        (pattern(), 0usize..7).prop_map(|(p, form)| match form {
+            0 => format!("SELECT * WHERE {{ {p} }}"),
+            1 => format!("SELECT DISTINCT ?a WHERE {{ {p} }}"),
+            2 => format!("SELECT (COUNT(*) AS ?n) WHERE {{ {p} }}"),
+            3 => format!("SELECT ?a (COUNT(*) AS ?n) WHERE {{ {p} }} GROUP BY ?a"),
+            4 => format!("SELECT * WHERE {{ {p} }} ORDER BY ?a"),
+            5 => format!("ASK {{ {p} }}"),
+            _ => format!("SELECT ?a WHERE {{ ?a ?q ?r {{ SELECT DISTINCT ?a WHERE {{ {p} }} }} }}"),
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig {
+            cases: std::env::var("PROPTEST_CASES").ok().and_then(|n| n.parse().ok()).unwrap_or(128),
+            ..ProptestConfig::default()
+        })]
+
+        /// Rows are compared as multisets: ties of `ORDER BY ?a` may come in either order.
+        #[test]
+        fn a_guarded_query_answers_as_oxigraph_does(q in query()) {
+            let kb = shared();
+            let text = format!(
+                "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#>
+PREFIX rdfs: <http://www.w3.org/2000/01/rdf-schema#>
+PREFIX owl: <http://www.w3.org/2002/07/owl#>
+{q}"
+            );
+            let mut guarded = answer_rows(kb, &text, true);
+            let mut plain = answer_rows(kb, &text, false);
+            guarded.sort();
+            plain.sort();
+            prop_assert_eq!(guarded, plain, "{}", q);
+        }
+    }
 }

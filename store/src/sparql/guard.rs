@@ -1,0 +1,350 @@
+//! Cancellation where oxigraph does not look for it.
+//!
+//! Oxigraph's evaluator checks a query's [`CancellationToken`] where it reads quads and
+//! internalises terms. A query whose work is in combining what it has read (a cartesian
+//! product, a join whose filter rejects nearly everything, the solutions an `ORDER BY` sorts)
+//! reads little and runs on: with a 1 s timeout a 4-way cartesian `COUNT(*)` over a few hundred
+//! triples ran for 15 s, holding a store turn and a core all along.
+//!
+//! So every query is rewritten before it runs: below its solution modifiers, and inside every
+//! sub-`SELECT` and `GROUP BY`, its pattern is wrapped in
+//! `FILTER(IF(<urn:dyknow:sparql:alive>(), true, COALESCE(?v1, …)))`, with `?v1, …` its
+//! in-scope variables; a pattern that reads a quad per solution (one triple pattern) is left as
+//! it is, oxigraph's own check suffices. `alive()` is a custom function that returns `true`
+//! while the token lives and, once it is cancelled, unwinds the evaluation with the
+//! [`Cancelled`] payload, which [`evaluate`] turns into [`SparqlQueryError::Timeout`]. The
+//! filter keeps every solution
+//! (`IF` never evaluates its `else` branch when the condition is `true`), so the answer is the
+//! same; the `else` branch is there for the optimiser: a filter that mentions every variable
+//! of the pattern cannot be pushed below its top join, so it runs once per solution the
+//! pattern produces, not once per solution of one of its parts. The cost is one function call
+//! per solution (`docs/benchmarks.md`, "SPARQL cancellation").
+//!
+//! A panic is the one way out of oxigraph's evaluator that a custom function has: its result
+//! is only ever a term or an error that SPARQL turns into "false". It unwinds only the
+//! evaluator's frames (iterators over a snapshot, dropped on the way), and its message is kept
+//! off stderr by a panic hook that lets every other panic through.
+
+use std::collections::HashSet;
+use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
+use std::sync::Once;
+use std::time::Duration;
+
+use oxigraph::model::{Literal, NamedNode, Term};
+use oxigraph::sparql::{CancellationToken, PreparedSparqlQuery, SparqlEvaluator};
+use spargebra::algebra::{Expression, Function, GraphPattern};
+
+use crate::error::SparqlQueryError;
+
+/// The custom function the guard calls once per solution.
+pub(crate) const ALIVE: &str = "urn:dyknow:sparql:alive";
+
+/// The payload a cancelled evaluation unwinds with.
+struct Cancelled;
+
+/// `query` (whose text is `text`) guarded, ready to run with `token`. `alive()` is registered
+/// where it may be called (a guarded query, or one whose text names it): a query the guard
+/// leaves alone runs as oxigraph alone would run it.
+pub(crate) fn prepare(
+    text: &str,
+    query: spargebra::Query,
+    token: &CancellationToken,
+) -> PreparedSparqlQuery {
+    let (query, guarded) = guard_query(query);
+    let evaluator = if guarded || text.contains("alive") {
+        evaluator(token)
+    } else {
+        SparqlEvaluator::new().with_cancellation_token(token.clone())
+    };
+    evaluator.for_query(query)
+}
+
+/// `query` with its patterns guarded (see the module's documentation), and whether any was.
+fn guard_query(mut query: spargebra::Query) -> (spargebra::Query, bool) {
+    let pattern = match &mut query {
+        spargebra::Query::Select { pattern, .. }
+        | spargebra::Query::Construct { pattern, .. }
+        | spargebra::Query::Describe { pattern, .. }
+        | spargebra::Query::Ask { pattern, .. } => pattern,
+    };
+    let taken = std::mem::replace(
+        pattern,
+        GraphPattern::Bgp {
+            patterns: Vec::new(),
+        },
+    );
+    let mut guarded = false;
+    *pattern = guard(walk(taken, &mut guarded), &mut guarded);
+    (query, guarded)
+}
+
+/// An evaluator that answers `alive()` for `token`.
+fn evaluator(token: &CancellationToken) -> SparqlEvaluator {
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !info.payload().is::<Cancelled>() {
+                previous(info);
+            }
+        }));
+    });
+    let token = token.clone();
+    SparqlEvaluator::new()
+        .with_cancellation_token(token.clone())
+        .with_custom_function(NamedNode::new_unchecked(ALIVE), move |_| {
+            if token.is_cancelled() {
+                std::panic::panic_any(Cancelled);
+            }
+            // A simple literal: true as an effective boolean value, and the cheapest term
+            // for the evaluator to take in (no datatype to read).
+            Some(Term::Literal(Literal::new_simple_literal("1")))
+        })
+}
+
+static HOOK: Once = Once::new();
+
+/// Runs `f`, which evaluates a guarded query: a cancellation that unwinds out of it is
+/// [`SparqlQueryError::Timeout`]; any other panic goes on unwinding.
+pub(crate) fn evaluate<T>(
+    timeout: Duration,
+    f: impl FnOnce() -> Result<T, SparqlQueryError>,
+) -> Result<T, SparqlQueryError> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(answer) => answer,
+        Err(payload) if payload.is::<Cancelled>() => Err(SparqlQueryError::Timeout(timeout)),
+        Err(payload) => resume_unwind(payload),
+    }
+}
+
+/// Guards the pattern under every sub-`SELECT` and `GROUP BY` of `pattern`.
+fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
+    use GraphPattern as G;
+    let mut w = |p: Box<G>| Box::new(walk(*p, guarded));
+    match pattern {
+        p @ (G::Bgp { .. } | G::Path { .. } | G::Values { .. } | G::Service { .. }) => p,
+        G::Join { left, right } => G::Join {
+            left: w(left),
+            right: w(right),
+        },
+        G::Lateral { left, right } => G::Lateral {
+            left: w(left),
+            right: w(right),
+        },
+        G::Union { left, right } => G::Union {
+            left: w(left),
+            right: w(right),
+        },
+        G::Minus { left, right } => G::Minus {
+            left: w(left),
+            right: w(right),
+        },
+        G::LeftJoin {
+            left,
+            right,
+            expression,
+        } => G::LeftJoin {
+            left: w(left),
+            right: w(right),
+            expression,
+        },
+        G::Filter { expr, inner } => G::Filter {
+            expr,
+            inner: w(inner),
+        },
+        G::Graph { name, inner } => G::Graph {
+            name,
+            inner: w(inner),
+        },
+        G::Extend {
+            inner,
+            variable,
+            expression,
+        } => G::Extend {
+            inner: w(inner),
+            variable,
+            expression,
+        },
+        G::OrderBy { inner, expression } => G::OrderBy {
+            inner: w(inner),
+            expression,
+        },
+        G::Distinct { inner } => G::Distinct { inner: w(inner) },
+        G::Reduced { inner } => G::Reduced { inner: w(inner) },
+        G::Slice {
+            inner,
+            start,
+            length,
+        } => G::Slice {
+            inner: w(inner),
+            start,
+            length,
+        },
+        G::Project { inner, variables } => {
+            let inner = walk(*inner, guarded);
+            G::Project {
+                inner: Box::new(guard(inner, guarded)),
+                variables,
+            }
+        }
+        G::Group {
+            inner,
+            variables,
+            aggregates,
+        } => {
+            let inner = walk(*inner, guarded);
+            G::Group {
+                inner: Box::new(guard(inner, guarded)),
+                variables,
+                aggregates,
+            }
+        }
+    }
+}
+
+/// Wraps `pattern` below its solution modifiers in the `alive()` filter. A sub-`SELECT` or a
+/// `GROUP BY` met on the way is left as it is: [`walk`] guarded its inside.
+fn guard(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
+    use GraphPattern as G;
+    let mut g = |p: Box<G>| Box::new(guard(*p, guarded));
+    match pattern {
+        G::Slice {
+            inner,
+            start,
+            length,
+        } => G::Slice {
+            inner: g(inner),
+            start,
+            length,
+        },
+        G::Distinct { inner } => G::Distinct { inner: g(inner) },
+        G::Reduced { inner } => G::Reduced { inner: g(inner) },
+        G::OrderBy { inner, expression } => G::OrderBy {
+            inner: g(inner),
+            expression,
+        },
+        G::Extend {
+            inner,
+            variable,
+            expression,
+        } => G::Extend {
+            inner: g(inner),
+            variable,
+            expression,
+        },
+        p @ (G::Project { .. } | G::Group { .. }) => p,
+        // Each solution cost a read, where oxigraph checks the token itself: a query of one
+        // triple pattern (a lookup, a count) runs as it is written.
+        p if !multiplies(&p) => p,
+        p => {
+            *guarded = true;
+            let mut seen = HashSet::new();
+            let mut variables = Vec::new();
+            p.on_in_scope_variable(|v| {
+                if seen.insert(v) {
+                    variables.push(Expression::Variable(v.clone()));
+                }
+            });
+            let otherwise = if variables.is_empty() {
+                Expression::Literal(true.into())
+            } else {
+                Expression::Coalesce(variables)
+            };
+            let alive = Expression::If(
+                Box::new(Expression::FunctionCall(
+                    Function::Custom(NamedNode::new_unchecked(ALIVE)),
+                    Vec::new(),
+                )),
+                Box::new(Expression::Literal(true.into())),
+                Box::new(otherwise),
+            );
+            G::Filter {
+                expr: alive,
+                inner: Box::new(p),
+            }
+        }
+    }
+}
+
+/// Whether `pattern` can make more solutions than it reads quads: a join of any kind (a BGP of
+/// two triple patterns or more included), or a property path (a closure computed in memory).
+fn multiplies(pattern: &GraphPattern) -> bool {
+    use GraphPattern as G;
+    match pattern {
+        G::Bgp { patterns } => patterns.len() > 1,
+        G::Path { .. }
+        | G::Join { .. }
+        | G::LeftJoin { .. }
+        | G::Lateral { .. }
+        | G::Minus { .. } => true,
+        G::Values { .. } | G::Service { .. } => false,
+        G::Union { left, right } => multiplies(left) || multiplies(right),
+        G::Filter { inner, .. }
+        | G::Graph { inner, .. }
+        | G::Extend { inner, .. }
+        | G::OrderBy { inner, .. }
+        | G::Project { inner, .. }
+        | G::Distinct { inner }
+        | G::Reduced { inner }
+        | G::Slice { inner, .. }
+        | G::Group { inner, .. } => multiplies(inner),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// How many guards the rewritten `query` has.
+    fn guards(query: &str) -> usize {
+        let parsed = spargebra::SparqlParser::new()
+            .parse_query(query)
+            .expect("parses");
+        guard_query(parsed).0.to_string().matches(ALIVE).count()
+    }
+
+    #[test]
+    fn patterns_that_read_a_quad_per_solution_are_left_alone() {
+        assert_eq!(guards("SELECT * WHERE { ?s ?p ?o }"), 0);
+        assert_eq!(guards("SELECT (COUNT(*) AS ?n) WHERE { ?s a ?c }"), 0);
+        assert_eq!(guards("ASK { <urn:a> <urn:b> <urn:c> }"), 0);
+        assert_eq!(guards("SELECT * WHERE { VALUES ?x { 1 2 } }"), 0);
+        assert_eq!(
+            guards("SELECT ?s WHERE { { ?s ?p 1 } UNION { ?s ?p 2 } } ORDER BY ?s"),
+            0
+        );
+    }
+
+    #[test]
+    fn joins_paths_and_their_modifiers_are_guarded_once_per_select_or_group() {
+        assert_eq!(guards("SELECT * WHERE { ?a ?b ?c . ?d ?e ?f }"), 1);
+        assert_eq!(guards("SELECT * WHERE { ?a <urn:p>* ?b }"), 1);
+        assert_eq!(
+            guards("SELECT * WHERE { ?a ?b ?c OPTIONAL { ?c ?d ?e } } ORDER BY ?a LIMIT 3"),
+            1
+        );
+        assert_eq!(guards("CONSTRUCT WHERE { ?a ?b ?c . ?c ?d ?e }"), 1);
+        assert_eq!(guards("ASK { ?a ?b ?c MINUS { ?a ?b 1 } }"), 1);
+        // A GROUP BY is guarded below itself, and its SELECT above it sees few solutions.
+        assert_eq!(
+            guards("SELECT ?a (COUNT(*) AS ?n) WHERE { ?a ?b ?c . ?d ?e ?f } GROUP BY ?a"),
+            1
+        );
+        // A sub-SELECT is guarded inside; the join it is part of, outside.
+        assert_eq!(
+            guards("SELECT * WHERE { ?x ?y ?z { SELECT ?a WHERE { ?a ?b ?c . ?d ?e ?f } } }"),
+            2
+        );
+    }
+
+    #[test]
+    fn the_guard_names_every_variable_so_the_optimiser_keeps_it_above_the_joins() {
+        let parsed = spargebra::SparqlParser::new()
+            .parse_query("SELECT ?a WHERE { ?a ?b ?c . ?d ?e ?f }")
+            .expect("parses");
+        let text = guard_query(parsed).0.to_string();
+        for v in ["?a", "?b", "?c", "?d", "?e", "?f"] {
+            let coalesce = &text[text.find("COALESCE").expect("a COALESCE")..];
+            assert!(coalesce.contains(v), "{v} in {text}");
+        }
+    }
+}
