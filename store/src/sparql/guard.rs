@@ -6,26 +6,32 @@
 //! reads little and runs on: with a 1 s timeout a 4-way cartesian `COUNT(*)` over a few hundred
 //! triples ran for 15 s, holding a store turn and a core all along.
 //!
-//! So every query is rewritten before it runs: below its solution modifiers, and inside every
-//! sub-`SELECT` and `GROUP BY`, its pattern is wrapped in
-//! `FILTER(IF(<urn:dyknow:sparql:alive>(), true, COALESCE(?v1, …)))`, with `?v1, …` its
-//! in-scope variables; a pattern that reads a quad per solution (one triple pattern) is left as
-//! it is, oxigraph's own check suffices. `alive()` is a custom function that returns `true`
-//! while the token lives and, once it is cancelled, unwinds the evaluation with the
-//! [`Cancelled`] payload, which [`evaluate`] turns into [`SparqlQueryError::Timeout`]. The
-//! filter keeps every solution
-//! (`IF` never evaluates its `else` branch when the condition is `true`), so the answer is the
-//! same; the `else` branch is there for the optimiser: a filter that mentions every variable
-//! of the pattern cannot be pushed below its top join, so it runs once per solution the
-//! pattern produces, not once per solution of one of its parts. The cost is one function call
-//! per solution (`docs/benchmarks.md`, "SPARQL cancellation").
+//! So every query with a join or a path is rewritten before it runs: below its solution
+//! modifiers, and inside every sub-`SELECT` and `GROUP BY`, its pattern is wrapped in
+//! `FILTER(IF(<urn:dyknow:sparql:alive>(), true, ?dyknow-guard-unbound))`; a pattern that reads
+//! a quad per solution (one triple pattern) is left as it is, oxigraph's own check suffices.
+//! `alive()` is a custom function that returns a true literal while the token lives and, once
+//! it is cancelled, unwinds the evaluation with the [`Cancelled`] payload, which [`evaluate`]
+//! turns into [`SparqlQueryError::Timeout`]. The filter keeps every solution (`IF` never
+//! evaluates its `else` branch when the condition is true), so the answer is the same; the
+//! `else` branch is there for the optimiser: a filter that names a variable bound nowhere in
+//! the pattern is pushed into no part of it, so it stays above the top join and runs once per
+//! solution the pattern produces, not once per solution of one of its parts. A user's filter
+//! over a join becomes `IF(alive(), c, c)`: the optimiser merges it with the guard into one
+//! conjunction in an order of its choosing, and a filter that rejects nearly every solution
+//! would otherwise keep the guard from being called. The cost is one function call per
+//! solution (`docs/benchmarks.md`, "SPARQL cancellation").
+//!
+//! Not reached: the patterns of `EXISTS` (evaluated once per solution of the pattern around
+//! them, whose guard checks in between), the rows a join makes for one row of its probe side
+//! (buffered before the first is returned), and a sort or aggregate over solutions already
+//! made.
 //!
 //! A panic is the one way out of oxigraph's evaluator that a custom function has: its result
 //! is only ever a term or an error that SPARQL turns into "false". It unwinds only the
 //! evaluator's frames (iterators over a snapshot, dropped on the way), and its message is kept
 //! off stderr by a panic hook that lets every other panic through.
 
-use std::collections::HashSet;
 use std::panic::{AssertUnwindSafe, catch_unwind, resume_unwind};
 use std::sync::Once;
 use std::time::Duration;
@@ -33,14 +39,36 @@ use std::time::Duration;
 use oxigraph::model::{Literal, NamedNode, Term};
 use oxigraph::sparql::{CancellationToken, PreparedSparqlQuery, SparqlEvaluator};
 use spargebra::algebra::{Expression, Function, GraphPattern};
+use spargebra::term::Variable;
 
 use crate::error::SparqlQueryError;
 
 /// The custom function the guard calls once per solution.
 pub(crate) const ALIVE: &str = "urn:dyknow:sparql:alive";
 
+/// The variable of the guard's `else` branch: bound nowhere, and no query can name it (`-` is
+/// not allowed in a variable's name), so the optimiser keeps the guard out of every part of
+/// the pattern (it is not bound in any).
+const UNBOUND: &str = "dyknow-guard-unbound";
+
 /// The payload a cancelled evaluation unwinds with.
 struct Cancelled;
+
+// A cancelled query unwinds: built to abort on panics, the service would abort on a timeout.
+#[cfg(panic = "abort")]
+compile_error!("the SPARQL guard unwinds cancelled queries: build with panic = \"unwind\"");
+
+/// `IF(alive(), then, otherwise)`: `then`, once `alive()` has checked the token.
+fn checked(then: Expression, otherwise: Expression) -> Expression {
+    Expression::If(
+        Box::new(Expression::FunctionCall(
+            Function::Custom(NamedNode::new_unchecked(ALIVE)),
+            Vec::new(),
+        )),
+        Box::new(then),
+        Box::new(otherwise),
+    )
+}
 
 /// `query` (whose text is `text`) guarded, ready to run with `token`. `alive()` is registered
 /// where it may be called (a guarded query, or one whose text names it): a query the guard
@@ -147,10 +175,23 @@ fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
             right: w(right),
             expression,
         },
-        G::Filter { expr, inner } => G::Filter {
-            expr,
-            inner: w(inner),
-        },
+        // A filter over a join may reject nearly every solution, and the optimiser merges it
+        // with the guard into one conjunction whose order it chooses: such a filter checks
+        // the token itself, `IF(alive(), c, c)` (the same variables, so it is placed where `c`
+        // would be; a constant is left for the optimiser to fold).
+        G::Filter { expr, inner } => {
+            let inner = walk(*inner, guarded);
+            let expr = if multiplies(&inner) && !constant(&expr) {
+                *guarded = true;
+                checked(expr.clone(), expr)
+            } else {
+                expr
+            };
+            G::Filter {
+                expr,
+                inner: Box::new(inner),
+            }
+        }
         G::Graph { name, inner } => G::Graph {
             name,
             inner: w(inner),
@@ -237,28 +278,11 @@ fn guard(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
         p if !multiplies(&p) => p,
         p => {
             *guarded = true;
-            let mut seen = HashSet::new();
-            let mut variables = Vec::new();
-            p.on_in_scope_variable(|v| {
-                if seen.insert(v) {
-                    variables.push(Expression::Variable(v.clone()));
-                }
-            });
-            let otherwise = if variables.is_empty() {
-                Expression::Literal(true.into())
-            } else {
-                Expression::Coalesce(variables)
-            };
-            let alive = Expression::If(
-                Box::new(Expression::FunctionCall(
-                    Function::Custom(NamedNode::new_unchecked(ALIVE)),
-                    Vec::new(),
-                )),
-                Box::new(Expression::Literal(true.into())),
-                Box::new(otherwise),
-            );
             G::Filter {
-                expr: alive,
+                expr: checked(
+                    Expression::Literal(true.into()),
+                    Expression::Variable(Variable::new_unchecked(UNBOUND)),
+                ),
                 inner: Box::new(p),
             }
         }
@@ -287,6 +311,30 @@ fn multiplies(pattern: &GraphPattern) -> bool {
         | G::Reduced { inner }
         | G::Slice { inner, .. }
         | G::Group { inner, .. } => multiplies(inner),
+    }
+}
+
+/// Whether `expression` names no variable and no pattern (the optimiser may fold it).
+fn constant(expression: &Expression) -> bool {
+    match expression {
+        Expression::NamedNode(_) | Expression::Literal(_) => true,
+        Expression::Variable(_) | Expression::Bound(_) | Expression::Exists(_) => false,
+        Expression::Or(a, b)
+        | Expression::And(a, b)
+        | Expression::Equal(a, b)
+        | Expression::SameTerm(a, b)
+        | Expression::Greater(a, b)
+        | Expression::GreaterOrEqual(a, b)
+        | Expression::Less(a, b)
+        | Expression::LessOrEqual(a, b)
+        | Expression::Add(a, b)
+        | Expression::Subtract(a, b)
+        | Expression::Multiply(a, b)
+        | Expression::Divide(a, b) => constant(a) && constant(b),
+        Expression::In(a, list) => constant(a) && list.iter().all(constant),
+        Expression::UnaryPlus(a) | Expression::UnaryMinus(a) | Expression::Not(a) => constant(a),
+        Expression::If(a, b, c) => constant(a) && constant(b) && constant(c),
+        Expression::Coalesce(list) | Expression::FunctionCall(_, list) => list.iter().all(constant),
     }
 }
 
@@ -337,14 +385,24 @@ mod tests {
     }
 
     #[test]
-    fn the_guard_names_every_variable_so_the_optimiser_keeps_it_above_the_joins() {
+    fn the_guard_names_a_variable_no_part_binds_so_the_optimiser_keeps_it_above_the_joins() {
         let parsed = spargebra::SparqlParser::new()
-            .parse_query("SELECT ?a WHERE { ?a ?b ?c . ?d ?e ?f }")
+            .parse_query("SELECT ?a WHERE { [] a [] . [] a [] . ?a ?b ?c }")
             .expect("parses");
         let text = guard_query(parsed).0.to_string();
-        for v in ["?a", "?b", "?c", "?d", "?e", "?f"] {
-            let coalesce = &text[text.find("COALESCE").expect("a COALESCE")..];
-            assert!(coalesce.contains(v), "{v} in {text}");
-        }
+        assert!(text.contains(&format!("?{UNBOUND}")), "{text}");
+    }
+
+    #[test]
+    fn a_filter_over_a_join_checks_the_token_itself_and_a_constant_one_is_left_to_fold() {
+        assert_eq!(
+            guards("SELECT * WHERE { ?a ?b ?c . ?d ?e ?f FILTER(?c = ?f) }"),
+            2
+        );
+        assert_eq!(guards("SELECT * WHERE { ?a ?b ?c FILTER(?c = 1) }"), 0);
+        assert_eq!(
+            guards("SELECT * WHERE { ?a ?b ?c . ?d ?e ?f FILTER(1 = 2) }"),
+            1
+        );
     }
 }
