@@ -268,43 +268,10 @@ fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
                 | GraphPattern::Slice { inner, .. }
                 | GraphPattern::Service { inner, .. } => stack.push((Node::Pattern(inner), d)),
             },
-            Node::Expr(e) => match e {
-                Expression::NamedNode(_)
-                | Expression::Literal(_)
-                | Expression::Variable(_)
-                | Expression::Bound(_) => {}
-                Expression::Or(a, b)
-                | Expression::And(a, b)
-                | Expression::Equal(a, b)
-                | Expression::SameTerm(a, b)
-                | Expression::Greater(a, b)
-                | Expression::GreaterOrEqual(a, b)
-                | Expression::Less(a, b)
-                | Expression::LessOrEqual(a, b)
-                | Expression::Add(a, b)
-                | Expression::Subtract(a, b)
-                | Expression::Multiply(a, b)
-                | Expression::Divide(a, b) => {
-                    stack.push((Node::Expr(a), d));
-                    stack.push((Node::Expr(b), d));
-                }
-                Expression::In(a, list) => {
-                    stack.push((Node::Expr(a), d));
-                    stack.extend(list.iter().map(|e| (Node::Expr(e), d)));
-                }
-                Expression::UnaryPlus(a) | Expression::UnaryMinus(a) | Expression::Not(a) => {
-                    stack.push((Node::Expr(a), d));
-                }
-                Expression::Exists(p) => stack.push((Node::Pattern(p), d)),
-                Expression::If(a, b, c) => {
-                    stack.push((Node::Expr(a), d));
-                    stack.push((Node::Expr(b), d));
-                    stack.push((Node::Expr(c), d));
-                }
-                Expression::Coalesce(list) | Expression::FunctionCall(_, list) => {
-                    stack.extend(list.iter().map(|e| (Node::Expr(e), d)));
-                }
-            },
+            Node::Expr(Expression::Exists(p)) => stack.push((Node::Pattern(p), d)),
+            Node::Expr(e) => {
+                stack.extend(sub_expressions(e).into_iter().map(|e| (Node::Expr(e), d)))
+            }
             Node::Path(p) => match p {
                 Path::NamedNode(_) | Path::NegatedPropertySet(_) => {}
                 Path::Reverse(a)
@@ -321,6 +288,32 @@ fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
         }
     }
     false
+}
+
+/// The operands of `expression` (not the pattern of an `EXISTS`).
+pub(crate) fn sub_expressions(
+    expression: &spargebra::algebra::Expression,
+) -> Vec<&spargebra::algebra::Expression> {
+    use spargebra::algebra::Expression as E;
+    match expression {
+        E::NamedNode(_) | E::Literal(_) | E::Variable(_) | E::Bound(_) | E::Exists(_) => Vec::new(),
+        E::Or(a, b)
+        | E::And(a, b)
+        | E::Equal(a, b)
+        | E::SameTerm(a, b)
+        | E::Greater(a, b)
+        | E::GreaterOrEqual(a, b)
+        | E::Less(a, b)
+        | E::LessOrEqual(a, b)
+        | E::Add(a, b)
+        | E::Subtract(a, b)
+        | E::Multiply(a, b)
+        | E::Divide(a, b) => vec![a, b],
+        E::In(a, list) => std::iter::once(&**a).chain(list).collect(),
+        E::UnaryPlus(a) | E::UnaryMinus(a) | E::Not(a) => vec![a],
+        E::If(a, b, c) => vec![a, b, c],
+        E::Coalesce(list) | E::FunctionCall(_, list) => list.iter().collect(),
+    }
 }
 
 impl ParsedQuery {
@@ -347,7 +340,7 @@ impl ParsedQuery {
                     }
                     _ => QueryForm::Solutions,
                 };
-                let mut prepared = guard::prepare(query, algebra, &cancel);
+                let mut prepared = guard::prepare(algebra, &cancel);
                 if prepared.dataset().is_default_dataset() {
                     prepared.dataset_mut().set_default_graph_as_union();
                 }

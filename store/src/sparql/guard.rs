@@ -41,6 +41,7 @@ use oxigraph::sparql::{CancellationToken, PreparedSparqlQuery, SparqlEvaluator};
 use spargebra::algebra::{Expression, Function, GraphPattern};
 use spargebra::term::Variable;
 
+use super::sub_expressions;
 use crate::error::SparqlQueryError;
 
 /// The custom function the guard calls once per solution.
@@ -70,25 +71,13 @@ fn checked(then: Expression, otherwise: Expression) -> Expression {
     )
 }
 
-/// `query` (whose text is `text`) guarded, ready to run with `token`. `alive()` is registered
-/// where it may be called (a guarded query, or one whose text names it): a query the guard
-/// leaves alone runs as oxigraph alone would run it.
-pub(crate) fn prepare(
-    text: &str,
-    query: spargebra::Query,
-    token: &CancellationToken,
-) -> PreparedSparqlQuery {
-    let (query, guarded) = guard_query(query);
-    let evaluator = if guarded || text.contains("alive") {
-        evaluator(token)
-    } else {
-        SparqlEvaluator::new().with_cancellation_token(token.clone())
-    };
-    evaluator.for_query(query)
+/// `query` guarded, ready to run with `token`.
+pub(crate) fn prepare(query: spargebra::Query, token: &CancellationToken) -> PreparedSparqlQuery {
+    evaluator(token).for_query(guard_query(query))
 }
 
-/// `query` with its patterns guarded (see the module's documentation), and whether any was.
-fn guard_query(mut query: spargebra::Query) -> (spargebra::Query, bool) {
+/// `query` with its patterns guarded (see the module's documentation).
+fn guard_query(mut query: spargebra::Query) -> spargebra::Query {
     let pattern = match &mut query {
         spargebra::Query::Select { pattern, .. }
         | spargebra::Query::Construct { pattern, .. }
@@ -101,9 +90,8 @@ fn guard_query(mut query: spargebra::Query) -> (spargebra::Query, bool) {
             patterns: Vec::new(),
         },
     );
-    let mut guarded = false;
-    *pattern = guard(walk(taken, &mut guarded), &mut guarded);
-    (query, guarded)
+    *pattern = guard(walk(taken));
+    query
 }
 
 /// An evaluator that answers `alive()` for `token`.
@@ -145,9 +133,9 @@ pub(crate) fn evaluate<T>(
 }
 
 /// Guards the pattern under every sub-`SELECT` and `GROUP BY` of `pattern`.
-fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
+fn walk(pattern: GraphPattern) -> GraphPattern {
     use GraphPattern as G;
-    let mut w = |p: Box<G>| Box::new(walk(*p, guarded));
+    let w = |p: Box<G>| Box::new(walk(*p));
     match pattern {
         p @ (G::Bgp { .. } | G::Path { .. } | G::Values { .. } | G::Service { .. }) => p,
         G::Join { left, right } => G::Join {
@@ -180,9 +168,8 @@ fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
         // the token itself, `IF(alive(), c, c)` (the same variables, so it is placed where `c`
         // would be; a constant is left for the optimiser to fold).
         G::Filter { expr, inner } => {
-            let inner = walk(*inner, guarded);
+            let inner = walk(*inner);
             let expr = if multiplies(&inner) && !constant(&expr) {
-                *guarded = true;
                 checked(expr.clone(), expr)
             } else {
                 expr
@@ -221,9 +208,9 @@ fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
             length,
         },
         G::Project { inner, variables } => {
-            let inner = walk(*inner, guarded);
+            let inner = walk(*inner);
             G::Project {
-                inner: Box::new(guard(inner, guarded)),
+                inner: Box::new(guard(inner)),
                 variables,
             }
         }
@@ -232,9 +219,9 @@ fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
             variables,
             aggregates,
         } => {
-            let inner = walk(*inner, guarded);
+            let inner = walk(*inner);
             G::Group {
-                inner: Box::new(guard(inner, guarded)),
+                inner: Box::new(guard(inner)),
                 variables,
                 aggregates,
             }
@@ -244,9 +231,9 @@ fn walk(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
 
 /// Wraps `pattern` below its solution modifiers in the `alive()` filter. A sub-`SELECT` or a
 /// `GROUP BY` met on the way is left as it is: [`walk`] guarded its inside.
-fn guard(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
+fn guard(pattern: GraphPattern) -> GraphPattern {
     use GraphPattern as G;
-    let mut g = |p: Box<G>| Box::new(guard(*p, guarded));
+    let g = |p: Box<G>| Box::new(guard(*p));
     match pattern {
         G::Slice {
             inner,
@@ -276,16 +263,13 @@ fn guard(pattern: GraphPattern, guarded: &mut bool) -> GraphPattern {
         // Each solution cost a read, where oxigraph checks the token itself: a query of one
         // triple pattern (a lookup, a count) runs as it is written.
         p if !multiplies(&p) => p,
-        p => {
-            *guarded = true;
-            G::Filter {
-                expr: checked(
-                    Expression::Literal(true.into()),
-                    Expression::Variable(Variable::new_unchecked(UNBOUND)),
-                ),
-                inner: Box::new(p),
-            }
-        }
+        p => G::Filter {
+            expr: checked(
+                Expression::Literal(true.into()),
+                Expression::Variable(Variable::new_unchecked(UNBOUND)),
+            ),
+            inner: Box::new(p),
+        },
     }
 }
 
@@ -319,22 +303,7 @@ fn constant(expression: &Expression) -> bool {
     match expression {
         Expression::NamedNode(_) | Expression::Literal(_) => true,
         Expression::Variable(_) | Expression::Bound(_) | Expression::Exists(_) => false,
-        Expression::Or(a, b)
-        | Expression::And(a, b)
-        | Expression::Equal(a, b)
-        | Expression::SameTerm(a, b)
-        | Expression::Greater(a, b)
-        | Expression::GreaterOrEqual(a, b)
-        | Expression::Less(a, b)
-        | Expression::LessOrEqual(a, b)
-        | Expression::Add(a, b)
-        | Expression::Subtract(a, b)
-        | Expression::Multiply(a, b)
-        | Expression::Divide(a, b) => constant(a) && constant(b),
-        Expression::In(a, list) => constant(a) && list.iter().all(constant),
-        Expression::UnaryPlus(a) | Expression::UnaryMinus(a) | Expression::Not(a) => constant(a),
-        Expression::If(a, b, c) => constant(a) && constant(b) && constant(c),
-        Expression::Coalesce(list) | Expression::FunctionCall(_, list) => list.iter().all(constant),
+        e => sub_expressions(e).into_iter().all(constant),
     }
 }
 
@@ -347,7 +316,7 @@ mod tests {
         let parsed = spargebra::SparqlParser::new()
             .parse_query(query)
             .expect("parses");
-        guard_query(parsed).0.to_string().matches(ALIVE).count()
+        guard_query(parsed).to_string().matches(ALIVE).count()
     }
 
     #[test]
@@ -389,7 +358,7 @@ mod tests {
         let parsed = spargebra::SparqlParser::new()
             .parse_query("SELECT ?a WHERE { [] a [] . [] a [] . ?a ?b ?c }")
             .expect("parses");
-        let text = guard_query(parsed).0.to_string();
+        let text = guard_query(parsed).to_string();
         assert!(text.contains(&format!("?{UNBOUND}")), "{text}");
     }
 
