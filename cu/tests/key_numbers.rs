@@ -15,13 +15,9 @@ fn router(listen: &str, connect: &[&str]) -> zenoh::Session {
     zenoh::open(config).wait().unwrap()
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+#[path = "support/port.rs"]
+mod port;
+use port::free_port;
 
 /// A long-lived publisher on `a/live`, then `restarts` publishers declared and dropped in turn
 /// on `a/restarted` (as a CU restarted on its channel), declared plainly or pinned; whether a

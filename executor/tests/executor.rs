@@ -14,12 +14,9 @@ use dyknow_cu::{Namespace, Sample};
 use dyknow_executor::{Executor, ExecutorConfig};
 use serde_json::{Value, json};
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
+#[path = "../../cu/tests/support/port.rs"]
+mod port;
+use port::free_port;
 
 /// A router session listening on a fresh loopback port; returns it and its endpoint.
 fn session() -> (zenoh::Session, String) {

@@ -27,12 +27,9 @@ fn reply_json(query: &zenoh::query::Query, value: &impl serde::Serialize) {
         .wait();
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
-}
+#[path = "../../cu/tests/support/port.rs"]
+mod port;
+use port::free_port;
 
 /// The manager's router session and an executor's client session connected to it.
 fn sessions() -> (zenoh::Session, zenoh::Session) {
