@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs DyKnow's benchmarks with their peers side by side (docs/benchmarks.md).
 #   benches/run.sh             every benchmark
-#   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`; the SPARQL guard's cost
+#   benches/run.sh knowledge   the knowledge service (ingestion, SPARQL) against `oxigraph serve`; the SPARQL guard's cost; the counting allocator's
 #   benches/run.sh reasoning   the reasoner against owlrl and reasonable
 #   benches/run.sh engine      EXPLORE and reviews (Chapter 6 crash, generated environments against an exact MILP peer (HiGHS); eight seeds of each)
 #   benches/run.sh mstl        MSTL progression (Figures 3.6, 3.7) against reelay and mstlo
@@ -46,6 +46,8 @@ if [ "$which" = all ] || [ "$which" = knowledge ]; then
   cargo bench --locked --workspace --bench knowledge_service
   # The cost of the SPARQL cancellation guard, in process (no peer: oxigraph's own evaluator).
   cargo bench --locked --workspace --bench sparql_guard
+  # The cost of counting what each thread holds (the binary's allocator, `--query-memory`).
+  cargo bench --locked --workspace --bench counting
 fi
 if [ "$which" = all ] || [ "$which" = reasoning ]; then
   cargo bench --locked --workspace --bench reasoning

@@ -11,6 +11,10 @@ use dyknow_acceptance::oxigraph::io::RdfFormat;
 use dyknow_acceptance::*;
 use serde_json::{Value, json};
 
+/// As the `dyknow` binary: queries are bounded in memory (`--query-memory`).
+#[global_allocator]
+static ALLOCATOR: dyknow_meter::Counting = dyknow_meter::Counting;
+
 const DYKNOW_ONTOLOGY: &str = "http://www.dyknow.eu/ontology/dyknow";
 const UNDISTORT_IRI: &str = "urn:dyknow:transformation:Undistort%28cam1%29";
 
@@ -802,6 +806,43 @@ async fn sparql_query_timeout_is_503() {
     api.post("/sparql", "application/sparql-query", heavy)
         .await
         .expect_error(503);
+    api.assert_healthy().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sparql_query_over_its_memory_limit_is_503() {
+    let api = Api::with_config(dyknow_server::ServerConfig {
+        query_memory: Some(8 << 20),
+        // Reached only if the memory limit does not hold (the message tells which).
+        query_timeout: Duration::from_secs(5),
+        ..dyknow_server::ServerConfig::default()
+    });
+    api.post_turtle("/ontology", EX12_SIMILARITY)
+        .await
+        .expect(201);
+    // A sorted product (it grew the service by 750 MB a second), a distinct one, and one
+    // written out whole.
+    for query in [
+        "SELECT ?a ?d ?g WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i } ORDER BY ?c ?f ?i LIMIT 1",
+        "SELECT DISTINCT ?c ?f ?i WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i }",
+        "SELECT * WHERE { ?a ?b ?c . ?d ?e ?f }",
+    ] {
+        let answer = api.get(&format!("/sparql?query={}", encode(query))).await;
+        assert!(answer.expect_error(503).is_empty());
+        let message = answer.json()["error"].as_str().unwrap().to_owned();
+        assert!(
+            message.contains("8 MiB") && message.contains("--query-memory"),
+            "{message}: {query}"
+        );
+    }
+    // Within the limit, queries answer.
+    let answer = api
+        .get(&format!(
+            "/sparql?query={}",
+            encode("SELECT (COUNT(*) AS ?n) WHERE { ?a ?b ?c . ?c ?d ?e }")
+        ))
+        .await;
+    answer.expect(200);
     api.assert_healthy().await;
 }
 

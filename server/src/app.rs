@@ -28,6 +28,10 @@ pub struct ServerConfig {
     pub max_body_bytes: usize,
     /// How long a SPARQL query may run.
     pub query_timeout: Duration,
+    /// How much memory a SPARQL query may hold, in bytes (`None`: no limit). Counted by
+    /// `dyknow_meter::Counting`, which the program must install as its global allocator (the
+    /// `dyknow` binary does); without it the limit is never reached.
+    pub query_memory: Option<usize>,
     /// How many requests do work on the store at once; more wait their turn, in order (0: no
     /// limit). See [`in_turn`].
     pub store_concurrency: usize,
@@ -36,12 +40,18 @@ pub struct ServerConfig {
     pub lifecycle: Settings,
 }
 
+/// The default of `--query-memory`, in MiB: far above what a query of the configuration holds
+/// (a CONSTRUCT of every triple of 10,000 specs: tens of MB), far below the machine (a store
+/// turn per query, `--store-concurrency` of them at once).
+pub const DEFAULT_QUERY_MEMORY_MIB: usize = 1024;
+
 impl Default for ServerConfig {
     fn default() -> Self {
         Self {
             token: None,
             max_body_bytes: 16 * 1024 * 1024,
             query_timeout: Duration::from_secs(30),
+            query_memory: Some(DEFAULT_QUERY_MEMORY_MIB << 20),
             store_concurrency: default_store_concurrency(),
             lifecycle: Settings::default(),
         }
@@ -83,6 +93,12 @@ impl AppState {
         config: ServerConfig,
         executor: Arc<dyn Executor>,
     ) -> Result<Self, LifecycleError> {
+        if config.query_memory.is_some() && !dyknow_meter::installed() {
+            tracing::warn!(
+                "SPARQL queries are not bounded in memory: install dyknow_meter::Counting as \
+                 the global allocator to count what they hold"
+            );
+        }
         let kb = Arc::new(kb);
         let lifecycle = Arc::new(Manager::new(kb.clone(), executor, config.lifecycle)?);
         let groups = Groups::empty(kb.clone(), lifecycle.clone());

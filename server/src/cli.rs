@@ -226,6 +226,10 @@ pub struct ServeArgs {
     /// How long a SPARQL query may run, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
     pub query_timeout: f64,
+    /// How much memory a SPARQL query may hold (the solutions it joins, sorts or groups, and
+    /// its answer), in MiB; past it the query is cancelled (503). 0: no limit.
+    #[arg(long, value_name = "MIB", default_value_t = crate::app::DEFAULT_QUERY_MEMORY_MIB)]
+    pub query_memory: usize,
     /// How many requests do work on the store at once (SPARQL queries, spec, model and
     /// environment reads and writes); more wait their turn, first come first served. Default:
     /// twice the cores. 0: no limit (every request at work holds a thread; on a small machine
@@ -897,6 +901,10 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         token: args.token,
         max_body_bytes: args.max_body,
         query_timeout: Duration::from_secs_f64(args.query_timeout),
+        query_memory: match args.query_memory {
+            0 => None,
+            mib => Some(mib.saturating_mul(1 << 20)),
+        },
         store_concurrency: args
             .store_concurrency
             .unwrap_or_else(crate::app::default_store_concurrency),

@@ -148,6 +148,14 @@ impl From<SparqlQueryError> for ApiError {
                     t.as_secs_f64()
                 ),
             ),
+            SparqlQueryError::MemoryLimit(bytes) => Self::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "the query was cancelled when it held more than its {} of memory \
+                     (--query-memory): narrow it, or ask for fewer solutions at once",
+                    size(bytes)
+                ),
+            ),
             SparqlQueryError::UnsupportedFormat(m) => Self::new(StatusCode::NOT_ACCEPTABLE, m),
             SparqlQueryError::Unsupported(m) | SparqlQueryError::TooDeep(m) => Self::bad_request(m),
             other => Self::internal(other),
@@ -198,5 +206,27 @@ impl From<LifecycleError> for ApiError {
             LifecycleError::Write(w) => w.into(),
             other => Self::internal(other),
         }
+    }
+}
+
+/// `bytes` for people: whole MiB as MiB (as `--query-memory` takes them), else bytes.
+fn size(bytes: usize) -> String {
+    if bytes >= 1 << 20 && bytes.is_multiple_of(1 << 20) {
+        format!("{} MiB", bytes >> 20)
+    } else {
+        format!("{bytes} bytes")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::size;
+
+    #[test]
+    fn sizes_read_as_the_flag_takes_them() {
+        assert_eq!(size(16 << 20), "16 MiB");
+        assert_eq!(size(1 << 30), "1024 MiB");
+        assert_eq!(size(1000), "1000 bytes");
+        assert_eq!(size((1 << 20) + 1), "1048577 bytes");
     }
 }

@@ -384,6 +384,14 @@ fn start_up_refusals() {
         assert_eq!(out.status.code(), Some(2), "--explore-threads {threads}");
         assert!(String::from_utf8_lossy(&out.stderr).contains("--explore-threads"));
     }
+    for mib in ["-1", "lots", "1.5"] {
+        let out = Command::new(BIN)
+            .args(["serve", "--in-memory", &format!("--query-memory={mib}")])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "--query-memory {mib}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--query-memory"));
+    }
     // A second server on the same store is refused with a clear error.
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().to_str().unwrap();
@@ -704,6 +712,62 @@ fn explore_replans_an_exported_model_offline() {
         .map(|a| a["transformation"].as_str().unwrap())
         .collect();
     assert_eq!(spawned, ["tid3", "tid2", "tid5"]);
+    server.kill9();
+}
+
+/// A field of `/proc/{pid}/status` in kB (`VmRSS`, `VmHWM`).
+fn status_kb(pid: u32, field: &str) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap()
+        .lines()
+        .find_map(|l| l.strip_prefix(field)?.strip_prefix(':'))
+        .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no {field} for {pid}"))
+}
+
+#[test]
+fn a_query_over_its_memory_limit_is_cancelled_before_the_service_grows() {
+    // 16 MiB are held within milliseconds; a bound that did not hold would be stopped by the
+    // timeout (the message tells which) before it took the machine.
+    let server = Server::start(&[
+        "--in-memory",
+        "--query-memory",
+        "16",
+        "--query-timeout",
+        "5",
+    ]);
+    let agent = agent_with_timeout(Duration::from_secs(60));
+    let base = server.url.clone();
+    let pid = server.child.id();
+    let resident = status_kb(pid, "VmRSS");
+    // The peak from here on (start-up's is forgotten; where the kernel refuses, it counts).
+    let _ = std::fs::write(format!("/proc/{pid}/clear_refs"), "5");
+    // Unbounded, this sorted product over the ontology's triples grew the service by 750 MB
+    // a second until its timeout.
+    let product = "SELECT ?a ?d ?g WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i } ORDER BY ?c ?f ?i";
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        product,
+    );
+    assert_eq!(status, 503, "{body}");
+    assert!(
+        body.contains("16 MiB") && body.contains("--query-memory"),
+        "{body}"
+    );
+    let grown = status_kb(pid, "VmHWM").saturating_sub(resident);
+    assert!(
+        grown < 200 * 1024,
+        "the service grew by {grown} kB for a query bounded to 16 MiB"
+    );
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        "SELECT (COUNT(*) AS ?n) WHERE { ?s ?p ?o }",
+    );
+    assert_eq!(status, 200, "{body}");
     server.kill9();
 }
 

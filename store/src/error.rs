@@ -100,6 +100,10 @@ pub enum SparqlQueryError {
     /// The query ran longer than the configured timeout.
     #[error("the query did not finish within the {0:?} timeout")]
     Timeout(std::time::Duration),
+    /// The query held more memory than its limit (in bytes) allows
+    /// ([`ParsedQuery::with_memory_limit`](crate::ParsedQuery::with_memory_limit)).
+    #[error("the query held more than its {0} bytes of memory")]
+    MemoryLimit(usize),
     /// The requested result format does not fit the query form.
     #[error("{0}")]
     UnsupportedFormat(String),

@@ -12,6 +12,53 @@ use crate::knowledge_base::KnowledgeBase;
 
 mod guard;
 
+thread_local! {
+    /// The token of the query with a memory budget running on this thread, for
+    /// [`cancel_running`]. Set before the budget starts, so that the allocator, which reads it,
+    /// never initialises it.
+    static RUNNING: std::cell::RefCell<Option<CancellationToken>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// The budget's hook: cancels the running query. Called from inside the allocator, so it only
+/// reads the thread-local (never borrowed mutably while a budget with this hook lives) and sets
+/// the token's flag: no allocation, no panic.
+fn cancel_running() {
+    let _ = RUNNING.try_with(|running| {
+        if let Ok(token) = running.try_borrow()
+            && let Some(token) = token.as_ref()
+        {
+            token.cancel();
+        }
+    });
+}
+
+/// A query's memory budget, and its token where the budget's hook finds it.
+struct Metered {
+    budget: dyknow_meter::Budget,
+}
+
+impl Metered {
+    fn start(limit: usize, cancel: &CancellationToken) -> Self {
+        RUNNING.with(|running| *running.borrow_mut() = Some(cancel.clone()));
+        Self {
+            budget: dyknow_meter::Budget::start_with(limit, cancel_running),
+        }
+    }
+}
+
+impl Drop for Metered {
+    fn drop(&mut self) {
+        // The token is forgotten, then the budget ends (fields drop after this body); in
+        // between, the hook finds no token to cancel.
+        let _ = RUNNING.try_with(|running| {
+            if let Ok(mut token) = running.try_borrow_mut() {
+                *token = None;
+            }
+        });
+    }
+}
+
 /// The form of a query, which decides the result formats on offer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum QueryForm {
@@ -44,6 +91,7 @@ pub struct ParsedQuery {
     prepared: oxigraph::sparql::PreparedSparqlQuery,
     form: QueryForm,
     cancel: CancellationToken,
+    memory: Option<usize>,
 }
 
 /// How deep a query may nest brackets (`(`, `{`, `[`, `<<`): the parser recurses once per
@@ -316,6 +364,32 @@ pub(crate) fn sub_expressions(
     }
 }
 
+/// The operands of `expression`, to change (not the pattern of an `EXISTS`).
+pub(crate) fn sub_expressions_mut(
+    expression: &mut spargebra::algebra::Expression,
+) -> Vec<&mut spargebra::algebra::Expression> {
+    use spargebra::algebra::Expression as E;
+    match expression {
+        E::NamedNode(_) | E::Literal(_) | E::Variable(_) | E::Bound(_) | E::Exists(_) => Vec::new(),
+        E::Or(a, b)
+        | E::And(a, b)
+        | E::Equal(a, b)
+        | E::SameTerm(a, b)
+        | E::Greater(a, b)
+        | E::GreaterOrEqual(a, b)
+        | E::Less(a, b)
+        | E::LessOrEqual(a, b)
+        | E::Add(a, b)
+        | E::Subtract(a, b)
+        | E::Multiply(a, b)
+        | E::Divide(a, b) => vec![a, b],
+        E::In(a, list) => std::iter::once(&mut **a).chain(list).collect(),
+        E::UnaryPlus(a) | E::UnaryMinus(a) | E::Not(a) => vec![a],
+        E::If(a, b, c) => vec![a, b, c],
+        E::Coalesce(list) | E::FunctionCall(_, list) => list.iter_mut().collect(),
+    }
+}
+
 impl ParsedQuery {
     /// Parses `query`. Updates are recognised and refused; syntax errors carry line and column;
     /// a query nested deeper than [`MAX_QUERY_NESTING`] brackets or [`MAX_QUERY_DEPTH`]
@@ -348,6 +422,7 @@ impl ParsedQuery {
                     prepared,
                     form,
                     cancel,
+                    memory: None,
                 })
             }
             Err(query_error) => {
@@ -373,6 +448,22 @@ impl ParsedQuery {
     /// The token that cancels the query's evaluation (e.g. when its time is up).
     pub fn cancellation_token(&self) -> CancellationToken {
         self.cancel.clone()
+    }
+
+    /// Bounds the memory the query's evaluation may hold (its solutions in joins, sorts and
+    /// groups, and the serialised answer) to `bytes`: past it, [`KnowledgeBase::run_query`]
+    /// stops the evaluation and answers [`SparqlQueryError::MemoryLimit`]. Memory is counted by
+    /// `dyknow_meter::Counting`, which the program must install as its global allocator (as
+    /// `dyknow serve` does); without it the bound is never reached. The allocation that passes
+    /// it cancels the query's token, and the query stops where it checks the token: at every
+    /// quad read, once per solution of a join or path (`guard`), once per row written. So it
+    /// can be passed by one growth of a buffer (a doubling) and by what is made between two
+    /// checks (one probe row's matches in a join, the end of a sort or aggregate over
+    /// solutions already made).
+    #[must_use]
+    pub fn with_memory_limit(mut self, bytes: usize) -> Self {
+        self.memory = Some(bytes);
+        self
     }
 }
 
@@ -447,31 +538,56 @@ impl KnowledgeBase {
             }
             other => SparqlQueryError::Evaluation(other.to_string()),
         };
-        // Evaluation (serialisation included: solutions are computed as they are written)
-        // happens inside `guard::evaluate`, which turns an evaluation the guard unwinds into a
-        // timeout.
-        let (media_type, mut body) = guard::evaluate(timeout, || {
-            let results = query
-                .prepared
-                .on_store(self.store())
-                .execute()
-                .map_err(map)?;
-            serialize(results, format, map)
-        })?;
-        if cancel.is_cancelled() {
-            return Err(SparqlQueryError::Timeout(timeout));
+        // The memory budget counts what this thread holds from here on (the evaluation is an
+        // iterator pulled here); the allocation that passes it cancels the token, which the
+        // evaluation notices where it notices a timeout: the query's error is then the limit.
+        let budget = query.memory.map(|limit| Metered::start(limit, &cancel));
+        let answered = self.evaluate(query.prepared, format, timeout, &cancel, map);
+        match budget {
+            Some(budget) if budget.budget.tripped() => {
+                Err(SparqlQueryError::MemoryLimit(budget.budget.limit()))
+            }
+            _ => answered,
         }
+    }
+
+    /// [`KnowledgeBase::run_query`]'s evaluation, serialisation included (solutions are
+    /// computed as they are written), inside `guard::evaluate`, which turns an evaluation the
+    /// guard unwinds into a timeout. The token is checked once per row written too: the
+    /// solutions of a sort or a group, made before it was cancelled, are not all written.
+    fn evaluate(
+        &self,
+        prepared: oxigraph::sparql::PreparedSparqlQuery,
+        format: ResultFormat,
+        timeout: std::time::Duration,
+        cancel: &CancellationToken,
+        map: impl Fn(QueryEvaluationError) -> SparqlQueryError + Copy,
+    ) -> Result<QueryAnswer, SparqlQueryError> {
+        let alive = || {
+            if cancel.is_cancelled() {
+                Err(SparqlQueryError::Timeout(timeout))
+            } else {
+                Ok(())
+            }
+        };
+        let (media_type, mut body) = guard::evaluate(timeout, || {
+            let results = prepared.on_store(self.store()).execute().map_err(map)?;
+            serialize(results, format, map, alive)
+        })?;
+        alive()?;
         body.flush()
             .map_err(|e| SparqlQueryError::Evaluation(e.to_string()))?;
         Ok(QueryAnswer { media_type, body })
     }
 }
 
-/// Writes `results` in `format`; `map` reports evaluation errors met on the way.
+/// Writes `results` in `format`; `map` reports evaluation errors met on the way, and `over`,
+/// checked before each row, stops the writing (a cancellation).
 fn serialize(
     results: QueryResults<'_>,
     format: ResultFormat,
     map: impl Fn(QueryEvaluationError) -> SparqlQueryError + Copy,
+    over: impl Fn() -> Result<(), SparqlQueryError>,
 ) -> Result<(&'static str, Vec<u8>), SparqlQueryError> {
     let io = |e: std::io::Error| SparqlQueryError::Evaluation(e.to_string());
     let mut body = Vec::new();
@@ -487,6 +603,7 @@ fn serialize(
                 .serialize_solutions_to_writer(&mut body, solutions.variables().to_vec())
                 .map_err(io)?;
             for solution in solutions {
+                over()?;
                 serializer.serialize(&solution.map_err(map)?).map_err(io)?;
             }
             serializer.finish().map_err(io)?;
@@ -495,6 +612,7 @@ fn serialize(
         (QueryResults::Graph(triples), ResultFormat::Rdf(f)) => {
             let mut serializer = prefixed(RdfSerializer::from_format(f)).for_writer(&mut body);
             for triple in triples {
+                over()?;
                 serializer
                     .serialize_triple(&triple.map_err(map)?)
                     .map_err(io)?;

@@ -1863,6 +1863,12 @@ PREFIX owl: <http://www.w3.org/2002/07/owl#>
         "SELECT ?a WHERE { ?a rdfs:subClassOf+ dyknow:Transformation }",
         "SELECT ?x WHERE { ?x a owl:Class FILTER EXISTS { ?x rdfs:comment ?c } }",
         "SELECT ?x WHERE { ?x a owl:Class FILTER NOT EXISTS { ?y rdfs:subClassOf ?x } }",
+        // EXISTS over joins, wherever an expression can hold one.
+        "SELECT ?x WHERE { ?x a owl:Class FILTER EXISTS { ?x rdfs:subClassOf ?y . ?y a owl:Class } }",
+        "SELECT ?x ?e WHERE { ?x a owl:Class BIND(EXISTS { ?y rdfs:subClassOf ?x . ?y rdfs:label ?l } AS ?e) }",
+        "SELECT ?x WHERE { ?x a owl:Class } ORDER BY (NOT EXISTS { ?x rdfs:subClassOf ?y . ?y rdfs:subClassOf ?z }) ?x",
+        "SELECT (SUM(IF(EXISTS { ?x rdfs:subClassOf ?y . ?y a owl:Class }, 1, 0)) AS ?n) WHERE { ?x a owl:Class }",
+        "SELECT * WHERE { ?x a owl:Class OPTIONAL { ?x rdfs:label ?l FILTER NOT EXISTS { ?x rdfs:comment ?c . ?x a ?k } } }",
         "SELECT DISTINCT ?p WHERE { ?s ?p ?o }",
         "SELECT REDUCED ?p WHERE { ?s ?p ?o }",
         "SELECT ?g (COUNT(*) AS ?n) WHERE { GRAPH ?g { ?s ?p ?o } } GROUP BY ?g",
@@ -1931,6 +1937,11 @@ fn a_cartesian_product_is_cancelled_promptly() {
         // A filter that rejects every solution of the join.
         (
             "SELECT * WHERE { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i . ?j ?k ?l FILTER(?c + ?f + ?i + ?l = -1) }",
+            ResultFormat::Results(QueryResultsFormat::Json),
+        ),
+        // The same join inside one EXISTS.
+        (
+            "ASK { FILTER EXISTS { ?a ?b ?c . ?d ?e ?f . ?g ?h ?i . ?j ?k ?l FILTER(?c + ?f + ?i + ?l = -1) } }",
             ResultFormat::Results(QueryResultsFormat::Json),
         ),
     ];

@@ -108,7 +108,10 @@ async fn answer(
     let query = params
         .query
         .ok_or_else(|| ApiError::bad_request("no query: pass it as ?query=, as form field query=, or as an application/sparql-query body"))?;
-    let parsed = ParsedQuery::parse(&query)?;
+    let mut parsed = ParsedQuery::parse(&query)?;
+    if let Some(bytes) = state.config.query_memory {
+        parsed = parsed.with_memory_limit(bytes);
+    }
     let owl = owl_syntax(parsed.form(), &headers)?;
     let format = match owl {
         Some(_) => ResultFormat::Rdf(RdfFormat::NTriples),
@@ -127,11 +130,20 @@ async fn answer(
             .map_err(ApiError::internal)?;
     }
     let kb = state.kb.clone();
+    let memory = state.config.query_memory;
     let answer = in_turn(&state, move || {
         let answer = kb.run_query(parsed, format, timeout)?;
         Ok(match owl {
             Some(syntax) => {
+                // Reading the answer as OWL holds memory too: counted against the same limit
+                // (horned-owl cannot be stopped midway, but what it reads is within the limit).
+                let budget = memory.map(dyknow_meter::Budget::start);
                 let (body, unparsed) = to_owl(&answer.body, syntax)?;
+                if let Some(budget) = budget
+                    && budget.tripped()
+                {
+                    return Err(SparqlQueryError::MemoryLimit(budget.limit()).into());
+                }
                 (syntax.media_type(), body, Some(unparsed))
             }
             None => (answer.media_type, answer.body, None),

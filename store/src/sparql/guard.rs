@@ -22,10 +22,16 @@
 //! would otherwise keep the guard from being called. The cost is one function call per
 //! solution (`docs/benchmarks.md`, "SPARQL cancellation").
 //!
-//! Not reached: the patterns of `EXISTS` (evaluated once per solution of the pattern around
-//! them, whose guard checks in between), the rows a join makes for one row of its probe side
-//! (buffered before the first is returned), and a sort or aggregate over solutions already
-//! made.
+//! The pattern of every `EXISTS` (in a filter, an `OPTIONAL`'s condition, a `BIND`, an
+//! `ORDER BY` key or an aggregate) is guarded in the same way: it is evaluated once per
+//! solution of the pattern around it, and one evaluation can be a whole join.
+//!
+//! The same checks stop a query that holds more memory than its budget allows
+//! (`ParsedQuery::with_memory_limit`, counted by `dyknow_meter`): the allocation that passes
+//! the budget cancels the query's token (`KnowledgeBase::run_query`).
+//!
+//! Not reached: the rows a join makes for one row of its probe side (buffered before the first
+//! is returned), and a sort or aggregate over solutions already made.
 //!
 //! A panic is the one way out of oxigraph's evaluator that a custom function has: its result
 //! is only ever a term or an error that SPARQL turns into "false". It unwinds only the
@@ -41,7 +47,9 @@ use oxigraph::sparql::{CancellationToken, PreparedSparqlQuery, SparqlEvaluator};
 use spargebra::algebra::{Expression, Function, GraphPattern};
 use spargebra::term::Variable;
 
-use super::sub_expressions;
+use spargebra::algebra::{AggregateExpression, OrderExpression};
+
+use super::{sub_expressions, sub_expressions_mut};
 use crate::error::SparqlQueryError;
 
 /// The custom function the guard calls once per solution.
@@ -132,7 +140,30 @@ pub(crate) fn evaluate<T>(
     }
 }
 
-/// Guards the pattern under every sub-`SELECT` and `GROUP BY` of `pattern`.
+/// Guards the pattern of every `EXISTS` in `expression` as a query's pattern is guarded: its
+/// solutions, made once per solution of the pattern around it, are checked too (a join inside
+/// `FILTER EXISTS` whose filter rejects every row ran unchecked to its end).
+fn exists(mut expression: Expression) -> Expression {
+    fn visit(expression: &mut Expression) {
+        if let Expression::Exists(pattern) = expression {
+            let taken = std::mem::replace(
+                &mut **pattern,
+                GraphPattern::Bgp {
+                    patterns: Vec::new(),
+                },
+            );
+            **pattern = guard(walk(taken));
+        } else {
+            for operand in sub_expressions_mut(expression) {
+                visit(operand);
+            }
+        }
+    }
+    visit(&mut expression);
+    expression
+}
+
+/// Guards the pattern under every sub-`SELECT`, `GROUP BY` and `EXISTS` of `pattern`.
 fn walk(pattern: GraphPattern) -> GraphPattern {
     use GraphPattern as G;
     let w = |p: Box<G>| Box::new(walk(*p));
@@ -161,7 +192,7 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         } => G::LeftJoin {
             left: w(left),
             right: w(right),
-            expression,
+            expression: expression.map(exists),
         },
         // A filter over a join may reject nearly every solution, and the optimiser merges it
         // with the guard into one conjunction whose order it chooses: such a filter checks
@@ -169,6 +200,7 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         // would be; a constant is left for the optimiser to fold).
         G::Filter { expr, inner } => {
             let inner = walk(*inner);
+            let expr = exists(expr);
             let expr = if multiplies(&inner) && !constant(&expr) {
                 checked(expr.clone(), expr)
             } else {
@@ -190,11 +222,17 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         } => G::Extend {
             inner: w(inner),
             variable,
-            expression,
+            expression: exists(expression),
         },
         G::OrderBy { inner, expression } => G::OrderBy {
             inner: w(inner),
-            expression,
+            expression: expression
+                .into_iter()
+                .map(|order| match order {
+                    OrderExpression::Asc(e) => OrderExpression::Asc(exists(e)),
+                    OrderExpression::Desc(e) => OrderExpression::Desc(exists(e)),
+                })
+                .collect(),
         },
         G::Distinct { inner } => G::Distinct { inner: w(inner) },
         G::Reduced { inner } => G::Reduced { inner: w(inner) },
@@ -220,6 +258,24 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
             aggregates,
         } => {
             let inner = walk(*inner);
+            let aggregates = aggregates
+                .into_iter()
+                .map(|(variable, aggregate)| {
+                    let aggregate = match aggregate {
+                        AggregateExpression::FunctionCall {
+                            name,
+                            expr,
+                            distinct,
+                        } => AggregateExpression::FunctionCall {
+                            name,
+                            expr: exists(expr),
+                            distinct,
+                        },
+                        count @ AggregateExpression::CountSolutions { .. } => count,
+                    };
+                    (variable, aggregate)
+                })
+                .collect();
             G::Group {
                 inner: Box::new(guard(inner)),
                 variables,
@@ -350,6 +406,57 @@ mod tests {
         assert_eq!(
             guards("SELECT * WHERE { ?x ?y ?z { SELECT ?a WHERE { ?a ?b ?c . ?d ?e ?f } } }"),
             2
+        );
+    }
+
+    #[test]
+    fn the_patterns_of_exists_are_guarded_wherever_it_is() {
+        let join = "{ ?a ?b ?c . ?d ?e ?f }";
+        // In a filter over one pattern: the filter's pattern is not, the EXISTS pattern is.
+        assert_eq!(
+            guards(&format!(
+                "SELECT * WHERE {{ ?s ?p ?o FILTER EXISTS {join} }}"
+            )),
+            1
+        );
+        assert_eq!(guards(&format!("ASK {{ FILTER NOT EXISTS {join} }}")), 1);
+        // Nested in an expression, in BIND, in ORDER BY, in an aggregate, in OPTIONAL's
+        // condition.
+        assert_eq!(
+            guards(&format!(
+                "SELECT * WHERE {{ ?s ?p ?o FILTER(?o = 1 || !EXISTS {join}) }}"
+            )),
+            1
+        );
+        assert_eq!(
+            guards(&format!(
+                "SELECT * WHERE {{ ?s ?p ?o BIND(EXISTS {join} AS ?x) }}"
+            )),
+            1
+        );
+        assert_eq!(
+            guards(&format!(
+                "SELECT * WHERE {{ ?s ?p ?o }} ORDER BY (EXISTS {join})"
+            )),
+            1
+        );
+        assert_eq!(
+            guards(&format!(
+                "SELECT (SUM(IF(EXISTS {join}, 1, 0)) AS ?n) WHERE {{ ?s ?p ?o }}"
+            )),
+            1
+        );
+        // An OPTIONAL's filter is its condition; the OPTIONAL, a join, is guarded too.
+        assert_eq!(
+            guards(&format!(
+                "SELECT * WHERE {{ ?s ?p ?o OPTIONAL {{ ?o ?q ?r FILTER EXISTS {join} }} }}"
+            )),
+            2
+        );
+        // An EXISTS over one pattern reads a quad per solution: left alone.
+        assert_eq!(
+            guards("SELECT * WHERE { ?s ?p ?o FILTER EXISTS { ?o ?q ?r } }"),
+            0
         );
     }
 
