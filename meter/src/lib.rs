@@ -164,8 +164,11 @@ pub fn over_budget() -> bool {
 
 /// A ceiling on the bytes the calling thread may hold more than when the budget started, until
 /// it is dropped. Budgets nest: the innermost one is checked, and dropping it restores the one
-/// around it (while an inner budget lives, an outer one's [`Budget::peak`] counts from the
-/// inner one's start). A budget belongs to its thread (it is neither `Send` nor `Sync`).
+/// around it, which trips then (its hook called) if the thread passed its ceiling meanwhile
+/// (while an inner budget lives, an outer one's [`Budget::peak`] counts from the inner one's
+/// start). Budgets must end in the reverse order of their start (as scopes do); one that is
+/// leaked (`mem::forget`) leaves its ceiling and hook on the thread. A budget belongs to its
+/// thread (it is neither `Send` nor `Sync`).
 #[derive(Debug)]
 pub struct Budget {
     start: isize,
@@ -251,12 +254,20 @@ impl Budget {
 impl Drop for Budget {
     fn drop(&mut self) {
         let (ceiling, peak, tripped, hook) = self.outer;
-        let _ = STATE.try_with(|s| {
-            s.ceiling.set(ceiling);
-            s.peak.set(s.peak.get().max(peak));
-            // Still over the outer ceiling, the next allocation trips the outer budget.
-            s.tripped.set(tripped);
-            s.hook.set(hook);
-        });
+        let passed = STATE
+            .try_with(|s| {
+                s.ceiling.set(ceiling);
+                s.peak.set(s.peak.get().max(peak));
+                s.hook.set(hook);
+                // The outer budget was passed while this one lived: it trips now.
+                let passed = !tripped && s.peak.get() > ceiling;
+                s.tripped.set(tripped || passed);
+                passed
+            })
+            .unwrap_or(false);
+        // Outside the allocator here, the hook may do as it likes.
+        if passed && let Some(hook) = hook {
+            hook();
+        }
     }
 }

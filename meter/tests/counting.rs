@@ -86,6 +86,24 @@ fn budgets_nest_and_the_innermost_is_checked() {
 }
 
 #[test]
+fn an_outer_budget_passed_while_an_inner_one_lived_trips_when_it_ends() {
+    let outer = Budget::start_with(1 << 16, hook);
+    {
+        let _inner = Budget::start(1 << 30);
+        let big = std::hint::black_box(vec![0u8; 1 << 18]);
+        drop(big);
+        assert_eq!(
+            HOOKED.with(std::cell::Cell::get),
+            0,
+            "the inner budget is checked"
+        );
+    }
+    assert!(outer.tripped());
+    assert_eq!(HOOKED.with(std::cell::Cell::get), 1);
+    assert!(!outer.exceeded(), "freed meanwhile");
+}
+
+#[test]
 fn each_thread_counts_its_own() {
     let budget = Budget::start(1 << 16);
     let before = held();

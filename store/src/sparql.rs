@@ -36,24 +36,29 @@ fn cancel_running() {
 /// A query's memory budget, and its token where the budget's hook finds it.
 struct Metered {
     budget: dyknow_meter::Budget,
+    /// The token of a query metered around this one on the thread (none today), put back.
+    outer: Option<CancellationToken>,
 }
 
 impl Metered {
     fn start(limit: usize, cancel: &CancellationToken) -> Self {
-        RUNNING.with(|running| *running.borrow_mut() = Some(cancel.clone()));
+        let outer = RUNNING.with(|running| running.borrow_mut().replace(cancel.clone()));
         Self {
             budget: dyknow_meter::Budget::start_with(limit, cancel_running),
+            outer,
         }
     }
 }
 
 impl Drop for Metered {
     fn drop(&mut self) {
-        // The token is forgotten, then the budget ends (fields drop after this body); in
-        // between, the hook finds no token to cancel.
+        // The outer token is back, then the budget ends (fields drop after this body); in
+        // between, a hook would cancel the outer query, whose budget this one's usage counts
+        // towards too.
+        let outer = self.outer.take();
         let _ = RUNNING.try_with(|running| {
             if let Ok(mut token) = running.try_borrow_mut() {
-                *token = None;
+                *token = outer;
             }
         });
     }

@@ -135,9 +135,12 @@ async fn answer(
         let answer = kb.run_query(parsed, format, timeout)?;
         Ok(match owl {
             Some(syntax) => {
-                // Reading the answer as OWL holds memory too: counted against the same limit
-                // (horned-owl cannot be stopped midway, but what it reads is within the limit).
-                let budget = memory.map(dyknow_meter::Budget::start);
+                // Reading the answer as OWL holds memory too: counted against what the limit
+                // leaves beside the answer (horned-owl cannot be stopped midway, so this is
+                // checked once it ends; what it reads is within the limit).
+                let budget = memory.map(|limit| {
+                    dyknow_meter::Budget::start(limit.saturating_sub(answer.body.len()))
+                });
                 let (body, unparsed) = to_owl(&answer.body, syntax)?;
                 if let Some(budget) = budget
                     && budget.tripped()
