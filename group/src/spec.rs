@@ -145,18 +145,22 @@ pub fn ground(index: usize, text: &str, domains: &Domains) -> Result<Grounded, S
             ),
         });
     }
-    let symbols = ground_symbols(&formula, domains).map_err(|e| {
-        let column = match &e {
-            CompileError::UnknownDomain(d) => domain_column(text, d),
-            _ => 1,
-        };
-        SpecError::Grounding {
+    let symbols = ground_symbols(&formula, domains).map_err(|e| match &e {
+        // The compiler's words are `dyknow check`'s (a trace header): a group declares its
+        // domains in its body, or with `dyknow group create --domain`.
+        CompileError::UnknownDomain(d) => SpecError::Grounding {
             index,
-            column,
-            message: e
-                .to_string()
-                .replace("(give it in the trace header or with --domain {0}=a,b)", ""),
-        }
+            column: domain_column(text, d),
+            message: format!(
+                "unknown domain '{d}' (declare it in the group's \"domains\", e.g. \
+                 {{\"{d}\": [\"a\", \"b\"]}}, or with `dyknow group create --domain {d}=a,b`)"
+            ),
+        },
+        _ => SpecError::Grounding {
+            index,
+            column: 1,
+            message: e.to_string(),
+        },
     })?;
     Ok(Grounded { formula, symbols })
 }
@@ -370,5 +374,23 @@ mod tests {
         let parts = "(forall x in {a,b,c}: p(x)) && q && always r";
         let f = parse(parts).unwrap();
         assert_eq!(ground_atoms(&f, &Domains::new()), 5);
+    }
+
+    #[test]
+    fn an_unknown_domain_is_named_with_the_groups_way_to_declare_it() {
+        match ground(2, "forall x in UAV: altitude(x) > 1", &Domains::new()) {
+            Err(SpecError::Grounding {
+                index,
+                column,
+                message,
+            }) => {
+                assert_eq!((index, column), (2, 13));
+                assert!(message.contains("unknown domain 'UAV'"), "{message}");
+                assert!(message.contains("\"domains\""), "{message}");
+                assert!(message.contains("--domain UAV=a,b"), "{message}");
+                assert!(!message.contains("trace header"), "{message}");
+            }
+            other => panic!("{:?}", other.map(|g| g.symbols.len())),
+        }
     }
 }
