@@ -343,56 +343,47 @@ fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
     false
 }
 
+/// The operands of an expression, by shared or by mutable reference (`mut`): one match for
+/// both [`sub_expressions`] and [`sub_expressions_mut`].
+macro_rules! operands {
+    ($expression:expr $(, $mutable:tt)?) => {{
+        use spargebra::algebra::Expression as E;
+        match $expression {
+            E::NamedNode(_) | E::Literal(_) | E::Variable(_) | E::Bound(_) | E::Exists(_) => {
+                Vec::new()
+            }
+            E::Or(a, b)
+            | E::And(a, b)
+            | E::Equal(a, b)
+            | E::SameTerm(a, b)
+            | E::Greater(a, b)
+            | E::GreaterOrEqual(a, b)
+            | E::Less(a, b)
+            | E::LessOrEqual(a, b)
+            | E::Add(a, b)
+            | E::Subtract(a, b)
+            | E::Multiply(a, b)
+            | E::Divide(a, b) => vec![a, b],
+            E::In(a, list) => std::iter::once(&$($mutable)? **a).chain(list).collect(),
+            E::UnaryPlus(a) | E::UnaryMinus(a) | E::Not(a) => vec![a],
+            E::If(a, b, c) => vec![a, b, c],
+            E::Coalesce(list) | E::FunctionCall(_, list) => list.into_iter().collect(),
+        }
+    }};
+}
+
 /// The operands of `expression` (not the pattern of an `EXISTS`).
 pub(crate) fn sub_expressions(
     expression: &spargebra::algebra::Expression,
 ) -> Vec<&spargebra::algebra::Expression> {
-    use spargebra::algebra::Expression as E;
-    match expression {
-        E::NamedNode(_) | E::Literal(_) | E::Variable(_) | E::Bound(_) | E::Exists(_) => Vec::new(),
-        E::Or(a, b)
-        | E::And(a, b)
-        | E::Equal(a, b)
-        | E::SameTerm(a, b)
-        | E::Greater(a, b)
-        | E::GreaterOrEqual(a, b)
-        | E::Less(a, b)
-        | E::LessOrEqual(a, b)
-        | E::Add(a, b)
-        | E::Subtract(a, b)
-        | E::Multiply(a, b)
-        | E::Divide(a, b) => vec![a, b],
-        E::In(a, list) => std::iter::once(&**a).chain(list).collect(),
-        E::UnaryPlus(a) | E::UnaryMinus(a) | E::Not(a) => vec![a],
-        E::If(a, b, c) => vec![a, b, c],
-        E::Coalesce(list) | E::FunctionCall(_, list) => list.iter().collect(),
-    }
+    operands!(expression)
 }
 
 /// The operands of `expression`, to change (not the pattern of an `EXISTS`).
 pub(crate) fn sub_expressions_mut(
     expression: &mut spargebra::algebra::Expression,
 ) -> Vec<&mut spargebra::algebra::Expression> {
-    use spargebra::algebra::Expression as E;
-    match expression {
-        E::NamedNode(_) | E::Literal(_) | E::Variable(_) | E::Bound(_) | E::Exists(_) => Vec::new(),
-        E::Or(a, b)
-        | E::And(a, b)
-        | E::Equal(a, b)
-        | E::SameTerm(a, b)
-        | E::Greater(a, b)
-        | E::GreaterOrEqual(a, b)
-        | E::Less(a, b)
-        | E::LessOrEqual(a, b)
-        | E::Add(a, b)
-        | E::Subtract(a, b)
-        | E::Multiply(a, b)
-        | E::Divide(a, b) => vec![a, b],
-        E::In(a, list) => std::iter::once(&mut **a).chain(list).collect(),
-        E::UnaryPlus(a) | E::UnaryMinus(a) | E::Not(a) => vec![a],
-        E::If(a, b, c) => vec![a, b, c],
-        E::Coalesce(list) | E::FunctionCall(_, list) => list.iter_mut().collect(),
-    }
+    operands!(expression, mut)
 }
 
 impl ParsedQuery {
