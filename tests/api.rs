@@ -846,6 +846,41 @@ async fn sparql_query_over_its_memory_limit_is_503() {
     api.assert_healthy().await;
 }
 
+/// A CONSTRUCT answered as OWL: horned-owl's reading of the answer counts against the limit
+/// too (what it leaves beside the answer), and the message names the limit as configured.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sparql_owl_answers_count_horned_owl_against_the_memory_limit() {
+    let api = Api::with_config(dyknow_server::ServerConfig {
+        query_memory: Some(64 << 20),
+        ..dyknow_server::ServerConfig::default()
+    });
+    let mut doc = String::from(
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .\n\
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .\n",
+    );
+    for i in 0..2_000 {
+        doc.push_str(&format!(
+            "[] a dyknow:Transformation ; rdfs:label \"tf-{i:05}\" ; dyknow:hasInPort [ \
+             dyknow:hasName \"in\" ; dyknow:hasTag [ dyknow:hasValue \"In{}\" ] ] ; \
+             dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \
+             \"Out{i}\" ] ] .\n",
+            i % 50
+        ));
+    }
+    api.post_turtle("/transformations", doc).await.expect(201);
+    let path = format!("/sparql?query={}", encode("CONSTRUCT WHERE { ?s ?p ?o }"));
+    // The answer itself (8.9 MB of N-Triples; its evaluation held 32-64 MiB) fits.
+    let triples = api.get_accept(&path, "application/n-triples").await;
+    triples.expect(200);
+    assert!(triples.body.len() > 8 << 20, "{}", triples.body.len());
+    // Read as OWL it does not (it took 64-128 MiB with horned-owl's reading).
+    let owl = api.get_accept(&path, "text/owl-functional").await;
+    assert!(owl.expect_error(503).is_empty());
+    let message = owl.json()["error"].as_str().unwrap().to_owned();
+    assert!(message.contains("64 MiB"), "{message}");
+    api.assert_healthy().await;
+}
+
 // ---------------------------------------------------------------------------------------------
 // GetModel
 // ---------------------------------------------------------------------------------------------

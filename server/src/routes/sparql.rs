@@ -142,10 +142,10 @@ async fn answer(
                     dyknow_meter::Budget::start(limit.saturating_sub(answer.body.len()))
                 });
                 let (body, unparsed) = to_owl(&answer.body, syntax)?;
-                if let Some(budget) = budget
+                if let (Some(budget), Some(limit)) = (budget, memory)
                     && budget.tripped()
                 {
-                    return Err(SparqlQueryError::MemoryLimit(budget.limit()).into());
+                    return Err(SparqlQueryError::MemoryLimit(limit).into());
                 }
                 (syntax.media_type(), body, Some(unparsed))
             }
