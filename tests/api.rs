@@ -806,6 +806,14 @@ async fn sparql_query_timeout_is_503() {
     api.post("/sparql", "application/sparql-query", heavy)
         .await
         .expect_error(503);
+    // Counted by the limit they passed.
+    let metrics = api.get("/metrics").await.text();
+    for line in [
+        r#"dyknow_sparql_cancelled_total{limit="timeout"} 4"#,
+        r#"dyknow_sparql_cancelled_total{limit="memory"} 0"#,
+    ] {
+        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
+    }
     api.assert_healthy().await;
 }
 
@@ -843,6 +851,14 @@ async fn sparql_query_over_its_memory_limit_is_503() {
         ))
         .await;
     answer.expect(200);
+    // Counted by the limit they passed.
+    let metrics = api.get("/metrics").await.text();
+    for line in [
+        r#"dyknow_sparql_cancelled_total{limit="timeout"} 0"#,
+        r#"dyknow_sparql_cancelled_total{limit="memory"} 3"#,
+    ] {
+        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
+    }
     api.assert_healthy().await;
 }
 

@@ -3,9 +3,10 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use dyknow_store::StoreStatistics;
+use dyknow_store::{SparqlQueryError, StoreStatistics};
 
 /// Upper bounds of the latency histogram buckets, in seconds.
 const BUCKETS: [f64; 12] = [
@@ -36,9 +37,23 @@ struct Inner {
 #[derive(Default)]
 pub struct Metrics {
     inner: Mutex<Inner>,
+    /// SPARQL queries cancelled at `--query-timeout`.
+    sparql_timeouts: AtomicU64,
+    /// SPARQL queries cancelled at `--query-memory`.
+    sparql_over_memory: AtomicU64,
 }
 
 impl Metrics {
+    /// Counts a SPARQL query that failed with `error`, if a limit cancelled it.
+    pub fn sparql_failed(&self, error: &SparqlQueryError) {
+        let counter = match error {
+            SparqlQueryError::Timeout(_) => &self.sparql_timeouts,
+            SparqlQueryError::MemoryLimit(_) => &self.sparql_over_memory,
+            _ => return,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Records one answered request.
     pub fn record(&self, method: &str, route: &str, status: u16, elapsed: Duration) {
         let mut inner = self
@@ -116,6 +131,22 @@ impl Metrics {
                 out,
                 "dyknow_http_request_duration_seconds_count{{{labels}}} {}",
                 h.count
+            );
+        }
+        let _ = writeln!(
+            out,
+            "# HELP dyknow_sparql_cancelled_total SPARQL queries cancelled, by the limit they \
+             passed (timeout: --query-timeout, memory: --query-memory)."
+        );
+        let _ = writeln!(out, "# TYPE dyknow_sparql_cancelled_total counter");
+        for (limit, counter) in [
+            ("timeout", &self.sparql_timeouts),
+            ("memory", &self.sparql_over_memory),
+        ] {
+            let _ = writeln!(
+                out,
+                "dyknow_sparql_cancelled_total{{limit=\"{limit}\"}} {}",
+                counter.load(Ordering::Relaxed)
             );
         }
         for (name, help, value) in [

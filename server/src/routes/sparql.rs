@@ -131,8 +131,11 @@ async fn answer(
     }
     let kb = state.kb.clone();
     let memory = state.config.query_memory;
+    let metrics = state.metrics.clone();
     let answer = in_turn(&state, move || {
-        let answer = kb.run_query(parsed, format, timeout)?;
+        let answer = kb
+            .run_query(parsed, format, timeout)
+            .inspect_err(|e| metrics.sparql_failed(e))?;
         Ok(match owl {
             Some(syntax) => {
                 // Reading the answer as OWL holds memory too: counted against what the limit
@@ -145,7 +148,9 @@ async fn answer(
                 if let (Some(budget), Some(limit)) = (budget, memory)
                     && budget.tripped()
                 {
-                    return Err(SparqlQueryError::MemoryLimit(limit).into());
+                    let error = SparqlQueryError::MemoryLimit(limit);
+                    metrics.sparql_failed(&error);
+                    return Err(error.into());
                 }
                 (syntax.media_type(), body, Some(unparsed))
             }
