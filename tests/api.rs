@@ -775,6 +775,18 @@ async fn sparql_updates_are_refused_with_403() {
     assert_eq!(answer.expect(200).json()["boolean"], json!(false));
 }
 
+/// `/metrics` counts `timeouts` SPARQL queries cancelled at the timeout and `memory` at the
+/// memory limit.
+async fn assert_cancelled(api: &Api, timeouts: u64, memory: u64) {
+    let metrics = api.get("/metrics").await.text();
+    for line in [
+        format!(r#"dyknow_sparql_cancelled_total{{limit="timeout"}} {timeouts}"#),
+        format!(r#"dyknow_sparql_cancelled_total{{limit="memory"}} {memory}"#),
+    ] {
+        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sparql_query_timeout_is_503() {
     let api = Api::with_query_timeout(Duration::from_millis(5));
@@ -807,13 +819,7 @@ async fn sparql_query_timeout_is_503() {
         .await
         .expect_error(503);
     // Counted by the limit they passed.
-    let metrics = api.get("/metrics").await.text();
-    for line in [
-        r#"dyknow_sparql_cancelled_total{limit="timeout"} 4"#,
-        r#"dyknow_sparql_cancelled_total{limit="memory"} 0"#,
-    ] {
-        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
-    }
+    assert_cancelled(&api, 4, 0).await;
     api.assert_healthy().await;
 }
 
@@ -852,13 +858,7 @@ async fn sparql_query_over_its_memory_limit_is_503() {
         .await;
     answer.expect(200);
     // Counted by the limit they passed.
-    let metrics = api.get("/metrics").await.text();
-    for line in [
-        r#"dyknow_sparql_cancelled_total{limit="timeout"} 0"#,
-        r#"dyknow_sparql_cancelled_total{limit="memory"} 3"#,
-    ] {
-        assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
-    }
+    assert_cancelled(&api, 0, 3).await;
     api.assert_healthy().await;
 }
 

@@ -577,13 +577,13 @@ impl KnowledgeBase {
     }
 }
 
-/// Writes `results` in `format`; `map` reports evaluation errors met on the way, and `over`,
+/// Writes `results` in `format`; `map` reports evaluation errors met on the way, and `alive`,
 /// checked before each row, stops the writing (a cancellation).
 fn serialize(
     results: QueryResults<'_>,
     format: ResultFormat,
     map: impl Fn(QueryEvaluationError) -> SparqlQueryError + Copy,
-    over: impl Fn() -> Result<(), SparqlQueryError>,
+    alive: impl Fn() -> Result<(), SparqlQueryError>,
 ) -> Result<(&'static str, Vec<u8>), SparqlQueryError> {
     let io = |e: std::io::Error| SparqlQueryError::Evaluation(e.to_string());
     let mut body = Vec::new();
@@ -599,7 +599,7 @@ fn serialize(
                 .serialize_solutions_to_writer(&mut body, solutions.variables().to_vec())
                 .map_err(io)?;
             for solution in solutions {
-                over()?;
+                alive()?;
                 serializer.serialize(&solution.map_err(map)?).map_err(io)?;
             }
             serializer.finish().map_err(io)?;
@@ -608,7 +608,7 @@ fn serialize(
         (QueryResults::Graph(triples), ResultFormat::Rdf(f)) => {
             let mut serializer = prefixed(RdfSerializer::from_format(f)).for_writer(&mut body);
             for triple in triples {
-                over()?;
+                alive()?;
                 serializer
                     .serialize_triple(&triple.map_err(map)?)
                     .map_err(io)?;

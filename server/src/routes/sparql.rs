@@ -142,10 +142,11 @@ async fn answer(
                 // leaves beside the answer (horned-owl cannot be stopped midway, so this is
                 // checked once it ends; what it reads is within the limit).
                 let budget = memory.map(|limit| {
-                    dyknow_meter::Budget::start(limit.saturating_sub(answer.body.len()))
+                    let left = limit.saturating_sub(answer.body.len());
+                    (limit, dyknow_meter::Budget::start(left))
                 });
                 let (body, unparsed) = to_owl(&answer.body, syntax)?;
-                if let (Some(budget), Some(limit)) = (budget, memory)
+                if let Some((limit, budget)) = budget
                     && budget.tripped()
                 {
                     let error = SparqlQueryError::MemoryLimit(limit);

@@ -44,10 +44,10 @@ use std::time::Duration;
 
 use oxigraph::model::{Literal, NamedNode, Term};
 use oxigraph::sparql::{CancellationToken, PreparedSparqlQuery, SparqlEvaluator};
-use spargebra::algebra::{Expression, Function, GraphPattern};
+use spargebra::algebra::{
+    AggregateExpression, Expression, Function, GraphPattern, OrderExpression,
+};
 use spargebra::term::Variable;
-
-use spargebra::algebra::{AggregateExpression, OrderExpression};
 
 use super::{sub_expressions, sub_expressions_mut};
 use crate::error::SparqlQueryError;
@@ -92,14 +92,18 @@ fn guard_query(mut query: spargebra::Query) -> spargebra::Query {
         | spargebra::Query::Describe { pattern, .. }
         | spargebra::Query::Ask { pattern, .. } => pattern,
     };
-    let taken = std::mem::replace(
+    *pattern = guard(walk(take(pattern)));
+    query
+}
+
+/// `pattern`'s value, an empty pattern left in its place.
+fn take(pattern: &mut GraphPattern) -> GraphPattern {
+    std::mem::replace(
         pattern,
         GraphPattern::Bgp {
             patterns: Vec::new(),
         },
-    );
-    *pattern = guard(walk(taken));
-    query
+    )
 }
 
 /// An evaluator that answers `alive()` for `token`.
@@ -146,13 +150,7 @@ pub(crate) fn evaluate<T>(
 fn exists(mut expression: Expression) -> Expression {
     fn visit(expression: &mut Expression) {
         if let Expression::Exists(pattern) = expression {
-            let taken = std::mem::replace(
-                &mut **pattern,
-                GraphPattern::Bgp {
-                    patterns: Vec::new(),
-                },
-            );
-            **pattern = guard(walk(taken));
+            **pattern = guard(walk(take(pattern)));
         } else {
             for operand in sub_expressions_mut(expression) {
                 visit(operand);
