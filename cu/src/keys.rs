@@ -93,6 +93,19 @@ impl Namespace {
         format!("{}/executor/*", self.control())
     }
 
+    /// The liveliness token of one instance of an executor, `<ns>/@dyknow/executor/<name>/<instance>`
+    /// (an [`instance_id`]): Zenoh announces a key once however many sessions hold it, so the
+    /// name's own token cannot tell two executors of one name apart; these can.
+    pub fn executor_instance(&self, executor: &str, instance: &str) -> String {
+        format!("{}/executor/{executor}/{instance}", self.control())
+    }
+
+    /// The liveliness key expression matching the instance tokens of executor `executor`
+    /// (`"*"`: of every executor).
+    pub fn executor_instances(&self, executor: &str) -> String {
+        format!("{}/executor/{executor}/*", self.control())
+    }
+
     /// The executor's queryable for change sets (`apply`), its description (`info`) and
     /// implementation checks (`check`).
     pub fn executor_service(&self, executor: &str, service: &str) -> String {
@@ -147,6 +160,24 @@ pub fn check_name(what: &'static str, name: &str) -> Result<(), KeyError> {
     Ok(())
 }
 
+/// An executor instance's id: its start time (milliseconds since the Unix epoch, 13 digits)
+/// and its Zenoh session id, `1764377000123-<zid>`-like. Ids order as their starts do (the
+/// session id breaks ties), which is how two executors of one name agree on the one that keeps
+/// the name: the one that started first.
+pub fn instance_id(started_ms: u64, zid: &str) -> String {
+    format!("{started_ms:013}-{zid}")
+}
+
+/// The executor name and instance id of an instance token's key
+/// ([`Namespace::executor_instance`]); `None` for any other key.
+pub fn instance_of(key: &str) -> Option<(&str, &str)> {
+    let mut chunks = key.rsplitn(4, '/');
+    let instance = chunks.next()?;
+    let name = chunks.next()?;
+    (chunks.next()? == "executor" && chunks.next()?.ends_with("@dyknow"))
+        .then_some((name, instance))
+}
+
 /// Checks that a channel name maps to a key expression (`executors.md`).
 pub fn check_channel(channel: &str) -> Result<(), KeyError> {
     check_chunks("channel name", channel.strip_prefix('/').unwrap_or(channel))
@@ -177,6 +208,21 @@ mod tests {
         assert!(Namespace::new("a/*").is_err());
         assert!(check_name("CU name", "cu-1").is_ok());
         assert!(check_name("CU name", "a/b").is_err());
+    }
+
+    #[test]
+    fn instance_ids_order_by_start_then_session() {
+        let (earlier, later) = (instance_id(999, "ff"), instance_id(1_000, "0a"));
+        assert!(earlier < later, "{earlier} must sort before {later}");
+        assert!(instance_id(1_000, "0a") < instance_id(1_000, "0b"));
+        let ns = Namespace::new("lab/r1").expect("valid");
+        assert_eq!(
+            instance_of(&ns.executor_instance("x", &later)),
+            Some(("x", later.as_str()))
+        );
+        assert_eq!(instance_of(&ns.executor_token("x")), None);
+        assert_eq!(instance_of("lab/r1/@dyknow/service/x/info"), None);
+        assert!(check_name("instance", &later).is_ok());
     }
 
     #[test]

@@ -202,6 +202,12 @@ pub struct ApplyRequest {
     pub generation: u64,
     /// The actions.
     pub actions: Vec<CuAction>,
+    /// The instance of the executor's name the request is for ([`ExecutorInfo::instance`]):
+    /// another instance of the name refuses every action (two executors of one name meet
+    /// when a partition heals; the later one steps down, and must not act meanwhile).
+    /// Absent: any instance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instance: Option<String>,
 }
 
 /// An action that failed.
@@ -301,6 +307,10 @@ pub struct ExecutorInfo {
     pub processes: bool,
     /// Its CUs.
     pub cus: Vec<CuReport>,
+    /// Which instance of the name answers ([`crate::keys::instance_id`]; absent from an
+    /// executor that does not say).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instance: Option<String>,
 }
 
 /// The answer of an executor's `check` service for an [`Implementation`].

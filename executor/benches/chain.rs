@@ -242,6 +242,7 @@ fn dyknow_chain(
         names.push(cu);
     }
     let reply = executor.apply(&ApplyRequest {
+        instance: None,
         change_set: "bench".into(),
         generation: 0,
         actions,
@@ -256,6 +257,7 @@ fn destroy(executor: &Executor, names: Vec<String>) {
         .map(|cu| CuAction::Destroy { cu })
         .collect();
     executor.apply(&ApplyRequest {
+        instance: None,
         change_set: "bench".into(),
         generation: 0,
         actions,
@@ -436,6 +438,7 @@ fn main() {
         }
         let started = Instant::now();
         let reply = executor.apply(&ApplyRequest {
+            instance: None,
             change_set: "idle".into(),
             generation: 0,
             actions,

@@ -9,14 +9,16 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::{Duration, Instant};
 
+use dyknow_cu::keys::{instance_id, instance_of};
 use dyknow_cu::protocol::{
     ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Failure,
     Implementation, Kind,
 };
 use dyknow_cu::zenoh::bytes::Encoding;
 use dyknow_cu::zenoh::liveliness::LivelinessToken;
-use dyknow_cu::zenoh::pubsub::Publisher;
+use dyknow_cu::zenoh::pubsub::{Publisher, Subscriber};
 use dyknow_cu::zenoh::query::{Query, Queryable};
+use dyknow_cu::zenoh::sample::SampleKind;
 use dyknow_cu::zenoh::{self, Wait};
 use dyknow_cu::{CuError, Namespace, Timers, Unit, UnitSpec};
 
@@ -43,6 +45,19 @@ pub struct ExecutorConfig {
     /// Zenoh's own configuration file its process CUs read too (`DYKNOW_ZENOH_CONFIG`: the
     /// TLS certificates for `tls/` endpoints), if any.
     pub zenoh_config: Option<std::path::PathBuf>,
+    /// Called once if the executor steps down for an earlier executor of its name
+    /// ([`Executor::start`]), after it stopped, with that executor's instance id.
+    pub on_step_down: Option<OnStepDown>,
+}
+
+/// What to do when an executor steps down ([`ExecutorConfig::on_step_down`]).
+#[derive(Clone)]
+pub struct OnStepDown(pub Arc<dyn Fn(&str) + Send + Sync>);
+
+impl std::fmt::Debug for OnStepDown {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("OnStepDown")
+    }
 }
 
 impl ExecutorConfig {
@@ -59,6 +74,7 @@ impl ExecutorConfig {
             report_interval: Duration::from_secs(1),
             start_timeout: Duration::from_secs(10),
             zenoh_config: None,
+            on_step_down: None,
         }
     }
 }
@@ -108,6 +124,8 @@ impl ProcessCu {
 
 struct Inner {
     config: ExecutorConfig,
+    /// This instance's id ([`instance_id`]).
+    instance: String,
     session: zenoh::Session,
     timers: Timers,
     cus: Mutex<BTreeMap<String, Hosted>>,
@@ -130,16 +148,27 @@ enum Job {
 /// A running executor. [`Executor::shutdown`] (or dropping the last handle) stops its CUs and
 /// withdraws its token.
 pub struct Executor {
+    parts: Arc<Parts>,
+}
+
+/// What an executor holds, shared with the watch on its name (which may stop it).
+struct Parts {
     inner: Arc<Inner>,
-    token: Mutex<Option<LivelinessToken>>,
+    /// Its instance token, then its name's token.
+    tokens: Mutex<Vec<LivelinessToken>>,
+    /// The watch on the instance tokens of its name.
+    watch: Mutex<Option<Subscriber<()>>>,
     queryables: Mutex<Vec<Queryable<()>>>,
     worker: Mutex<Option<std::thread::JoinHandle<()>>>,
+    /// The earlier instance it stepped down for, once it has.
+    stepped_down: Mutex<Option<String>>,
 }
 
 impl std::fmt::Debug for Executor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Executor")
-            .field("name", &self.inner.config.name)
+            .field("name", &self.parts.inner.config.name)
+            .field("instance", &self.parts.inner.instance)
             .finish_non_exhaustive()
     }
 }
@@ -151,6 +180,14 @@ impl Executor {
     /// Names are unique on a data plane: the manager knows an executor by its name, so a
     /// second executor of a name that is present is refused (an error, before anything is
     /// declared). Were it let in, its leaving would make the first one look gone.
+    ///
+    /// Two executors of one name can still meet: one started while cut off from the other
+    /// (before its link came up, or across a partition) is not refused. Each instance holds a
+    /// token of its own under its name ([`Namespace::executor_instance`]) and watches the
+    /// others': the one that started later steps down when it sees the other, as it would
+    /// have been refused had it seen it at its start. It stops its CUs, withdraws its tokens
+    /// and services, logs why, and calls [`ExecutorConfig::on_step_down`]. Meanwhile it
+    /// answers no request addressed to the other instance.
     pub fn start(session: &zenoh::Session, config: ExecutorConfig) -> Result<Self, CuError> {
         dyknow_cu::keys::check_name("executor name", &config.name)?;
         let ns = config.namespace.clone();
@@ -174,8 +211,10 @@ impl Executor {
             .encoding(Encoding::APPLICATION_JSON)
             .wait()?;
         let (jobs, rx) = mpsc::channel::<Job>();
+        let started_ms = u64::try_from(dyknow_cu::now_ms()).unwrap_or(0);
         let inner = Arc::new(Inner {
             config: config.clone(),
+            instance: instance_id(started_ms, &session.zid().to_string()),
             session: session.clone(),
             timers: Timers::start(),
             cus: Mutex::default(),
@@ -232,37 +271,88 @@ impl Executor {
                     }
                 }
             });
-        let token = session
-            .liveliness()
-            .declare_token(ns.executor_token(&config.name))
-            .wait()?;
-        tracing::info!("executor {} is up", config.name);
-        Ok(Self {
-            inner,
-            token: Mutex::new(Some(token)),
+        let parts = Arc::new(Parts {
+            inner: inner.clone(),
+            tokens: Mutex::default(),
+            watch: Mutex::default(),
             queryables: Mutex::new(queryables),
             worker: Mutex::new(Some(worker)),
-        })
+            stepped_down: Mutex::default(),
+        });
+        lock(&parts.tokens).push(
+            session
+                .liveliness()
+                .declare_token(ns.executor_instance(&config.name, &inner.instance))
+                .wait()?,
+        );
+        let watcher = Arc::downgrade(&parts);
+        let own = inner.instance.clone();
+        let watch = session
+            .liveliness()
+            .declare_subscriber(ns.executor_instances(&config.name))
+            .history(true)
+            .callback(move |sample| {
+                let Some((_, other)) = instance_of(sample.key_expr().as_str()) else {
+                    return;
+                };
+                if sample.kind() != SampleKind::Put || other >= own.as_str() {
+                    return;
+                }
+                let other = other.to_owned();
+                let watcher = watcher.clone();
+                // Stopping undeclares this very subscriber: not from its callback.
+                let _ = std::thread::Builder::new()
+                    .name("executor-step-down".into())
+                    .spawn(move || {
+                        if let Some(parts) = watcher.upgrade() {
+                            parts.step_down(&other);
+                        }
+                    });
+            })
+            .wait()?;
+        *lock(&parts.watch) = Some(watch);
+        lock(&parts.tokens).push(
+            session
+                .liveliness()
+                .declare_token(ns.executor_token(&config.name))
+                .wait()?,
+        );
+        tracing::info!(
+            "executor {} is up (instance {})",
+            config.name,
+            inner.instance
+        );
+        Ok(Self { parts })
     }
 
     /// Its name.
     pub fn name(&self) -> &str {
-        &self.inner.config.name
+        &self.parts.inner.config.name
+    }
+
+    /// Its instance id ([`instance_id`]).
+    pub fn instance(&self) -> &str {
+        &self.parts.inner.instance
+    }
+
+    /// The instance of its name it stepped down for, if it did ([`Executor::start`]).
+    pub fn stepped_down(&self) -> Option<String> {
+        lock(&self.parts.stepped_down).clone()
     }
 
     /// Its description now.
     pub fn info(&self) -> ExecutorInfo {
-        self.inner.info()
+        self.parts.inner.info()
     }
 
     /// Applies a request directly (what its `apply` service does).
     pub fn apply(&self, request: &ApplyRequest) -> ApplyReply {
-        self.inner.apply(request)
+        self.parts.inner.apply(request)
     }
 
     /// The pids of its process CUs.
     pub fn pids(&self) -> Vec<(String, u32)> {
-        lock(&self.inner.cus)
+        lock(&self.parts.inner.cus)
             .iter()
             .filter_map(|(n, h)| match h {
                 Hosted::Process(p) => Some((n.clone(), p.pid())),
@@ -274,6 +364,13 @@ impl Executor {
     /// Stops every CU (children are asked to exit, then killed), withdraws the token and the
     /// services, and ends the worker. Idempotent.
     pub fn shutdown(&self) {
+        self.parts.shutdown();
+    }
+}
+
+impl Parts {
+    fn shutdown(&self) {
+        lock(&self.watch).take();
         lock(&self.queryables).clear();
         let worker = lock(&self.worker).take();
         if let Some(worker) = worker {
@@ -283,7 +380,30 @@ impl Executor {
             }
             let _ = worker.join();
         }
-        lock(&self.token).take();
+        lock(&self.tokens).clear();
+    }
+
+    /// An instance of its name that started earlier is on the data plane: it gives the name
+    /// up (once).
+    fn step_down(&self, earlier: &str) {
+        {
+            let mut stepped_down = lock(&self.stepped_down);
+            if stepped_down.is_some() || lock(&self.worker).is_none() {
+                return;
+            }
+            *stepped_down = Some(earlier.to_owned());
+        }
+        let name = &self.inner.config.name;
+        tracing::error!(
+            "executor {name} steps down: another executor named {name} (instance {earlier}) \
+             started before this one (instance {}) and is on this data plane now; names must \
+             be unique. Its CUs stop; the manager replans them",
+            self.inner.instance
+        );
+        self.shutdown();
+        if let Some(OnStepDown(hook)) = &self.inner.config.on_step_down {
+            hook(earlier);
+        }
     }
 }
 
@@ -318,9 +438,21 @@ impl Inner {
             .map(|p| p.to_bytes().into_owned())
             .unwrap_or_default();
         let reply: Result<Vec<u8>, String> = match service {
-            "apply" => serde_json::from_slice::<ApplyRequest>(&payload)
-                .map_err(|e| format!("not an apply request: {e}"))
-                .map(|r| serde_json::to_vec(&self.apply(&r)).unwrap_or_default()),
+            "apply" => match serde_json::from_slice::<ApplyRequest>(&payload) {
+                Err(e) => Err(format!("not an apply request: {e}")),
+                // For the other instance of the name, which answers it: not a word from here.
+                Ok(r) if r.instance.as_ref().is_some_and(|i| *i != self.instance) => {
+                    tracing::debug!(
+                        "executor {}: {} is for instance {:?}, not this one ({})",
+                        self.config.name,
+                        r.change_set,
+                        r.instance,
+                        self.instance
+                    );
+                    return;
+                }
+                Ok(r) => Ok(serde_json::to_vec(&self.apply(&r)).unwrap_or_default()),
+            },
             "check" => serde_json::from_slice::<Implementation>(&payload)
                 .map_err(|e| format!("not an implementation: {e}"))
                 .map(|i| serde_json::to_vec(&check(&i)).unwrap_or_default()),
@@ -357,6 +489,7 @@ impl Inner {
                     })
                     .collect()
             },
+            instance: Some(self.instance.clone()),
         }
     }
 
@@ -426,6 +559,21 @@ impl Inner {
     /// skipped. An action other than destroy on a CU a newer change set configured (a higher
     /// generation) is refused: the request is stale.
     fn apply(self: &Arc<Self>, request: &ApplyRequest) -> ApplyReply {
+        if let Some(other) = request.instance.as_ref().filter(|i| **i != self.instance) {
+            let reason = format!(
+                "{} is for instance {other} of executor {}, not for this one ({})",
+                request.change_set, self.config.name, self.instance
+            );
+            return ApplyReply {
+                failures: (request.actions.iter().enumerate())
+                    .map(|(index, action)| Failure {
+                        index,
+                        cu: action.cu().to_owned(),
+                        reason: reason.clone(),
+                    })
+                    .collect(),
+            };
+        }
         let mut failures: Vec<Failure> = Vec::new();
         for (index, action) in request.actions.iter().enumerate() {
             if failures.iter().any(|f| f.cu == action.cu()) {

@@ -7,4 +7,4 @@ pub mod builtins;
 mod host;
 pub mod process;
 
-pub use host::{Executor, ExecutorConfig, check};
+pub use host::{Executor, ExecutorConfig, OnStepDown, check};

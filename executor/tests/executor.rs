@@ -97,6 +97,7 @@ fn events(session: &zenoh::Session) -> (mpsc::Receiver<Event>, impl Drop) {
 
 fn apply(executor: &Executor, actions: Vec<CuAction>) {
     let reply = executor.apply(&ApplyRequest {
+        instance: None,
         change_set: "cs-t".into(),
         generation: 0,
         actions,
@@ -348,6 +349,7 @@ fn process_cus_compute_and_their_death_is_seen_at_once() {
     );
     // A program that is not there fails the spawn, with the reason.
     let reply = executor.apply(&ApplyRequest {
+        instance: None,
         change_set: "cs".into(),
         generation: 0,
         actions: vec![spawn(
@@ -494,6 +496,7 @@ fn generations_fence_stale_change_sets() {
     )
     .expect("an executor");
     let request = |generation: u64, actions: Vec<CuAction>| ApplyRequest {
+        instance: None,
         change_set: format!("cs-{generation}"),
         generation,
         actions,
@@ -532,4 +535,102 @@ fn generations_fence_stale_change_sets() {
     assert!(destroy.failures.is_empty(), "{destroy:?}");
     assert!(executor.info().cus.is_empty());
     executor.shutdown();
+}
+
+/// Two executors of one name that could not see each other when they started meet when a
+/// link comes up (a partition heals): the one that started later steps down. It stops its
+/// CUs, withdraws its tokens and says for whom; the earlier one keeps the name, and refuses
+/// requests addressed to the other instance.
+#[test]
+fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
+    // Both connect to an endpoint nothing listens on yet: each starts alone.
+    let meeting = format!("tcp/127.0.0.1:{}", free_port());
+    let alone = || {
+        let config =
+            dyknow_cu::router_config(&[], std::slice::from_ref(&meeting)).expect("a config");
+        zenoh::open(config).wait().expect("a session")
+    };
+    let (early_session, late_session) = (alone(), alone());
+    let ns = Namespace::new("twins").expect("a namespace");
+    let early = Executor::start(
+        &early_session,
+        ExecutorConfig::new("twin", ns.clone(), Vec::new()),
+    )
+    .expect("the earlier twin starts");
+    // Instance ids order by start time in milliseconds.
+    std::thread::sleep(Duration::from_millis(2));
+    let (told, stepped) = mpsc::channel();
+    let mut config = ExecutorConfig::new("twin", ns.clone(), Vec::new());
+    config.on_step_down = Some(dyknow_executor::OnStepDown(std::sync::Arc::new(
+        move |earlier: &str| {
+            let _ = told.send(earlier.to_owned());
+        },
+    )));
+    let late = Executor::start(&late_session, config).expect("the later twin starts, alone");
+    assert!(early.instance() < late.instance());
+    apply(
+        &late,
+        vec![spawn(
+            "sig",
+            implementation(
+                "builtin",
+                "dyknow/signal",
+                &[],
+                &["out"],
+                json!({"period_ms": 10}),
+            ),
+        )],
+    );
+    assert_eq!(late.info().cus.len(), 1);
+    assert_eq!(late.stepped_down(), None, "alone, nobody to step down for");
+
+    // The link comes up: a router on the endpoint both try.
+    let config = dyknow_cu::router_config(std::slice::from_ref(&meeting), &[]).expect("a config");
+    let hub = zenoh::open(config).wait().expect("the hub");
+    let earlier = stepped
+        .recv_timeout(Duration::from_secs(30))
+        .expect("the later twin steps down once it sees the earlier");
+    assert_eq!(earlier, early.instance());
+    assert_eq!(late.stepped_down().as_deref(), Some(early.instance()));
+    assert!(late.info().cus.is_empty(), "its CUs stopped");
+    assert_eq!(
+        early.stepped_down(),
+        None,
+        "the earlier twin keeps the name"
+    );
+
+    // The name and the earlier instance stay on the data plane; the later instance's token
+    // goes.
+    let count = |key: String| {
+        hub.liveliness()
+            .get(key)
+            .timeout(Duration::from_secs(1))
+            .wait()
+            .expect("a liveliness query")
+            .iter()
+            .filter(|r| r.result().is_ok())
+            .count()
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while count(ns.executor_instance("twin", late.instance())) != 0 {
+        assert!(Instant::now() < deadline, "the later twin's token stays");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(count(ns.executor_instances("twin")), 1);
+    assert_eq!(count(ns.executor_token("twin")), 1);
+
+    // A request for the other instance is refused, action by action.
+    let reply = early.apply(&ApplyRequest {
+        instance: Some(late.instance().to_owned()),
+        change_set: "cs-9".into(),
+        generation: 9,
+        actions: vec![CuAction::Destroy { cu: "x".into() }],
+    });
+    assert_eq!(reply.failures.len(), 1);
+    assert!(
+        reply.failures[0].reason.contains("not for this one"),
+        "{:?}",
+        reply.failures
+    );
+    assert_eq!(early.info().instance.as_deref(), Some(early.instance()));
 }

@@ -10,6 +10,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use dyknow_cu::Namespace;
+use dyknow_cu::keys::instance_of;
 use dyknow_cu::protocol::{
     ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Implementation,
     Kind, param_value,
@@ -113,6 +114,10 @@ struct Inner {
     /// Each executor's token as the liveliness subscriber last said: whether it is up, and
     /// its epoch (how many times it went up or down), which dates an executor's answers.
     tokens: Mutex<BTreeMap<String, Token>>,
+    /// The live instances of each executor name ([`Namespace::executor_instance`]); the
+    /// first (the earliest started) holds the name, the others are stepping down. Locked
+    /// after `tokens` when both are.
+    instances: Mutex<BTreeMap<String, BTreeSet<String>>>,
     events: mpsc::UnboundedSender<FleetEvent>,
 }
 
@@ -174,6 +179,7 @@ impl Fleet {
             placement: Mutex::default(),
             running: Mutex::default(),
             tokens: Mutex::default(),
+            instances: Mutex::default(),
             events: tx,
         });
         let watcher = inner.clone();
@@ -187,24 +193,24 @@ impl Fleet {
                     return;
                 };
                 if sample.kind() == SampleKind::Put {
-                    let start = {
-                        let mut tokens = lock(&watcher.tokens);
-                        let token = tokens.entry(name.clone()).or_default();
-                        token.set(true);
-                        // One thread asks per executor; one asking already sees the new epoch.
-                        !std::mem::replace(&mut token.probing, true)
-                    };
-                    if start {
-                        let inner = watcher.clone();
-                        // Never block a Zenoh callback: the info query runs on its own thread.
-                        let _ = std::thread::Builder::new()
-                            .name("fleet-membership".into())
-                            .spawn(move || inner.appeared(&name));
-                    }
+                    Inner::up(&watcher, name);
                 } else {
                     // Taken here, in the order Zenoh tells it: a vanishing handled on a
                     // thread could otherwise land after the executor's next appearance.
                     watcher.vanished(&name);
+                }
+            })
+            .wait()?;
+        // Zenoh announces a name's token once however many executors hold it; their
+        // instance tokens tell them apart.
+        let watcher = inner.clone();
+        let instances = session
+            .liveliness()
+            .declare_subscriber(namespace.executor_instances("*"))
+            .history(true)
+            .callback(move |sample| {
+                if let Some((name, instance)) = instance_of(sample.key_expr().as_str()) {
+                    Inner::instance(&watcher, name, instance, sample.kind() == SampleKind::Put);
                 }
             })
             .wait()?;
@@ -225,7 +231,7 @@ impl Fleet {
         Ok((
             Self {
                 inner,
-                subscribers: Mutex::new(vec![tokens, events]),
+                subscribers: Mutex::new(vec![tokens, instances, events]),
             },
             rx,
         ))
@@ -288,6 +294,64 @@ impl Fleet {
 }
 
 impl Inner {
+    /// Executor `name`'s token is up: one thread asks it for its [`Inner::appeared`].
+    fn up(inner: &Arc<Self>, name: String) {
+        let start = {
+            let mut tokens = lock(&inner.tokens);
+            let token = tokens.entry(name.clone()).or_default();
+            token.set(true);
+            // One thread asks per executor; one asking already sees the new epoch.
+            !std::mem::replace(&mut token.probing, true)
+        };
+        if start {
+            let inner = inner.clone();
+            // Never block a Zenoh callback: the info query runs on its own thread.
+            let _ = std::thread::Builder::new()
+                .name("fleet-membership".into())
+                .spawn(move || inner.appeared(&name));
+        }
+    }
+
+    /// An instance token of executor `name` came (`put`) or went. When another instance
+    /// holds the name than did (two executors of one name met, and the earlier one wins;
+    /// or the holder went while a later one had yet to step down), the executor behind the
+    /// name is another one although the name's token never went down: the CUs placed on the
+    /// old one are lost (they stop with it) and the new one is asked for its `info`, as if
+    /// the name had gone and come back.
+    fn instance(inner: &Arc<Self>, name: &str, instance: &str, put: bool) {
+        let (before, after) = {
+            let mut instances = lock(&inner.instances);
+            let live = instances.entry(name.to_owned()).or_default();
+            let before = live.first().cloned();
+            if put {
+                live.insert(instance.to_owned());
+            } else {
+                live.remove(instance);
+            }
+            let after = live.first().cloned();
+            if live.is_empty() {
+                instances.remove(name);
+            }
+            (before, after)
+        };
+        if let (Some(before), Some(after)) = (before, after)
+            && before != after
+        {
+            tracing::warn!(
+                "executor {name}: instance {after} holds the name now, not {before} (two executors of one name met; the later steps down)"
+            );
+            inner.vanished(name);
+            Self::up(inner, name.to_owned());
+        }
+    }
+
+    /// The instance holding executor name `name`, if its instances are known.
+    fn holder(&self, name: &str) -> Option<String> {
+        lock(&self.instances)
+            .get(name)
+            .and_then(|live| live.first().cloned())
+    }
+
     /// Executor `name`'s token is up: asks it for its `info`, again every 200 ms while it
     /// does not answer and the token stays up, then records it present and reports its CUs
     /// for reconciliation; a token that went down ends the asking. (Right after a link is cut, Zenoh may announce the token of the
@@ -313,6 +377,20 @@ impl Inner {
             if token.epoch != asked {
                 continue;
             }
+            // Another instance of the name than the one holding it answered: one stepping
+            // down (its CUs are about to stop). Asked again until the holder answers.
+            let info = info.filter(|info| {
+                let holder = self.holder(name);
+                let from_holder =
+                    info.instance.is_none() || holder.is_none() || info.instance == holder;
+                if !from_holder {
+                    tracing::debug!(
+                        "executor {name}: instance {:?} answered, {holder:?} holds the name",
+                        info.instance
+                    );
+                }
+                from_holder
+            });
             let Some(info) = info else {
                 drop(tokens);
                 if !warned {
@@ -425,6 +503,7 @@ impl Inner {
         let request = ApplyRequest {
             change_set: what.to_owned(),
             generation,
+            instance: self.holder(executor),
             actions: cus
                 .iter()
                 .map(|cu| CuAction::Destroy { cu: cu.to_string() })
@@ -707,6 +786,7 @@ impl Executor for Fleet {
             let request = ApplyRequest {
                 change_set: change_set.id.to_string(),
                 generation: change_set.id.number().unwrap_or(0),
+                instance: inner.holder(&executor),
                 actions: actions.into_iter().map(|(_, a)| a).collect(),
             };
             let processes = if batch < destroying {

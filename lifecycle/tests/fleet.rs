@@ -95,6 +95,7 @@ fn a_flapping_token_ends_as_zenoh_last_said() {
         .callback(move |query| {
             let n = answered.load(Ordering::SeqCst);
             let info = ExecutorInfo {
+                instance: None,
                 name: "x".into(),
                 builtins: Vec::new(),
                 processes: false,
@@ -234,6 +235,7 @@ fn the_last_heard_view_follows_acknowledgements_and_events_without_asking() {
                 return;
             }
             let info = ExecutorInfo {
+                instance: None,
                 name: "x".into(),
                 builtins: vec!["dyknow/relay".into()],
                 processes: false,
@@ -345,6 +347,7 @@ fn fake_executor(
         .declare_queryable(namespace.executor_service(name, "info"))
         .callback(move |query| {
             let info = ExecutorInfo {
+                instance: None,
                 name: name.into(),
                 builtins: vec!["dyknow/relay".into()],
                 processes: false,
@@ -466,4 +469,105 @@ fn destroys_are_sent_after_every_executors_other_actions() {
             ("x", &["destroy a"]),
         ])
     );
+}
+
+/// An instance of executor `name` as a fake: its instance token, its name's token, and an
+/// `info` that says which instance answers and that it runs `cus` CUs.
+struct Instance {
+    _info: zenoh::query::Queryable<()>,
+    _tokens: [zenoh::liveliness::LivelinessToken; 2],
+}
+
+fn instance(client: &zenoh::Session, namespace: &Namespace, id: &str, cus: usize) -> Instance {
+    let said = id.to_owned();
+    let info = client
+        .declare_queryable(namespace.executor_service("x", "info"))
+        .callback(move |query| {
+            let info = ExecutorInfo {
+                instance: Some(said.clone()),
+                name: "x".into(),
+                builtins: Vec::new(),
+                processes: false,
+                cus: (0..cus)
+                    .map(|i| CuReport {
+                        cu: format!("cu{i}"),
+                        transformation: "t".into(),
+                        state: CuState::Running,
+                        inputs: BTreeMap::new(),
+                        outputs: BTreeMap::new(),
+                        statistics: CuStatistics::default(),
+                        reason: None,
+                        pid: None,
+                        generation: 0,
+                    })
+                    .collect(),
+            };
+            reply_json(&query, &info);
+        })
+        .wait()
+        .expect("a queryable");
+    let token = |key: String| {
+        client
+            .liveliness()
+            .declare_token(key)
+            .wait()
+            .expect("a token")
+    };
+    Instance {
+        _info: info,
+        _tokens: [
+            token(namespace.executor_instance("x", id)),
+            token(namespace.executor_token("x")),
+        ],
+    }
+}
+
+/// Two executors of one name meet: the name's token never goes down (Zenoh announces it
+/// once), yet the fleet sees the earlier instance take the name over. It counts the name as
+/// gone and back (without that, no second appearance comes at all), and takes `info` only
+/// from the instance holding the name, not from the later one still answering while it steps
+/// down (its CUs are about to stop).
+#[test]
+fn an_earlier_instance_takes_the_name_and_only_its_answer_counts() {
+    let (router, client) = sessions();
+    let namespace = Namespace::new("twins").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    let later = instance(&client, &namespace, "0000000002000-b", 1);
+    until_appeared(&mut events, "x", 1);
+    // The later instance's `info` was declared first, so it is asked and answers first.
+    let earlier = instance(&client, &namespace, "0000000001000-a", 0);
+    // It steps down half a second later (a real one does as soon as it sees the earlier).
+    let stepping_down = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(500));
+        drop(later);
+    });
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut seen = Vec::new();
+    loop {
+        match events.try_recv() {
+            Ok(FleetEvent::Appeared { executor, cus }) if executor == "x" => {
+                assert!(
+                    cus.is_empty(),
+                    "the later instance's answer was taken: {cus:?} after {seen:?}"
+                );
+                break;
+            }
+            Ok(event) => seen.push(event),
+            Err(_) => {
+                assert!(Instant::now() < deadline, "x never reappeared: {seen:?}");
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+    }
+    stepping_down.join().expect("stepped down");
+    assert!(present(&fleet, "x"), "the earlier instance holds the name");
+    drop(earlier);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while present(&fleet, "x") {
+        assert!(
+            Instant::now() < deadline,
+            "x stays present without an instance"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }

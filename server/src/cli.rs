@@ -1080,6 +1080,14 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     let mut config =
         dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect);
     config.zenoh_config = zenoh_file.map(|f| f.path);
+    // Stepping down for an earlier executor of the name ends the process (exit 2), as being
+    // refused at start would have.
+    let (stepped_down, mut step_down) = tokio::sync::mpsc::unbounded_channel::<String>();
+    config.on_step_down = Some(dyknow_executor::OnStepDown(Arc::new(
+        move |earlier: &str| {
+            let _ = stepped_down.send(earlier.to_owned());
+        },
+    )));
     let executor = dyknow_executor::Executor::start(&session, config)
         .map_err(|e| Failure(2, format!("executor: {e}")))?;
     // Zenoh keeps trying an endpoint that does not answer yet: say which it is.
@@ -1106,9 +1114,24 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
-    runtime.block_on(shutdown_signal());
+    let earlier = runtime.block_on(async {
+        tokio::select! {
+            () = shutdown_signal() => None,
+            earlier = step_down.recv() => earlier,
+        }
+    });
     executor.shutdown();
     let _ = dyknow_cu::zenoh::Wait::wait(session.close());
+    if let Some(earlier) = earlier {
+        return Err(Failure(
+            2,
+            format!(
+                "executor: stepped down: another executor named {} (instance {earlier}) \
+                 started before this one and is on this data plane now; names must be unique",
+                args.name
+            ),
+        ));
+    }
     tracing::info!("stopped");
     Ok(())
 }

@@ -187,7 +187,7 @@ fn acl(names: &[&str]) -> String {
             r#"{{ id: "as-{n}", messages: ["put", "delete", "declare_queryable", "reply",
                  "liveliness_token"], flows: ["ingress"], permission: "allow",
                  key_exprs: ["dyknow/@dyknow/events/{n}", "dyknow/@dyknow/service/{n}/**",
-                             "dyknow/@dyknow/executor/{n}"] }},"#
+                             "dyknow/@dyknow/executor/{n}/**"] }},"#
         ));
         subjects.push_str(&format!(r#"{{ id: "{n}", cert_common_names: ["{n}"] }},"#));
         policies.push_str(&format!(r#"{{ rules: ["as-{n}"], subjects: ["{n}"] }},"#));

@@ -277,6 +277,103 @@ fn a_second_executor_of_a_present_name_is_refused() {
     );
 }
 
+/// Two executors of one name meet when a link comes up (one started cut off, so its start
+/// could not be refused): the one that started later steps down, exits 2 and says why; the
+/// manager takes the CUs it ran for lost and replans them on the earlier one, which now holds
+/// the name. (Before, both answered to the name: the manager never noticed the second, and a
+/// change set could be applied twice.)
+#[test]
+fn a_later_executor_of_a_present_name_steps_down_and_its_cus_are_replanned() {
+    let service = Service::start(&["--no-executor"]);
+    post_counter_echo(&service, "20");
+    // The earlier twin starts cut off: nothing answers at its endpoint yet.
+    let gap = format!("tcp/127.0.0.1:{}", free_port());
+    let twin = |connect: &str, marker: &str| {
+        let mut child = Command::new(BIN)
+            .args(["executor", "--name", "twin", "--connect", connect])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let (_, tail) = wait_for_line_keeping(&mut child, marker);
+        (Killed(child), tail)
+    };
+    let (mut early, _) = twin(&gap, "does not answer yet");
+    let (mut late, late_said) = twin(&service.zenoh, "connected to");
+    service.post("/targets", &target("echoed", "/echoed", "Echoed"));
+    let session = service.session();
+    let out = Listener::new(&session, "/echoed");
+    out.next();
+    let names = |cus: &Value| -> Vec<String> {
+        (cus.as_array().unwrap().iter())
+            .map(|c| c["name"].as_str().unwrap().to_owned())
+            .collect()
+    };
+    let before = names(&service.get("/cus"));
+    assert_eq!(before.len(), 2, "{before:?}");
+
+    // The link comes up: a router on the earlier twin's endpoint, linked to the manager's.
+    let bridge = dyknow_cu::router_config(
+        std::slice::from_ref(&gap),
+        std::slice::from_ref(&service.zenoh),
+    )
+    .unwrap();
+    let _bridge = dyknow_cu::zenoh::open(bridge).wait().unwrap();
+    let status = eventually(
+        "the later twin to step down",
+        Duration::from_secs(30),
+        || late.0.try_wait().unwrap(),
+    );
+    let said = || {
+        late_said
+            .lock()
+            .unwrap()
+            .iter()
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(status.code(), Some(2), "{}", said());
+    eventually(
+        "the later twin's last words",
+        Duration::from_secs(10),
+        || said().contains("(standard error closed)").then_some(()),
+    );
+    assert!(
+        said().contains("stepped down: another executor named twin"),
+        "{}",
+        said()
+    );
+    let stepped_down = Instant::now();
+    out.first_after(stepped_down);
+    let cus = eventually(
+        "the CUs replanned on the earlier twin",
+        Duration::from_secs(30),
+        || {
+            let cus = service.get("/cus");
+            let all = cus.as_array()?;
+            (all.len() == 2 && all.iter().all(|c| c["state"] == "running")).then_some(cus)
+        },
+    );
+    let executors = service.get("/executors");
+    assert_eq!(executors.as_array().unwrap().len(), 1, "{executors}");
+    assert_eq!(executors[0]["present"], true, "{executors}");
+    assert_eq!(
+        executors[0]["cus"].as_array().unwrap().len(),
+        2,
+        "{executors}"
+    );
+    assert!(
+        names(&cus).iter().all(|cu| !before.contains(cu)),
+        "the later twin's CUs stopped with it, so they are replanned, not adopted: {before:?} then {cus}"
+    );
+    assert!(
+        early.0.try_wait().unwrap().is_none(),
+        "the earlier twin runs on"
+    );
+}
+
 #[test]
 fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     let service = Service::start(&["--no-executor"]);
