@@ -989,16 +989,20 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         None => (None, None, None, None),
     };
     runtime.block_on(async move {
+        let mut forward = None;
         if let Some(events) = events {
             // No review before the start-up reconciliation: a restarted manager first learns
             // what its executors still run.
             state.lifecycle.hold_reviews();
-            tokio::spawn(dataplane::forward(
+            let (stop, stopping) = tokio::sync::oneshot::channel();
+            let forwarding = tokio::spawn(dataplane::forward(
                 events,
                 state.lifecycle.clone(),
                 Duration::from_secs(1),
                 Duration::from_secs_f64(args.reconcile_grace),
+                stopping,
             ));
+            forward = Some((stop, forwarding));
         }
         let listener = tokio::net::TcpListener::from_std(listener)
             .map_err(|e| Failure(2, format!("cannot listen on {}: {e}", args.bind)))?;
@@ -1022,6 +1026,17 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         axum::serve(listener, app(state))
             .with_graceful_shutdown(shutdown_signal())
             .await?;
+        // The costs the executors measured since the last batch are written before the
+        // runtime (and with it the forwarding) stops.
+        if let Some((stop, forwarding)) = forward {
+            let _ = stop.send(());
+            if tokio::time::timeout(Duration::from_secs(5), forwarding)
+                .await
+                .is_err()
+            {
+                tracing::warn!("the last measured costs were not written within 5 s");
+            }
+        }
         Ok::<(), Failure>(())
     })?;
     // The life-cycle and the forwarding of executor events stop first: the embedded

@@ -231,16 +231,18 @@ pub fn open(config: zenoh::Config) -> Result<zenoh::Session, String> {
     })
 }
 
-/// Hands the fleet's events to the manager until the fleet is gone. Measured costs are
-/// batched: one store write per `flush` interval. Upkeep is converted to CPU ms per time
-/// unit. An executor that appears is reconciled with the model; `grace` after the start (or
-/// as soon as every CU of the model runs somewhere) the start-up reconciliation respawns what
-/// runs nowhere and lets reviews run.
+/// Hands the fleet's events to the manager until the fleet is gone or `stop` is said (or
+/// dropped). Measured costs are batched: one store write per `flush` interval, and a last one
+/// when it ends, with the costs already received (so a graceful stop loses none). Upkeep is
+/// converted to CPU ms per time unit. An executor that appears is reconciled with the model;
+/// `grace` after the start (or as soon as every CU of the model runs somewhere) the start-up
+/// reconciliation respawns what runs nowhere and lets reviews run.
 pub async fn forward(
     mut events: UnboundedReceiver<FleetEvent>,
     manager: Arc<Manager>,
     flush: Duration,
     grace: Duration,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
 ) {
     let mut pending: Vec<Observation> = Vec::new();
     let mut tick = tokio::time::interval(flush);
@@ -254,6 +256,18 @@ pub async fn forward(
     }
     loop {
         tokio::select! {
+            _ = &mut stop => {
+                // The measured costs that came before the stop are kept; nothing else is
+                // handled (an executor stopping with the service is no crash).
+                while let Ok(event) = events.try_recv() {
+                    if matches!(event, FleetEvent::Labour { .. } | FleetEvent::Upkeep { .. })
+                        && let Ok(Some(observation)) = manager.handle(event)
+                    {
+                        pending.push(observation);
+                    }
+                }
+                break;
+            }
             () = &mut start_up, if starting => {
                 starting = false;
                 start_up_reconcile(&manager).await;
@@ -281,6 +295,9 @@ pub async fn forward(
                 }
             }
         }
+    }
+    if !pending.is_empty() {
+        run(move || manager.observe_all(pending).map(|_| ())).await;
     }
 }
 
@@ -323,6 +340,55 @@ mod tests {
         text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
             (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
         })
+    }
+
+    /// The costs measured since the last batch are written when the forwarding stops (a
+    /// graceful stop of the service): before, they were dropped with the task, up to a
+    /// `flush` interval of them.
+    #[tokio::test]
+    async fn a_stop_writes_the_costs_measured_since_the_last_batch() {
+        let kb = dyknow_store::KnowledgeBase::in_memory().unwrap();
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../specs/turtle/example-12.ttl"
+        );
+        kb.load_document(
+            &std::fs::read(path).unwrap(),
+            dyknow_store::InputFormat::Turtle,
+        )
+        .unwrap();
+        let manager = Arc::new(
+            Manager::new(
+                Arc::new(kb),
+                Arc::new(dyknow_lifecycle::ModelOnly),
+                dyknow_lifecycle::Settings::default(),
+            )
+            .unwrap(),
+        );
+        let (events, received) = tokio::sync::mpsc::unbounded_channel();
+        let (stop, stopping) = tokio::sync::oneshot::channel();
+        // A batch a day: only the stop writes.
+        let forwarding = tokio::spawn(forward(
+            received,
+            manager.clone(),
+            Duration::from_secs(86_400),
+            Duration::from_secs(86_400),
+            stopping,
+        ));
+        let labour = |cpu_ms: f64| FleetEvent::Labour {
+            transformation: "tid1".into(),
+            cpu_ms,
+        };
+        events.send(labour(4.0)).unwrap();
+        // The first is handled before the stop; the second waits in the channel.
+        tokio::task::yield_now().await;
+        events.send(labour(6.0)).unwrap();
+        stop.send(()).unwrap();
+        forwarding.await.unwrap();
+        let learned = manager.learned();
+        let estimate =
+            (learned.labour.get(&dyknow_engine::Tid::from("tid1"))).expect("tid1's labour");
+        assert_eq!((estimate.count, estimate.average), (2, 5.0));
     }
 
     #[test]

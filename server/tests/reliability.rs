@@ -257,6 +257,15 @@ fn a_graceful_stop_keeps_the_model_and_the_restart_respawns_the_cus_under_their_
         assert_ne!(set["cause"]["kind"], "cu-crashed", "{set}");
     }
     no_gaps(&service);
+    // The labour of both spawns of each CU is learned: the one measured just before the stop
+    // too (it was written when the service stopped, not lost with the last second's batch).
+    eventually("the labour of both spawns", Duration::from_secs(30), || {
+        let statistics = service.get("/statistics");
+        let counts: Vec<u64> = (statistics["transformations"].as_object()?.values())
+            .filter_map(|t| t["learned_labour"]["observations"].as_u64())
+            .collect();
+        (counts == [2, 2]).then_some(())
+    });
 }
 
 #[test]
