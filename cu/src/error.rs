@@ -3,6 +3,9 @@
 /// A name that is not a valid key expression where one is needed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum KeyError {
+    /// Not an executor instance's id ([`crate::keys::InstanceId`]).
+    #[error("{0:?} is not an executor instance (<start, 13 digits>-<hexadecimal Zenoh id>)")]
+    Instance(String),
     /// The name is empty.
     #[error("the {0} is empty")]
     Empty(&'static str),

@@ -94,9 +94,9 @@ impl Namespace {
     }
 
     /// The liveliness token of one instance of an executor, `<ns>/@dyknow/executor/<name>/<instance>`
-    /// (an [`instance_id`]): Zenoh announces a key once however many sessions hold it, so the
+    /// (an [`InstanceId`]): Zenoh announces a key once however many sessions hold it, so the
     /// name's own token cannot tell two executors of one name apart; these can.
-    pub fn executor_instance(&self, executor: &str, instance: &str) -> String {
+    pub fn executor_instance(&self, executor: &str, instance: &InstanceId) -> String {
         format!("{}/executor/{executor}/{instance}", self.control())
     }
 
@@ -160,22 +160,83 @@ pub fn check_name(what: &'static str, name: &str) -> Result<(), KeyError> {
     Ok(())
 }
 
-/// An executor instance's id: its start time (milliseconds since the Unix epoch, 13 digits)
-/// and its Zenoh session id, `1764377000123-<zid>`-like. Ids order as their starts do (the
-/// session id breaks ties), which is how two executors of one name agree on the one that keeps
-/// the name: the one that started first.
-pub fn instance_id(started_ms: u64, zid: &str) -> String {
-    format!("{started_ms:013}-{zid}")
+/// One run of an executor (an instance of its name): when it started and on which Zenoh
+/// session. Instances order as their starts do, the session id breaking ties; that is how two
+/// executors of one name agree on the one that keeps the name, the one that started first.
+/// In a key chunk and in JSON it reads `<start, ms since the Unix epoch, 13 digits>-<zid>`
+/// (`1764377000123-8fa3c1`), so that its text orders as it does.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct InstanceId {
+    /// When it started, in milliseconds since the Unix epoch.
+    pub started_ms: u64,
+    /// Its Zenoh session's id (hexadecimal).
+    pub zid: String,
 }
 
-/// The executor name and instance id of an instance token's key
-/// ([`Namespace::executor_instance`]); `None` for any other key.
-pub fn instance_of(key: &str) -> Option<(&str, &str)> {
-    let mut chunks = key.rsplitn(4, '/');
-    let instance = chunks.next()?;
-    let name = chunks.next()?;
-    (chunks.next()? == "executor" && chunks.next()?.ends_with("@dyknow"))
-        .then_some((name, instance))
+impl InstanceId {
+    /// The instance of a session that starts now.
+    pub fn now(zid: impl Into<String>) -> Self {
+        Self {
+            started_ms: u64::try_from(crate::now_ms()).unwrap_or(0),
+            zid: zid.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for InstanceId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:013}-{}", self.started_ms, self.zid)
+    }
+}
+
+impl std::str::FromStr for InstanceId {
+    type Err = KeyError;
+
+    fn from_str(s: &str) -> Result<Self, KeyError> {
+        let bad = || KeyError::Instance(s.to_owned());
+        let (started, zid) = s.split_once('-').ok_or_else(bad)?;
+        let hex = |c: char| c.is_ascii_hexdigit();
+        if started.len() != 13 || zid.is_empty() || !zid.chars().all(hex) {
+            return Err(bad());
+        }
+        Ok(Self {
+            started_ms: started.parse().map_err(|_| bad())?,
+            zid: zid.to_owned(),
+        })
+    }
+}
+
+impl serde::Serialize for InstanceId {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for InstanceId {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(deserializer)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// What an instance token's key ([`Namespace::executor_instance`]) says.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InstanceKey<'k> {
+    /// The executor's name.
+    pub name: &'k str,
+    /// The instance.
+    pub instance: InstanceId,
+}
+
+impl<'k> InstanceKey<'k> {
+    /// The name and instance of an instance token's key; `None` for any other key.
+    pub fn parse(key: &'k str) -> Option<Self> {
+        let mut chunks = key.rsplitn(4, '/');
+        let instance = chunks.next()?.parse().ok()?;
+        let name = chunks.next()?;
+        (chunks.next()? == "executor" && chunks.next()?.ends_with("@dyknow"))
+            .then_some(Self { name, instance })
+    }
 }
 
 /// Checks that a channel name maps to a key expression (`executors.md`).
@@ -211,18 +272,55 @@ mod tests {
     }
 
     #[test]
-    fn instance_ids_order_by_start_then_session() {
-        let (earlier, later) = (instance_id(999, "ff"), instance_id(1_000, "0a"));
-        assert!(earlier < later, "{earlier} must sort before {later}");
-        assert!(instance_id(1_000, "0a") < instance_id(1_000, "0b"));
-        let ns = Namespace::new("lab/r1").expect("valid");
+    fn instance_ids_order_by_start_then_session_as_their_text_does() {
+        let id = |started_ms, zid: &str| InstanceId {
+            started_ms,
+            zid: zid.into(),
+        };
+        let ids = [
+            id(999, "ff"),
+            id(1_000, "0a"),
+            id(1_000, "0b"),
+            id(1_000, "a"),
+        ];
+        for pair in ids.windows(2) {
+            assert!(pair[0] < pair[1], "{} before {}", pair[0], pair[1]);
+            assert!(pair[0].to_string() < pair[1].to_string());
+        }
+        let later = &ids[1];
+        assert_eq!(later.to_string(), "0000000001000-0a");
+        assert_eq!(later.to_string().parse::<InstanceId>().as_ref(), Ok(later));
+        for bad in [
+            "",
+            "1000-0a",
+            "0000000001000",
+            "0000000001000-",
+            "0000000001000-xyz",
+            "000000000100a-0a",
+        ] {
+            assert!(
+                bad.parse::<InstanceId>().is_err(),
+                "{bad:?} must be refused"
+            );
+        }
+        let json = serde_json::to_string(later).unwrap();
+        assert_eq!(json, "\"0000000001000-0a\"");
         assert_eq!(
-            instance_of(&ns.executor_instance("x", &later)),
-            Some(("x", later.as_str()))
+            serde_json::from_str::<InstanceId>(&json).ok().as_ref(),
+            Some(later)
         );
-        assert_eq!(instance_of(&ns.executor_token("x")), None);
-        assert_eq!(instance_of("lab/r1/@dyknow/service/x/info"), None);
-        assert!(check_name("instance", &later).is_ok());
+        let ns = Namespace::new("lab/r1").expect("valid");
+        let key = ns.executor_instance("x", later);
+        assert_eq!(
+            InstanceKey::parse(&key),
+            Some(InstanceKey {
+                name: "x",
+                instance: later.clone()
+            })
+        );
+        assert_eq!(InstanceKey::parse(&ns.executor_token("x")), None);
+        assert_eq!(InstanceKey::parse("lab/r1/@dyknow/service/x/info"), None);
+        assert!(check_name("instance", &later.to_string()).is_ok());
     }
 
     #[test]

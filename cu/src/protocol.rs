@@ -6,6 +6,8 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use crate::keys::InstanceId;
+
 /// What an executor runs for a transformation (`dkros:hasType`, `dkros:hasSource`,
 /// `dkros:hasParam`, `dkros:hasExecutor`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -205,9 +207,9 @@ pub struct ApplyRequest {
     /// The instance of the executor's name the request is for ([`ExecutorInfo::instance`]):
     /// another instance of the name refuses every action (two executors of one name meet
     /// when a partition heals; the later one steps down, and must not act meanwhile).
-    /// Absent: any instance.
+    /// Absent: any instance. (An executor from before 2026-11-29 ignores it.)
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub instance: Option<String>,
+    pub instance: Option<InstanceId>,
 }
 
 /// An action that failed.
@@ -307,10 +309,10 @@ pub struct ExecutorInfo {
     pub processes: bool,
     /// Its CUs.
     pub cus: Vec<CuReport>,
-    /// Which instance of the name answers ([`crate::keys::instance_id`]; absent from an
-    /// executor that does not say).
+    /// Which instance of the name answers (absent from an executor that does not say: one
+    /// from before 2026-11-29).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub instance: Option<String>,
+    pub instance: Option<InstanceId>,
 }
 
 /// The answer of an executor's `check` service for an [`Implementation`].

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::{Duration, Instant};
 
-use dyknow_cu::keys::{instance_id, instance_of};
+use dyknow_cu::keys::{InstanceId, InstanceKey};
 use dyknow_cu::protocol::{
     ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Failure,
     Implementation, Kind,
@@ -46,13 +46,13 @@ pub struct ExecutorConfig {
     /// TLS certificates for `tls/` endpoints), if any.
     pub zenoh_config: Option<std::path::PathBuf>,
     /// Called once if the executor steps down for an earlier executor of its name
-    /// ([`Executor::start`]), after it stopped, with that executor's instance id.
+    /// ([`Executor::start`]), after it stopped, with that executor's instance.
     pub on_step_down: Option<OnStepDown>,
 }
 
 /// What to do when an executor steps down ([`ExecutorConfig::on_step_down`]).
 #[derive(Clone)]
-pub struct OnStepDown(pub Arc<dyn Fn(&str) + Send + Sync>);
+pub struct OnStepDown(pub Arc<dyn Fn(&InstanceId) + Send + Sync>);
 
 impl std::fmt::Debug for OnStepDown {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -124,8 +124,8 @@ impl ProcessCu {
 
 struct Inner {
     config: ExecutorConfig,
-    /// This instance's id ([`instance_id`]).
-    instance: String,
+    /// This run of the executor.
+    instance: InstanceId,
     session: zenoh::Session,
     timers: Timers,
     cus: Mutex<BTreeMap<String, Hosted>>,
@@ -158,10 +158,22 @@ struct Parts {
     tokens: Mutex<Vec<LivelinessToken>>,
     /// The watch on the instance tokens of its name.
     watch: Mutex<Option<Subscriber<()>>>,
+    /// The instances of its name that started before it and whose tokens are up.
+    earlier: Mutex<Earlier>,
     queryables: Mutex<Vec<Queryable<()>>>,
     worker: Mutex<Option<std::thread::JoinHandle<()>>>,
+    /// Held while it stops: a second caller waits until its CUs are stopped.
+    stopping: Mutex<()>,
     /// The earlier instance it stepped down for, once it has.
-    stepped_down: Mutex<Option<String>>,
+    stepped_down: Mutex<Option<InstanceId>>,
+}
+
+/// The earlier instances of an executor's name on the data plane, as its watch saw them.
+#[derive(Default)]
+struct Earlier {
+    live: std::collections::BTreeSet<InstanceId>,
+    /// A thread is checking whether they answer.
+    checking: bool,
 }
 
 impl std::fmt::Debug for Executor {
@@ -185,9 +197,12 @@ impl Executor {
     /// (before its link came up, or across a partition) is not refused. Each instance holds a
     /// token of its own under its name ([`Namespace::executor_instance`]) and watches the
     /// others': the one that started later steps down when it sees the other, as it would
-    /// have been refused had it seen it at its start. It stops its CUs, withdraws its tokens
-    /// and services, logs why, and calls [`ExecutorConfig::on_step_down`]. Meanwhile it
-    /// answers no request addressed to the other instance.
+    /// have been refused had it seen it at its start. It first asks for the `info` of its
+    /// name, and steps down only once the earlier one answers: a token can outlive its
+    /// executor until Zenoh's lease expires (a host gone without closing its link), and an executor restarted under
+    /// its name must not give way to its own ghost. Stepping down, it stops its CUs, withdraws
+    /// its tokens and services, logs why, and calls [`ExecutorConfig::on_step_down`].
+    /// Meanwhile it answers no request addressed to the other instance.
     pub fn start(session: &zenoh::Session, config: ExecutorConfig) -> Result<Self, CuError> {
         dyknow_cu::keys::check_name("executor name", &config.name)?;
         let ns = config.namespace.clone();
@@ -211,10 +226,9 @@ impl Executor {
             .encoding(Encoding::APPLICATION_JSON)
             .wait()?;
         let (jobs, rx) = mpsc::channel::<Job>();
-        let started_ms = u64::try_from(dyknow_cu::now_ms()).unwrap_or(0);
         let inner = Arc::new(Inner {
             config: config.clone(),
-            instance: instance_id(started_ms, &session.zid().to_string()),
+            instance: InstanceId::now(session.zid().to_string()),
             session: session.clone(),
             timers: Timers::start(),
             cus: Mutex::default(),
@@ -275,8 +289,10 @@ impl Executor {
             inner: inner.clone(),
             tokens: Mutex::default(),
             watch: Mutex::default(),
+            earlier: Mutex::default(),
             queryables: Mutex::new(queryables),
             worker: Mutex::new(Some(worker)),
+            stopping: Mutex::default(),
             stepped_down: Mutex::default(),
         });
         lock(&parts.tokens).push(
@@ -292,22 +308,29 @@ impl Executor {
             .declare_subscriber(ns.executor_instances(&config.name))
             .history(true)
             .callback(move |sample| {
-                let Some((_, other)) = instance_of(sample.key_expr().as_str()) else {
+                let Some(key) = InstanceKey::parse(sample.key_expr().as_str()) else {
                     return;
                 };
-                if sample.kind() != SampleKind::Put || other >= own.as_str() {
+                if key.instance >= own {
                     return;
                 }
-                let other = other.to_owned();
-                let watcher = watcher.clone();
-                // Stopping undeclares this very subscriber: not from its callback.
-                let _ = std::thread::Builder::new()
-                    .name("executor-step-down".into())
-                    .spawn(move || {
-                        if let Some(parts) = watcher.upgrade() {
-                            parts.step_down(&other);
-                        }
-                    });
+                let Some(parts) = watcher.upgrade() else {
+                    return;
+                };
+                let mut earlier = lock(&parts.earlier);
+                if sample.kind() == SampleKind::Delete {
+                    earlier.live.remove(&key.instance);
+                    return;
+                }
+                earlier.live.insert(key.instance);
+                if !std::mem::replace(&mut earlier.checking, true) {
+                    let watcher = watcher.clone();
+                    // It asks, and stopping undeclares this very subscriber: not from its
+                    // callback.
+                    let _ = std::thread::Builder::new()
+                        .name("executor-step-down".into())
+                        .spawn(move || Parts::check_earlier(&watcher));
+                }
             })
             .wait()?;
         *lock(&parts.watch) = Some(watch);
@@ -330,13 +353,13 @@ impl Executor {
         &self.parts.inner.config.name
     }
 
-    /// Its instance id ([`instance_id`]).
-    pub fn instance(&self) -> &str {
+    /// This run of it.
+    pub fn instance(&self) -> &InstanceId {
         &self.parts.inner.instance
     }
 
     /// The instance of its name it stepped down for, if it did ([`Executor::start`]).
-    pub fn stepped_down(&self) -> Option<String> {
+    pub fn stepped_down(&self) -> Option<InstanceId> {
         lock(&self.parts.stepped_down).clone()
     }
 
@@ -370,6 +393,7 @@ impl Executor {
 
 impl Parts {
     fn shutdown(&self) {
+        let _stopping = lock(&self.stopping);
         lock(&self.watch).take();
         lock(&self.queryables).clear();
         let worker = lock(&self.worker).take();
@@ -383,15 +407,74 @@ impl Parts {
         lock(&self.tokens).clear();
     }
 
-    /// An instance of its name that started earlier is on the data plane: it gives the name
-    /// up (once).
-    fn step_down(&self, earlier: &str) {
+    /// Instances of its name that started earlier are on the data plane: while their tokens
+    /// stay up, they are asked for their `info` every second; once one answers, this one
+    /// steps down for it. Ends when none is left, or this executor stopped.
+    fn check_earlier(parts: &std::sync::Weak<Self>) {
+        loop {
+            let Some(this) = parts.upgrade() else {
+                return;
+            };
+            {
+                let mut earlier = lock(&this.earlier);
+                if earlier.live.is_empty() || lock(&this.worker).is_none() {
+                    earlier.checking = false;
+                    return;
+                }
+            }
+            let answering = this.answering();
+            let alive = lock(&this.earlier)
+                .live
+                .iter()
+                .find(|i| answering.contains(*i))
+                .cloned();
+            if let Some(alive) = alive {
+                this.step_down(&alive);
+                return;
+            }
+            drop(this);
+            std::thread::sleep(Duration::from_secs(1));
+        }
+    }
+
+    /// The instances of its name that answer its `info` service now.
+    fn answering(&self) -> std::collections::BTreeSet<InstanceId> {
+        let key = self
+            .inner
+            .config
+            .namespace
+            .executor_service(&self.inner.config.name, "info");
+        // Every reply, not Zenoh's default of the latest per key: each instance answers on
+        // the same key.
+        let Ok(replies) = self
+            .inner
+            .session
+            .get(key)
+            .consolidation(zenoh::query::ConsolidationMode::None)
+            .timeout(Duration::from_secs(2))
+            .wait()
+        else {
+            return std::collections::BTreeSet::new();
+        };
+        replies
+            .iter()
+            .filter_map(|reply| {
+                let sample = reply.result().ok()?;
+                serde_json::from_slice::<ExecutorInfo>(&sample.payload().to_bytes())
+                    .ok()?
+                    .instance
+            })
+            .collect()
+    }
+
+    /// The earlier instance `earlier` of its name answers: it gives the name up (once).
+    fn step_down(&self, earlier: &InstanceId) {
         {
             let mut stepped_down = lock(&self.stepped_down);
             if stepped_down.is_some() || lock(&self.worker).is_none() {
                 return;
             }
-            *stepped_down = Some(earlier.to_owned());
+            *stepped_down = Some(earlier.clone());
         }
         let name = &self.inner.config.name;
         tracing::error!(

@@ -8,6 +8,7 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use dyknow_cu::keys::InstanceId;
 use dyknow_cu::protocol::{ApplyRequest, CuAction, CuState, Event, Implementation};
 use dyknow_cu::zenoh::{self, Wait};
 use dyknow_cu::{Namespace, Sample};
@@ -540,30 +541,37 @@ fn generations_fence_stale_change_sets() {
 /// Two executors of one name that could not see each other when they started meet when a
 /// link comes up (a partition heals): the one that started later steps down. It stops its
 /// CUs, withdraws its tokens and says for whom; the earlier one keeps the name, and refuses
-/// requests addressed to the other instance.
+/// requests addressed to the other instance. An earlier instance's token alone (a ghost: its
+/// executor gone, its lease not yet expired) makes no one step down.
 #[test]
 fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
-    // Both connect to an endpoint nothing listens on yet: each starts alone.
-    let meeting = format!("tcp/127.0.0.1:{}", free_port());
-    let alone = || {
+    // Each connects to an endpoint nothing listens on yet: each starts alone.
+    let (near, far) = (
+        format!("tcp/127.0.0.1:{}", free_port()),
+        format!("tcp/127.0.0.1:{}", free_port()),
+    );
+    let alone = |endpoint: &String| {
         let config =
-            dyknow_cu::router_config(&[], std::slice::from_ref(&meeting)).expect("a config");
+            dyknow_cu::router_config(&[], std::slice::from_ref(endpoint)).expect("a config");
         zenoh::open(config).wait().expect("a session")
     };
-    let (early_session, late_session) = (alone(), alone());
+    let (early_session, late_session) = (alone(&far), alone(&near));
     let ns = Namespace::new("twins").expect("a namespace");
     let early = Executor::start(
         &early_session,
         ExecutorConfig::new("twin", ns.clone(), Vec::new()),
     )
     .expect("the earlier twin starts");
-    // Instance ids order by start time in milliseconds.
-    std::thread::sleep(Duration::from_millis(2));
+    // Instance ids order by start time in milliseconds: the next one starts a tick later.
+    let started = dyknow_cu::now_ms();
+    while dyknow_cu::now_ms() == started {
+        std::thread::yield_now();
+    }
     let (told, stepped) = mpsc::channel();
     let mut config = ExecutorConfig::new("twin", ns.clone(), Vec::new());
     config.on_step_down = Some(dyknow_executor::OnStepDown(std::sync::Arc::new(
-        move |earlier: &str| {
-            let _ = told.send(earlier.to_owned());
+        move |earlier: &InstanceId| {
+            let _ = told.send(earlier.clone());
         },
     )));
     let late = Executor::start(&late_session, config).expect("the later twin starts, alone");
@@ -582,16 +590,52 @@ fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
         )],
     );
     assert_eq!(late.info().cus.len(), 1);
-    assert_eq!(late.stepped_down(), None, "alone, nobody to step down for");
 
-    // The link comes up: a router on the endpoint both try.
-    let config = dyknow_cu::router_config(std::slice::from_ref(&meeting), &[]).expect("a config");
+    // The later twin links to a router holding a ghost's token: an instance earlier than
+    // both, which answers nothing.
+    let config = dyknow_cu::router_config(std::slice::from_ref(&near), &[]).expect("a config");
     let hub = zenoh::open(config).wait().expect("the hub");
+    let ghost: InstanceId = "0000000000001-ab".parse().expect("an instance id");
+    let _ghost = hub
+        .liveliness()
+        .declare_token(ns.executor_instance("twin", &ghost))
+        .wait()
+        .expect("a token");
+    let count = |session: &zenoh::Session, key: String| {
+        session
+            .liveliness()
+            .get(key)
+            .timeout(Duration::from_secs(1))
+            .wait()
+            .expect("a liveliness query")
+            .iter()
+            .filter(|r| r.result().is_ok())
+            .count()
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while count(&late_session, ns.executor_instance("twin", &ghost)) == 0 {
+        assert!(
+            Instant::now() < deadline,
+            "the later twin never sees the ghost"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // Absence can only be waited for: longer than one round of asking (2 s) and its pause.
+    assert!(
+        stepped.recv_timeout(Duration::from_secs(4)).is_err(),
+        "the later twin stepped down for a ghost"
+    );
+    assert_eq!(late.info().cus.len(), 1, "its CU runs on");
+
+    // The earlier twin links too: a router on its endpoint, linked to the hub.
+    let config = dyknow_cu::router_config(std::slice::from_ref(&far), std::slice::from_ref(&near))
+        .expect("a config");
+    let _bridge = zenoh::open(config).wait().expect("the bridge");
     let earlier = stepped
         .recv_timeout(Duration::from_secs(30))
-        .expect("the later twin steps down once it sees the earlier");
-    assert_eq!(earlier, early.instance());
-    assert_eq!(late.stepped_down().as_deref(), Some(early.instance()));
+        .expect("the later twin steps down once the earlier one answers");
+    assert_eq!(&earlier, early.instance());
+    assert_eq!(late.stepped_down().as_ref(), Some(early.instance()));
     assert!(late.info().cus.is_empty(), "its CUs stopped");
     assert_eq!(
         early.stepped_down(),
@@ -601,27 +645,20 @@ fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
 
     // The name and the earlier instance stay on the data plane; the later instance's token
     // goes.
-    let count = |key: String| {
-        hub.liveliness()
-            .get(key)
-            .timeout(Duration::from_secs(1))
-            .wait()
-            .expect("a liveliness query")
-            .iter()
-            .filter(|r| r.result().is_ok())
-            .count()
-    };
     let deadline = Instant::now() + Duration::from_secs(10);
-    while count(ns.executor_instance("twin", late.instance())) != 0 {
+    while count(&hub, ns.executor_instance("twin", late.instance())) != 0 {
         assert!(Instant::now() < deadline, "the later twin's token stays");
         std::thread::sleep(Duration::from_millis(10));
     }
-    assert_eq!(count(ns.executor_instances("twin")), 1);
-    assert_eq!(count(ns.executor_token("twin")), 1);
+    assert_eq!(
+        count(&hub, ns.executor_instance("twin", early.instance())),
+        1
+    );
+    assert_eq!(count(&hub, ns.executor_token("twin")), 1);
 
     // A request for the other instance is refused, action by action.
     let reply = early.apply(&ApplyRequest {
-        instance: Some(late.instance().to_owned()),
+        instance: Some(late.instance().clone()),
         change_set: "cs-9".into(),
         generation: 9,
         actions: vec![CuAction::Destroy { cu: "x".into() }],
@@ -632,5 +669,5 @@ fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
         "{:?}",
         reply.failures
     );
-    assert_eq!(early.info().instance.as_deref(), Some(early.instance()));
+    assert_eq!(early.info().instance.as_ref(), Some(early.instance()));
 }

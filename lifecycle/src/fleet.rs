@@ -10,13 +10,12 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use dyknow_cu::Namespace;
-use dyknow_cu::keys::instance_of;
+use dyknow_cu::keys::InstanceId;
 use dyknow_cu::protocol::{
     ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Implementation,
     Kind, param_value,
 };
 use dyknow_cu::zenoh::pubsub::Subscriber;
-use dyknow_cu::zenoh::sample::SampleKind;
 use dyknow_cu::zenoh::{self, Wait};
 use dyknow_engine::{Action, ActionFailure, ChangeSet, Cid, CuOutcome, CuOutcomeState, Tid};
 use dyknow_store::spec::TransformationSpec;
@@ -24,6 +23,9 @@ use serde::Serialize;
 use tokio::sync::mpsc;
 
 use crate::executor::{Applied, CuView, Executor, ReportedCu};
+
+mod membership;
+use membership::Token;
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
@@ -86,22 +88,6 @@ struct Known {
     checks: BTreeMap<String, Result<(), String>>,
 }
 
-/// An executor's liveliness token, as last seen.
-#[derive(Debug, Default, Clone, Copy)]
-struct Token {
-    up: bool,
-    epoch: u64,
-    /// A membership thread is asking the executor for its `info`.
-    probing: bool,
-}
-
-impl Token {
-    fn set(&mut self, up: bool) {
-        self.up = up;
-        self.epoch += 1;
-    }
-}
-
 struct Inner {
     session: zenoh::Session,
     namespace: Namespace,
@@ -117,7 +103,7 @@ struct Inner {
     /// The live instances of each executor name ([`Namespace::executor_instance`]); the
     /// first (the earliest started) holds the name, the others are stepping down. Locked
     /// after `tokens` when both are.
-    instances: Mutex<BTreeMap<String, BTreeSet<String>>>,
+    instances: Mutex<BTreeMap<String, BTreeSet<InstanceId>>>,
     events: mpsc::UnboundedSender<FleetEvent>,
 }
 
@@ -182,38 +168,7 @@ impl Fleet {
             instances: Mutex::default(),
             events: tx,
         });
-        let watcher = inner.clone();
-        let tokens = session
-            .liveliness()
-            .declare_subscriber(namespace.executor_tokens())
-            .history(true)
-            .callback(move |sample| {
-                let key = sample.key_expr().as_str().to_owned();
-                let Some(name) = key.rsplit('/').next().map(str::to_owned) else {
-                    return;
-                };
-                if sample.kind() == SampleKind::Put {
-                    Inner::up(&watcher, name);
-                } else {
-                    // Taken here, in the order Zenoh tells it: a vanishing handled on a
-                    // thread could otherwise land after the executor's next appearance.
-                    watcher.vanished(&name);
-                }
-            })
-            .wait()?;
-        // Zenoh announces a name's token once however many executors hold it; their
-        // instance tokens tell them apart.
-        let watcher = inner.clone();
-        let instances = session
-            .liveliness()
-            .declare_subscriber(namespace.executor_instances("*"))
-            .history(true)
-            .callback(move |sample| {
-                if let Some((name, instance)) = instance_of(sample.key_expr().as_str()) {
-                    Inner::instance(&watcher, name, instance, sample.kind() == SampleKind::Put);
-                }
-            })
-            .wait()?;
+        let [instances, tokens] = membership::watch(&inner, session, &namespace)?;
         let reporter = inner.clone();
         let events = session
             .declare_subscriber(namespace.all_executor_events())
@@ -294,166 +249,6 @@ impl Fleet {
 }
 
 impl Inner {
-    /// Executor `name`'s token is up: one thread asks it for its [`Inner::appeared`].
-    fn up(inner: &Arc<Self>, name: String) {
-        let start = {
-            let mut tokens = lock(&inner.tokens);
-            let token = tokens.entry(name.clone()).or_default();
-            token.set(true);
-            // One thread asks per executor; one asking already sees the new epoch.
-            !std::mem::replace(&mut token.probing, true)
-        };
-        if start {
-            let inner = inner.clone();
-            // Never block a Zenoh callback: the info query runs on its own thread.
-            let _ = std::thread::Builder::new()
-                .name("fleet-membership".into())
-                .spawn(move || inner.appeared(&name));
-        }
-    }
-
-    /// An instance token of executor `name` came (`put`) or went. When another instance
-    /// holds the name than did (two executors of one name met, and the earlier one wins;
-    /// or the holder went while a later one had yet to step down), the executor behind the
-    /// name is another one although the name's token never went down: the CUs placed on the
-    /// old one are lost (they stop with it) and the new one is asked for its `info`, as if
-    /// the name had gone and come back.
-    fn instance(inner: &Arc<Self>, name: &str, instance: &str, put: bool) {
-        let (before, after) = {
-            let mut instances = lock(&inner.instances);
-            let live = instances.entry(name.to_owned()).or_default();
-            let before = live.first().cloned();
-            if put {
-                live.insert(instance.to_owned());
-            } else {
-                live.remove(instance);
-            }
-            let after = live.first().cloned();
-            if live.is_empty() {
-                instances.remove(name);
-            }
-            (before, after)
-        };
-        if let (Some(before), Some(after)) = (before, after)
-            && before != after
-        {
-            tracing::warn!(
-                "executor {name}: instance {after} holds the name now, not {before} (two executors of one name met; the later steps down)"
-            );
-            inner.vanished(name);
-            Self::up(inner, name.to_owned());
-        }
-    }
-
-    /// The instance holding executor name `name`, if its instances are known.
-    fn holder(&self, name: &str) -> Option<String> {
-        lock(&self.instances)
-            .get(name)
-            .and_then(|live| live.first().cloned())
-    }
-
-    /// Executor `name`'s token is up: asks it for its `info`, again every 200 ms while it
-    /// does not answer and the token stays up, then records it present and reports its CUs
-    /// for reconciliation; a token that went down ends the asking. (Right after a link is cut, Zenoh may announce the token of the
-    /// executor behind it again although it cannot be reached; when the link heals, no new
-    /// announcement comes, so the answer is what tells.) One thread asks per executor. An
-    /// answer counts only if the token did not change while it was asked for (its epoch,
-    /// checked under the token lock that [`Inner::vanished`] holds too, as does the callback
-    /// that starts this thread unless one is asking already): an executor that
-    /// went down and up meanwhile (a flapping link, a restart under the same name) is asked
-    /// again, so a stale list of CUs is never reconciled, and no answer is recorded after the
-    /// token went down.
-    fn appeared(&self, name: &str) {
-        let mut warned = false;
-        loop {
-            let asked = lock(&self.tokens).get(name).map_or(0, |t| t.epoch);
-            let info: Option<ExecutorInfo> = self.query(name, "info", Vec::new());
-            let mut tokens = lock(&self.tokens);
-            let token = tokens.entry(name.to_owned()).or_default();
-            if !token.up {
-                token.probing = false;
-                return;
-            }
-            if token.epoch != asked {
-                continue;
-            }
-            // Another instance of the name than the one holding it answered: one stepping
-            // down (its CUs are about to stop). Asked again until the holder answers.
-            let info = info.filter(|info| {
-                let holder = self.holder(name);
-                let from_holder =
-                    info.instance.is_none() || holder.is_none() || info.instance == holder;
-                if !from_holder {
-                    tracing::debug!(
-                        "executor {name}: instance {:?} answered, {holder:?} holds the name",
-                        info.instance
-                    );
-                }
-                from_holder
-            });
-            let Some(info) = info else {
-                drop(tokens);
-                if !warned {
-                    tracing::warn!(
-                        "executor {name} appeared but does not describe itself; asking again until it does or leaves"
-                    );
-                    warned = true;
-                }
-                std::thread::sleep(Duration::from_millis(200));
-                continue;
-            };
-            token.probing = false;
-            tracing::info!(
-                "executor {name} is present ({} builtins)",
-                info.builtins.len()
-            );
-            lock(&self.executors).insert(
-                name.to_owned(),
-                Known {
-                    present: true,
-                    builtins: info.builtins.iter().cloned().collect(),
-                    processes: info.processes,
-                    checks: BTreeMap::new(),
-                },
-            );
-            let _ = self.events.send(appeared(name, info));
-            let _ = self.events.send(FleetEvent::ExecutorsChanged);
-            return;
-        }
-    }
-
-    /// Executor `name`'s token went down: it is absent, and the CUs placed on it crashed.
-    fn vanished(&self, name: &str) {
-        let mut tokens = lock(&self.tokens);
-        tokens.entry(name.to_owned()).or_default().set(false);
-        tracing::warn!("executor {name} vanished");
-        if let Some(known) = lock(&self.executors).get_mut(name) {
-            known.present = false;
-        }
-        let lost: Vec<Cid> = {
-            let mut placement = lock(&self.placement);
-            let lost: Vec<Cid> = placement
-                .iter()
-                .filter(|(_, e)| *e == name)
-                .map(|(c, _)| c.clone())
-                .collect();
-            let mut running = lock(&self.running);
-            for cu in &lost {
-                placement.remove(cu);
-                running.remove(cu);
-            }
-            lost
-        };
-        if !lost.is_empty() {
-            let _ = self.events.send(FleetEvent::Vanished {
-                executor: name.to_owned(),
-                cus: lost,
-            });
-        }
-        let _ = self.events.send(FleetEvent::ExecutorsChanged);
-        drop(tokens);
-    }
-
     fn event(&self, executor: &str, event: Event) {
         let out = {
             let mut placement = lock(&self.placement);
@@ -552,27 +347,51 @@ impl Inner {
         payload: Vec<u8>,
         timeout: Duration,
     ) -> Result<T, String> {
+        self.query_where(name, service, payload, timeout, |_| true)
+    }
+
+    /// Asks executor `name`'s `service`; the first answer that parses and that `accept`s.
+    /// (Two instances of one name answer while the later steps down.)
+    fn query_where<T: serde::de::DeserializeOwned>(
+        &self,
+        name: &str,
+        service: &str,
+        payload: Vec<u8>,
+        timeout: Duration,
+        accept: impl Fn(&T) -> bool,
+    ) -> Result<T, String> {
+        // Every reply, not Zenoh's default of the latest per key: two instances of one name
+        // answer on the same key.
         let replies = self
             .session
             .get(self.namespace.executor_service(name, service))
             .payload(payload)
+            .consolidation(zenoh::query::ConsolidationMode::None)
             .timeout(timeout)
             .wait()
             .map_err(|e| e.to_string())?;
-        let reply = replies.recv().map_err(|_| {
-            format!(
-                "executor {name} did not answer within {} s",
-                timeout.as_secs()
-            )
-        })?;
-        match reply.result() {
-            Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
-                .map_err(|e| format!("executor {name} answered nonsense: {e}")),
-            Err(e) => Err(format!(
-                "executor {name}: {}",
-                String::from_utf8_lossy(&e.payload().to_bytes())
-            )),
+        let mut why = format!(
+            "executor {name} did not answer within {} s",
+            timeout.as_secs()
+        );
+        while let Ok(reply) = replies.recv() {
+            match reply.result() {
+                Ok(sample) => match serde_json::from_slice::<T>(&sample.payload().to_bytes()) {
+                    Ok(answer) if accept(&answer) => return Ok(answer),
+                    Ok(_) => {
+                        why = format!("executor {name}: another instance of the name answered")
+                    }
+                    Err(e) => why = format!("executor {name} answered nonsense: {e}"),
+                },
+                Err(e) => {
+                    why = format!(
+                        "executor {name}: {}",
+                        String::from_utf8_lossy(&e.payload().to_bytes())
+                    );
+                }
+            }
         }
+        Err(why)
     }
 
     /// Whether executor `name` (present) can run `spec`.
@@ -943,7 +762,11 @@ impl Executor for Fleet {
             }
         }
         for (executor, hosted) in by_executor {
-            let info: Option<ExecutorInfo> = self.inner.query(executor, "info", Vec::new());
+            let info: Option<ExecutorInfo> = (self.inner)
+                .query_where(executor, "info", Vec::new(), QUERY_TIMEOUT, |info| {
+                    self.inner.answered_by_holder(executor, info)
+                })
+                .ok();
             // No answer in time (a busy or cut-off executor): what was last heard of its CUs,
             // not a crash nobody saw (a crash is an event of its own, or the executor's token
             // going).

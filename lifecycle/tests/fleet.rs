@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use dyknow_cu::Namespace;
+use dyknow_cu::keys::InstanceId;
 use dyknow_cu::protocol::{CuReport, CuState, CuStatistics, ExecutorInfo};
 use dyknow_cu::zenoh::{self, Wait};
 use dyknow_lifecycle::{Executor, Fleet, FleetEvent};
@@ -471,15 +472,23 @@ fn destroys_are_sent_after_every_executors_other_actions() {
     );
 }
 
-/// An instance of executor `name` as a fake: its instance token, its name's token, and an
-/// `info` that says which instance answers and that it runs `cus` CUs.
+/// An instance of executor `x` as a fake: its instance token, its name's token, and an
+/// `info` that says which instance answers and that it runs `cus` CUs, `delay` after it is
+/// asked.
 struct Instance {
     _info: zenoh::query::Queryable<()>,
     _tokens: [zenoh::liveliness::LivelinessToken; 2],
 }
 
-fn instance(client: &zenoh::Session, namespace: &Namespace, id: &str, cus: usize) -> Instance {
-    let said = id.to_owned();
+fn instance(
+    client: &zenoh::Session,
+    namespace: &Namespace,
+    id: &str,
+    cus: usize,
+    delay: Duration,
+) -> Instance {
+    let id: InstanceId = id.parse().expect("an instance id");
+    let said = id.clone();
     let info = client
         .declare_queryable(namespace.executor_service("x", "info"))
         .callback(move |query| {
@@ -502,7 +511,10 @@ fn instance(client: &zenoh::Session, namespace: &Namespace, id: &str, cus: usize
                     })
                     .collect(),
             };
-            reply_json(&query, &info);
+            std::thread::spawn(move || {
+                std::thread::sleep(delay);
+                reply_json(&query, &info);
+            });
         })
         .wait()
         .expect("a queryable");
@@ -516,7 +528,7 @@ fn instance(client: &zenoh::Session, namespace: &Namespace, id: &str, cus: usize
     Instance {
         _info: info,
         _tokens: [
-            token(namespace.executor_instance("x", id)),
+            token(namespace.executor_instance("x", &id)),
             token(namespace.executor_token("x")),
         ],
     }
@@ -525,18 +537,24 @@ fn instance(client: &zenoh::Session, namespace: &Namespace, id: &str, cus: usize
 /// Two executors of one name meet: the name's token never goes down (Zenoh announces it
 /// once), yet the fleet sees the earlier instance take the name over. It counts the name as
 /// gone and back (without that, no second appearance comes at all), and takes `info` only
-/// from the instance holding the name, not from the later one still answering while it steps
-/// down (its CUs are about to stop).
+/// from the instance holding the name, not from the later one still answering, first, while
+/// it steps down (its CUs are about to stop).
 #[test]
 fn an_earlier_instance_takes_the_name_and_only_its_answer_counts() {
     let (router, client) = sessions();
     let namespace = Namespace::new("twins").expect("a namespace");
     let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
-    let later = instance(&client, &namespace, "0000000002000-b", 1);
+    let later = instance(&client, &namespace, "0000000002000-b", 1, Duration::ZERO);
     until_appeared(&mut events, "x", 1);
-    // The later instance's `info` was declared first, so it is asked and answers first.
-    let earlier = instance(&client, &namespace, "0000000001000-a", 0);
-    // It steps down half a second later (a real one does as soon as it sees the earlier).
+    // The earlier instance answers 100 ms after the later one.
+    let earlier = instance(
+        &client,
+        &namespace,
+        "0000000001000-a",
+        0,
+        Duration::from_millis(100),
+    );
+    // It steps down half a second later (a real one does once the earlier one answers it).
     let stepping_down = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(500));
         drop(later);

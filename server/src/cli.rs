@@ -1097,10 +1097,10 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     config.zenoh_config = zenoh_file.map(|f| f.path);
     // Stepping down for an earlier executor of the name ends the process (exit 2), as being
     // refused at start would have.
-    let (stepped_down, mut step_down) = tokio::sync::mpsc::unbounded_channel::<String>();
+    let (stepped_down, mut step_down) = tokio::sync::mpsc::unbounded_channel();
     config.on_step_down = Some(dyknow_executor::OnStepDown(Arc::new(
-        move |earlier: &str| {
-            let _ = stepped_down.send(earlier.to_owned());
+        move |earlier: &dyknow_cu::keys::InstanceId| {
+            let _ = stepped_down.send(earlier.clone());
         },
     )));
     let executor = dyknow_executor::Executor::start(&session, config)

@@ -1,0 +1,256 @@
+//! Which executors are present (`executors.md`, "The manager's side: the fleet"): their
+//! liveliness tokens, by name, and the instances behind each name.
+//!
+//! Zenoh announces a key once however many sessions hold it, so a name's token says that
+//! some executor of the name is up, never which. Each executor also holds a token of its own
+//! run, `<name>/<instance>`; the earliest live instance of a name holds it (a later one steps
+//! down when it sees an earlier one answer). The fleet takes an executor's `info` only from
+//! the holder, remembers whose it took, and handles a change of holder under a name whose
+//! token stayed up as the name gone and back.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use dyknow_cu::Namespace;
+use dyknow_cu::keys::{InstanceId, InstanceKey};
+use dyknow_cu::protocol::ExecutorInfo;
+use dyknow_cu::zenoh::pubsub::Subscriber;
+use dyknow_cu::zenoh::sample::SampleKind;
+use dyknow_cu::zenoh::{self, Wait};
+use dyknow_engine::Cid;
+
+use super::{FleetEvent, Inner, Known, QUERY_TIMEOUT, appeared, lock};
+
+/// An executor's liveliness token, as last seen.
+#[derive(Debug, Default, Clone)]
+pub(super) struct Token {
+    up: bool,
+    epoch: u64,
+    /// A membership thread is asking the executor for its `info`.
+    probing: bool,
+    /// The instance whose `info` was taken since the token last came up (`None`: none yet,
+    /// or an executor that does not say which it is).
+    instance: Option<InstanceId>,
+}
+
+impl Token {
+    fn set(&mut self, up: bool) {
+        self.up = up;
+        self.epoch += 1;
+        self.instance = None;
+    }
+}
+
+/// Subscribes to the executors' instance tokens, then to their names' tokens (so that the
+/// holder of a name is known, where it can be, before its executor is first asked).
+pub(super) fn watch(
+    inner: &Arc<Inner>,
+    session: &zenoh::Session,
+    namespace: &Namespace,
+) -> Result<[Subscriber<()>; 2], zenoh::Error> {
+    let watcher = inner.clone();
+    let instances = session
+        .liveliness()
+        .declare_subscriber(namespace.executor_instances("*"))
+        .history(true)
+        .callback(move |sample| {
+            if let Some(key) = InstanceKey::parse(sample.key_expr().as_str()) {
+                let put = sample.kind() == SampleKind::Put;
+                Inner::instance(&watcher, key.name, key.instance, put);
+            }
+        })
+        .wait()?;
+    let watcher = inner.clone();
+    let tokens = session
+        .liveliness()
+        .declare_subscriber(namespace.executor_tokens())
+        .history(true)
+        .callback(move |sample| {
+            let key = sample.key_expr().as_str().to_owned();
+            let Some(name) = key.rsplit('/').next().map(str::to_owned) else {
+                return;
+            };
+            if sample.kind() == SampleKind::Put {
+                Inner::up(&watcher, name);
+            } else {
+                // Taken here, in the order Zenoh tells it: a vanishing handled on a
+                // thread could otherwise land after the executor's next appearance.
+                watcher.vanished(&name);
+            }
+        })
+        .wait()?;
+    Ok([instances, tokens])
+}
+
+impl Inner {
+    /// Executor `name`'s token is up: one thread asks it for its [`Inner::appeared`].
+    fn up(inner: &Arc<Self>, name: String) {
+        let start = {
+            let mut tokens = lock(&inner.tokens);
+            let token = tokens.entry(name.clone()).or_default();
+            token.set(true);
+            // One thread asks per executor; one asking already sees the new epoch.
+            !std::mem::replace(&mut token.probing, true)
+        };
+        if start {
+            let inner = inner.clone();
+            // Never block a Zenoh callback: the info query runs on its own thread.
+            let _ = std::thread::Builder::new()
+                .name("fleet-membership".into())
+                .spawn(move || inner.appeared(&name));
+        }
+    }
+
+    /// An instance token of executor `name` came (`put`) or went. When the name's token is
+    /// up and the instance whose `info` was taken no longer holds the name (an earlier
+    /// instance arrived; or it went, and a later one had yet to step down), the executor
+    /// behind the name is another one although the name's token never went down: the CUs
+    /// placed on the old one are lost (they stop with it) and the holder is asked for its
+    /// `info`, as if the name had gone and come back.
+    fn instance(inner: &Arc<Self>, name: &str, instance: InstanceId, put: bool) {
+        let replaced = {
+            let tokens = lock(&inner.tokens);
+            let holder = {
+                let mut instances = lock(&inner.instances);
+                let live = instances.entry(name.to_owned()).or_default();
+                if put {
+                    live.insert(instance);
+                } else {
+                    live.remove(&instance);
+                }
+                let holder = live.first().cloned();
+                if live.is_empty() {
+                    instances.remove(name);
+                }
+                holder
+            };
+            let taken = (tokens.get(name))
+                .filter(|t| t.up)
+                .and_then(|t| t.instance.clone());
+            match (taken, holder) {
+                (Some(taken), Some(holder)) if taken != holder => Some((taken, holder)),
+                _ => None,
+            }
+        };
+        if let Some((taken, holder)) = replaced {
+            tracing::warn!(
+                "executor {name}: instance {holder} holds the name now, not {taken} (two executors of one name met; the later steps down)"
+            );
+            inner.vanished(name);
+            Self::up(inner, name.to_owned());
+        }
+    }
+
+    /// The instance holding executor name `name`, if its instances are known.
+    pub(super) fn holder(&self, name: &str) -> Option<InstanceId> {
+        lock(&self.instances)
+            .get(name)
+            .and_then(|live| live.first().cloned())
+    }
+
+    /// Whether `info` comes from the instance holding `name`, or nothing tells (no instance
+    /// token of the name is known: an executor that does not declare one).
+    pub(super) fn answered_by_holder(&self, name: &str, info: &ExecutorInfo) -> bool {
+        self.holder(name)
+            .is_none_or(|holder| info.instance.as_ref() == Some(&holder))
+    }
+
+    /// Executor `name`'s token is up: asks it for its `info`, again every 200 ms while it
+    /// does not answer and the token stays up, then records it present and reports its CUs
+    /// for reconciliation; a token that went down ends the asking. (Right after a link is
+    /// cut, Zenoh may announce the token of the executor behind it again although it cannot
+    /// be reached; when the link heals, no new announcement comes, so the answer is what
+    /// tells.) Only the answer of the instance holding the name counts: another one is
+    /// stepping down, and its CUs are about to stop. One thread asks per executor. An answer
+    /// counts only if the token did not change while it was asked for (its epoch, checked
+    /// under the token lock that [`Inner::vanished`] holds too, as does the callback that
+    /// starts this thread unless one is asking already): an executor that went down and up
+    /// meanwhile (a flapping link, a restart under the same name) is asked again, so a stale
+    /// list of CUs is never reconciled, and no answer is recorded after the token went down.
+    fn appeared(&self, name: &str) {
+        let mut warned = false;
+        loop {
+            let asked = lock(&self.tokens).get(name).map_or(0, |t| t.epoch);
+            let info = self
+                .query_where(name, "info", Vec::new(), QUERY_TIMEOUT, |info| {
+                    self.answered_by_holder(name, info)
+                })
+                .ok();
+            let mut tokens = lock(&self.tokens);
+            let token = tokens.entry(name.to_owned()).or_default();
+            if !token.up {
+                token.probing = false;
+                return;
+            }
+            if token.epoch != asked {
+                continue;
+            }
+            // The holder may have changed since the answer was picked.
+            let Some(info) = info.filter(|info| self.answered_by_holder(name, info)) else {
+                drop(tokens);
+                if !warned {
+                    tracing::warn!(
+                        "executor {name} appeared but does not describe itself; asking again until it does or leaves"
+                    );
+                    warned = true;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+                continue;
+            };
+            token.probing = false;
+            token.instance.clone_from(&info.instance);
+            tracing::info!(
+                "executor {name} is present ({} builtins{})",
+                info.builtins.len(),
+                info.instance
+                    .as_ref()
+                    .map_or_else(String::new, |i| format!(", instance {i}"))
+            );
+            lock(&self.executors).insert(
+                name.to_owned(),
+                Known {
+                    present: true,
+                    builtins: info.builtins.iter().cloned().collect(),
+                    processes: info.processes,
+                    checks: BTreeMap::new(),
+                },
+            );
+            let _ = self.events.send(appeared(name, info));
+            let _ = self.events.send(FleetEvent::ExecutorsChanged);
+            return;
+        }
+    }
+
+    /// Executor `name`'s token went down: it is absent, and the CUs placed on it crashed.
+    fn vanished(&self, name: &str) {
+        let mut tokens = lock(&self.tokens);
+        tokens.entry(name.to_owned()).or_default().set(false);
+        tracing::warn!("executor {name} vanished");
+        if let Some(known) = lock(&self.executors).get_mut(name) {
+            known.present = false;
+        }
+        let lost: Vec<Cid> = {
+            let mut placement = lock(&self.placement);
+            let lost: Vec<Cid> = placement
+                .iter()
+                .filter(|(_, e)| *e == name)
+                .map(|(c, _)| c.clone())
+                .collect();
+            let mut running = lock(&self.running);
+            for cu in &lost {
+                placement.remove(cu);
+                running.remove(cu);
+            }
+            lost
+        };
+        if !lost.is_empty() {
+            let _ = self.events.send(FleetEvent::Vanished {
+                executor: name.to_owned(),
+                cus: lost,
+            });
+        }
+        let _ = self.events.send(FleetEvent::ExecutorsChanged);
+        drop(tokens);
+    }
+}
