@@ -159,7 +159,7 @@ struct Parts {
     /// The watch on the instance tokens of its name.
     watch: Mutex<Option<Subscriber<()>>>,
     /// The instances of its name that started before it and whose tokens are up.
-    earlier: Mutex<Earlier>,
+    earlier: Arc<Mutex<Earlier>>,
     queryables: Mutex<Vec<Queryable<()>>>,
     worker: Mutex<Option<std::thread::JoinHandle<()>>>,
     /// Held while it stops: a second caller waits until its CUs are stopped.
@@ -242,6 +242,34 @@ impl Executor {
             .name(format!("executor-{}", config.name))
             .spawn(move || worker_inner.work(&rx))
             .map_err(|e| CuError::failed(format!("cannot start the worker: {e}")))?;
+        let parts = Arc::new(Parts {
+            inner: inner.clone(),
+            tokens: Mutex::default(),
+            watch: Mutex::default(),
+            earlier: Arc::default(),
+            queryables: Mutex::default(),
+            worker: Mutex::new(Some(worker)),
+            stopping: Mutex::default(),
+            stepped_down: Mutex::default(),
+        });
+        // What fails from here on stops what started.
+        if let Err(e) = Self::declare(&parts, session) {
+            parts.shutdown();
+            return Err(e);
+        }
+        tracing::info!(
+            "executor {} is up (instance {})",
+            config.name,
+            inner.instance
+        );
+        Ok(Self { parts })
+    }
+
+    /// [`Executor::start`]'s declarations: its services, its upkeep reports, its instance's
+    /// token, the watch on its name's other instances, then its name's token.
+    fn declare(parts: &Arc<Parts>, session: &zenoh::Session) -> Result<(), CuError> {
+        let inner = &parts.inner;
+        let (config, ns) = (&inner.config, &inner.config.namespace);
         // `info` and `check` are answered on a thread of their own: they only read, and a
         // change set that starts processes keeps the worker for seconds, longer than the
         // manager waits for an answer (it would take every CU here for crashed).
@@ -257,21 +285,19 @@ impl Executor {
                 }
             })
             .map_err(|e| CuError::failed(format!("cannot start the reader: {e}")))?;
-        let mut queryables = Vec::new();
         for service in ["apply", "info", "check"] {
             let jobs = if service == "apply" {
                 inner.jobs.clone()
             } else {
                 reads.clone()
             };
-            queryables.push(
-                session
-                    .declare_queryable(ns.executor_service(&config.name, service))
-                    .callback(move |query| {
-                        let _ = jobs.send(Job::Query(query, service));
-                    })
-                    .wait()?,
-            );
+            let queryable = session
+                .declare_queryable(ns.executor_service(&config.name, service))
+                .callback(move |query| {
+                    let _ = jobs.send(Job::Query(query, service));
+                })
+                .wait()?;
+            lock(&parts.queryables).push(queryable);
         }
         let ticker = inner.jobs.clone();
         let interval = config.report_interval;
@@ -285,23 +311,14 @@ impl Executor {
                     }
                 }
             });
-        let parts = Arc::new(Parts {
-            inner: inner.clone(),
-            tokens: Mutex::default(),
-            watch: Mutex::default(),
-            earlier: Mutex::default(),
-            queryables: Mutex::new(queryables),
-            worker: Mutex::new(Some(worker)),
-            stopping: Mutex::default(),
-            stepped_down: Mutex::default(),
-        });
-        lock(&parts.tokens).push(
-            session
-                .liveliness()
-                .declare_token(ns.executor_instance(&config.name, &inner.instance))
-                .wait()?,
-        );
-        let watcher = Arc::downgrade(&parts);
+        let token = session
+            .liveliness()
+            .declare_token(ns.executor_instance(&config.name, &inner.instance))
+            .wait()?;
+        lock(&parts.tokens).push(token);
+        // The callback holds what it tracks, and the executor only weakly: it never drops
+        // the executor on a Zenoh thread.
+        let (earlier, executor) = (parts.earlier.clone(), Arc::downgrade(parts));
         let own = inner.instance.clone();
         let watch = session
             .liveliness()
@@ -314,38 +331,30 @@ impl Executor {
                 if key.instance >= own {
                     return;
                 }
-                let Some(parts) = watcher.upgrade() else {
-                    return;
-                };
-                let mut earlier = lock(&parts.earlier);
+                let mut tracked = lock(&earlier);
                 if sample.kind() == SampleKind::Delete {
-                    earlier.live.remove(&key.instance);
+                    tracked.live.remove(&key.instance);
                     return;
                 }
-                earlier.live.insert(key.instance);
-                if !std::mem::replace(&mut earlier.checking, true) {
-                    let watcher = watcher.clone();
+                tracked.live.insert(key.instance);
+                if !std::mem::replace(&mut tracked.checking, true) {
+                    let executor = executor.clone();
                     // It asks, and stopping undeclares this very subscriber: not from its
                     // callback.
-                    let _ = std::thread::Builder::new()
+                    let started = std::thread::Builder::new()
                         .name("executor-step-down".into())
-                        .spawn(move || Parts::check_earlier(&watcher));
+                        .spawn(move || Parts::check_earlier(&executor));
+                    tracked.checking = started.is_ok();
                 }
             })
             .wait()?;
         *lock(&parts.watch) = Some(watch);
-        lock(&parts.tokens).push(
-            session
-                .liveliness()
-                .declare_token(ns.executor_token(&config.name))
-                .wait()?,
-        );
-        tracing::info!(
-            "executor {} is up (instance {})",
-            config.name,
-            inner.instance
-        );
-        Ok(Self { parts })
+        let token = session
+            .liveliness()
+            .declare_token(ns.executor_token(&config.name))
+            .wait()?;
+        lock(&parts.tokens).push(token);
+        Ok(())
     }
 
     /// Its name.

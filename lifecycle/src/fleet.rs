@@ -370,28 +370,39 @@ impl Inner {
             .timeout(timeout)
             .wait()
             .map_err(|e| e.to_string())?;
-        let mut why = format!(
-            "executor {name} did not answer within {} s",
-            timeout.as_secs()
-        );
+        // Why nothing counted: the first error, else that only another instance answered.
+        let (mut error, mut other) = (None, false);
         while let Ok(reply) = replies.recv() {
             match reply.result() {
                 Ok(sample) => match serde_json::from_slice::<T>(&sample.payload().to_bytes()) {
                     Ok(answer) if accept(&answer) => return Ok(answer),
-                    Ok(_) => {
-                        why = format!("executor {name}: another instance of the name answered")
+                    Ok(_) => other = true,
+                    Err(e) => {
+                        error.get_or_insert_with(|| {
+                            format!("executor {name} answered nonsense: {e}")
+                        });
                     }
-                    Err(e) => why = format!("executor {name} answered nonsense: {e}"),
                 },
                 Err(e) => {
-                    why = format!(
-                        "executor {name}: {}",
-                        String::from_utf8_lossy(&e.payload().to_bytes())
-                    );
+                    error.get_or_insert_with(|| {
+                        format!(
+                            "executor {name}: {}",
+                            String::from_utf8_lossy(&e.payload().to_bytes())
+                        )
+                    });
                 }
             }
         }
-        Err(why)
+        Err(error.unwrap_or_else(|| {
+            if other {
+                format!("executor {name}: only another instance of the name answered")
+            } else {
+                format!(
+                    "executor {name} did not answer within {} s",
+                    timeout.as_secs()
+                )
+            }
+        }))
     }
 
     /// Whether executor `name` (present) can run `spec`.
@@ -429,7 +440,10 @@ impl Inner {
                     }
                     None => return Err(format!("executor {name} did not answer")),
                 };
-                if let Some(known) = lock(&self.executors).get_mut(name) {
+                // Not while two instances share the name: the answer may be the one's that
+                // steps down (another host, other programs).
+                let shared = lock(&self.instances).get(name).is_some_and(|l| l.len() > 1);
+                if !shared && let Some(known) = lock(&self.executors).get_mut(name) {
                     known
                         .checks
                         .insert(implementation.source.clone(), answer.clone());

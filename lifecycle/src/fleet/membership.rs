@@ -86,20 +86,27 @@ pub(super) fn watch(
 impl Inner {
     /// Executor `name`'s token is up: one thread asks it for its [`Inner::appeared`].
     fn up(inner: &Arc<Self>, name: String) {
-        let start = {
-            let mut tokens = lock(&inner.tokens);
-            let token = tokens.entry(name.clone()).or_default();
-            token.set(true);
-            // One thread asks per executor; one asking already sees the new epoch.
-            !std::mem::replace(&mut token.probing, true)
-        };
+        let start = Self::mark_up(&mut lock(&inner.tokens), &name);
         if start {
-            let inner = inner.clone();
-            // Never block a Zenoh callback: the info query runs on its own thread.
-            let _ = std::thread::Builder::new()
-                .name("fleet-membership".into())
-                .spawn(move || inner.appeared(&name));
+            Self::probe(inner, name);
         }
+    }
+
+    /// Marks `name`'s token up (a new epoch); whether a thread must start asking it (one
+    /// asking already sees the new epoch).
+    fn mark_up(tokens: &mut BTreeMap<String, Token>, name: &str) -> bool {
+        let token = tokens.entry(name.to_owned()).or_default();
+        token.set(true);
+        !std::mem::replace(&mut token.probing, true)
+    }
+
+    /// Starts the thread that asks `name` for its `info` ([`Inner::appeared`]): never a
+    /// Zenoh callback's own thread, as the query waits.
+    fn probe(inner: &Arc<Self>, name: String) {
+        let inner = inner.clone();
+        let _ = std::thread::Builder::new()
+            .name("fleet-membership".into())
+            .spawn(move || inner.appeared(&name));
     }
 
     /// An instance token of executor `name` came (`put`) or went. When the name's token is
@@ -107,38 +114,41 @@ impl Inner {
     /// instance arrived; or it went, and a later one had yet to step down), the executor
     /// behind the name is another one although the name's token never went down: the CUs
     /// placed on the old one are lost (they stop with it) and the holder is asked for its
-    /// `info`, as if the name had gone and come back.
+    /// `info`, as if the name had gone and come back. All under the token lock, as the name's
+    /// own coming and going is: a name that goes meanwhile is not marked up.
     fn instance(inner: &Arc<Self>, name: &str, instance: InstanceId, put: bool) {
-        let replaced = {
-            let tokens = lock(&inner.tokens);
-            let holder = {
-                let mut instances = lock(&inner.instances);
-                let live = instances.entry(name.to_owned()).or_default();
-                if put {
-                    live.insert(instance);
-                } else {
-                    live.remove(&instance);
-                }
-                let holder = live.first().cloned();
-                if live.is_empty() {
-                    instances.remove(name);
-                }
-                holder
-            };
-            let taken = (tokens.get(name))
-                .filter(|t| t.up)
-                .and_then(|t| t.instance.clone());
-            match (taken, holder) {
-                (Some(taken), Some(holder)) if taken != holder => Some((taken, holder)),
-                _ => None,
+        let mut tokens = lock(&inner.tokens);
+        let holder = {
+            let mut instances = lock(&inner.instances);
+            let live = instances.entry(name.to_owned()).or_default();
+            if put {
+                live.insert(instance);
+            } else {
+                live.remove(&instance);
             }
+            let holder = live.first().cloned();
+            if live.is_empty() {
+                instances.remove(name);
+            }
+            holder
         };
-        if let Some((taken, holder)) = replaced {
-            tracing::warn!(
-                "executor {name}: instance {holder} holds the name now, not {taken} (two executors of one name met; the later steps down)"
-            );
-            inner.vanished(name);
-            Self::up(inner, name.to_owned());
+        let taken = (tokens.get(name))
+            .filter(|t| t.up)
+            .and_then(|t| t.instance.clone());
+        let (Some(taken), Some(holder)) = (taken, holder) else {
+            return;
+        };
+        if taken == holder {
+            return;
+        }
+        tracing::warn!(
+            "executor {name}: instance {holder} holds the name now, not {taken} (two executors of one name met; the later steps down)"
+        );
+        inner.vanished_locked(&mut tokens, name);
+        let start = Self::mark_up(&mut tokens, name);
+        drop(tokens);
+        if start {
+            Self::probe(inner, name.to_owned());
         }
     }
 
@@ -224,7 +234,11 @@ impl Inner {
 
     /// Executor `name`'s token went down: it is absent, and the CUs placed on it crashed.
     fn vanished(&self, name: &str) {
-        let mut tokens = lock(&self.tokens);
+        self.vanished_locked(&mut lock(&self.tokens), name);
+    }
+
+    /// [`Inner::vanished`], the token lock held.
+    fn vanished_locked(&self, tokens: &mut BTreeMap<String, Token>, name: &str) {
         tokens.entry(name.to_owned()).or_default().set(false);
         tracing::warn!("executor {name} vanished");
         if let Some(known) = lock(&self.executors).get_mut(name) {
@@ -251,6 +265,5 @@ impl Inner {
             });
         }
         let _ = self.events.send(FleetEvent::ExecutorsChanged);
-        drop(tokens);
     }
 }
