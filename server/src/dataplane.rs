@@ -26,6 +26,36 @@ pub struct ZenohFile {
     config: zenoh::Config,
     /// The endpoints the file lists under `listen/endpoints`, when it lists any.
     listen: Option<Vec<String>>,
+    /// What the file itself says of scouting.
+    scouting: Scouting,
+}
+
+/// What a Zenoh configuration file says of scouting, where it says anything (Zenoh's own
+/// defaults turn both on; DyKnow turns off what the file does not ask for).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Scouting {
+    /// `scouting/multicast/enabled`.
+    pub multicast: Option<bool>,
+    /// `scouting/gossip/enabled`.
+    pub gossip: Option<bool>,
+    /// Whether it sets `scouting/multicast/autoconnect`.
+    pub autoconnect: bool,
+}
+
+impl Scouting {
+    /// What `text` (a JSON5 configuration) sets; nothing for text that is not JSON5 (a YAML
+    /// file: Zenoh reads it, DyKnow then keeps scouting off).
+    fn of(text: &str) -> Self {
+        let Ok(file) = json5::from_str::<serde_json::Value>(text) else {
+            return Self::default();
+        };
+        let at = |path: &str| file.pointer(path);
+        Self {
+            multicast: at("/scouting/multicast/enabled").and_then(serde_json::Value::as_bool),
+            gossip: at("/scouting/gossip/enabled").and_then(serde_json::Value::as_bool),
+            autoconnect: at("/scouting/multicast/autoconnect").is_some(),
+        }
+    }
 }
 
 impl ZenohFile {
@@ -43,11 +73,20 @@ impl ZenohFile {
         let listen = (endpoints(&config) != endpoints(&zenoh::Config::default()))
             .then(|| router_endpoints(&endpoints(&config)))
             .filter(|listen| !listen.is_empty());
+        let scouting = std::fs::read_to_string(path)
+            .map(|text| Scouting::of(&text))
+            .unwrap_or_default();
         Ok(Self {
             path: path.to_owned(),
             config,
             listen,
+            scouting,
         })
+    }
+
+    /// What the file says of scouting.
+    pub fn scouting(&self) -> Scouting {
+        self.scouting
     }
 
     /// The endpoints the file lists under `listen/endpoints`, if it lists any.
@@ -160,8 +199,12 @@ pub fn check_access(listen: &[String], file: Option<&ZenohFile>) -> Result<(), S
 }
 
 /// A Zenoh router configuration: Zenoh's own configuration `file` if any, then listening on
-/// `listen`, connecting to `connect`, scouting off (explicit endpoints only), links declared
-/// gone after `lease_ms` of silence (the file's lease, or Zenoh's 10 s, when `None`).
+/// `listen`, connecting to `connect`, links declared gone after `lease_ms` of silence (the
+/// file's lease, or Zenoh's 10 s, when `None`). Scouting is off unless the file asks for it
+/// (`scouting/multicast/enabled` or `scouting/gossip/enabled` set to `true` in it): then
+/// it is as the file says, and a router that finds another by multicast connects to it
+/// unless the file sets `scouting/multicast/autoconnect` itself (Zenoh's default for a router
+/// is never): so an executor finds the manager without `--connect`.
 pub fn router_config(
     file: Option<&ZenohFile>,
     listen: &[String],
@@ -189,8 +232,20 @@ pub fn router_config(
     set(&mut config, "mode", "\"router\"")?;
     set(&mut config, "listen/endpoints", &json(listen))?;
     set(&mut config, "connect/endpoints", &json(connect))?;
-    set(&mut config, "scouting/multicast/enabled", "false")?;
-    set(&mut config, "scouting/gossip/enabled", "false")?;
+    let asked = file.map(ZenohFile::scouting).unwrap_or_default();
+    if asked.multicast.is_none() {
+        set(&mut config, "scouting/multicast/enabled", "false")?;
+    }
+    if asked.gossip.is_none() {
+        set(&mut config, "scouting/gossip/enabled", "false")?;
+    }
+    if asked.multicast == Some(true) && !asked.autoconnect {
+        set(
+            &mut config,
+            "scouting/multicast/autoconnect",
+            r#"{ router: ["router"], peer: ["router", "peer"], client: ["router"] }"#,
+        )?;
+    }
     if let Some(lease_ms) = lease_ms {
         set(
             &mut config,
@@ -256,6 +311,8 @@ pub async fn forward(
     }
     loop {
         tokio::select! {
+            // A stop comes first: after it, only measured costs are taken.
+            biased;
             _ = &mut stop => {
                 // The measured costs that came before the stop are kept; nothing else is
                 // handled (an executor stopping with the service is no crash).
@@ -380,15 +437,62 @@ mod tests {
             cpu_ms,
         };
         events.send(labour(4.0)).unwrap();
-        // The first is handled before the stop; the second waits in the channel.
         tokio::task::yield_now().await;
         events.send(labour(6.0)).unwrap();
         stop.send(()).unwrap();
-        forwarding.await.unwrap();
+        tokio::time::timeout(Duration::from_secs(30), forwarding)
+            .await
+            .expect("the forwarding ends at the stop")
+            .unwrap();
         let learned = manager.learned();
         let estimate =
             (learned.labour.get(&dyknow_engine::Tid::from("tid1"))).expect("tid1's labour");
         assert_eq!((estimate.count, estimate.average), (2, 5.0));
+    }
+
+    /// Scouting stays off unless the file asks for it; what it asks for is kept, and a
+    /// router that scouts by multicast connects to the routers it finds unless the file says
+    /// otherwise.
+    #[test]
+    fn scouting_is_off_unless_the_file_asks_for_it() {
+        let scouting = |file: Option<&ZenohFile>| {
+            let config = router_config(file, &[], &[], None).unwrap();
+            let get = |key: &str| config.get_json(key).unwrap();
+            (
+                get("scouting/multicast/enabled"),
+                get("scouting/gossip/enabled"),
+                get("scouting/multicast/autoconnect"),
+            )
+        };
+        let off = ("false".to_owned(), "false".to_owned());
+        let (multicast, gossip, _) = scouting(None);
+        assert_eq!((multicast, gossip), off.clone());
+        let (multicast, gossip, _) = scouting(Some(&file("{ mode: \"router\" }")));
+        assert_eq!(
+            (multicast, gossip),
+            off.clone(),
+            "a file that says nothing of it"
+        );
+        let (multicast, gossip, autoconnect) = scouting(Some(&file(
+            "{ scouting: { multicast: { enabled: true, interface: \"lo\" } } }",
+        )));
+        assert_eq!((multicast.as_str(), gossip.as_str()), ("true", "false"));
+        assert!(
+            autoconnect.contains(r#""router":["router"]"#),
+            "{autoconnect}"
+        );
+        let (multicast, gossip, autoconnect) = scouting(Some(&file(
+            "{ scouting: { multicast: { enabled: true, autoconnect: { router: [] } }, gossip: { enabled: true } } }",
+        )));
+        assert_eq!((multicast.as_str(), gossip.as_str()), ("true", "true"));
+        assert!(
+            autoconnect.contains(r#""router":[]"#),
+            "the file's own: {autoconnect}"
+        );
+        let (multicast, gossip, _) = scouting(Some(&file(
+            "{ scouting: { multicast: { enabled: false }, gossip: { enabled: true } } }",
+        )));
+        assert_eq!((multicast.as_str(), gossip.as_str()), ("false", "true"));
     }
 
     #[test]

@@ -11,7 +11,7 @@
 )]
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::process::{Command, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use dyknow_cu::protocol::ExecutorInfo;
@@ -580,4 +580,165 @@ fn a_partitioned_executor_is_replanned_and_fenced_when_the_link_heals() {
         fenced.as_millis()
     );
     drop(b);
+}
+
+/// A network namespace with nothing but its loopback, multicast on: executors scouting in it
+/// find each other and no one else. Removed when dropped.
+struct LoopbackNetns {
+    name: String,
+}
+
+impl LoopbackNetns {
+    fn new() -> Self {
+        let name = format!("dyknowlo{}", std::process::id() % 100_000);
+        let _ = Command::new("ip").args(["netns", "del", &name]).output();
+        ip(&["netns", "add", &name]);
+        let netns = Self { name: name.clone() };
+        for args in [
+            ["link", "set", "lo", "up"].as_slice(),
+            &["link", "set", "lo", "multicast", "on"],
+            &["route", "add", "224.0.0.0/4", "dev", "lo"],
+        ] {
+            ip(&[&["-n", name.as_str()], args].concat());
+        }
+        netns
+    }
+
+    /// `dyknow` with `args`, run in the namespace, its standard error kept.
+    fn dyknow(&self, args: &[&str]) -> Child {
+        Command::new("ip")
+            .args(["netns", "exec", &self.name, BIN])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    }
+}
+
+impl Drop for LoopbackNetns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip")
+            .args(["netns", "del", &self.name])
+            .output();
+    }
+}
+
+/// Scouting is off unless asked for (`executors.md`); a `--zenoh-config` file that turns on
+/// multicast scouting is honoured, and executors then find each other: a stream between two
+/// executors flows on after the manager is killed. Both ways in one namespace: without
+/// scouting the same stream stops with the manager (each executor is linked to the manager
+/// only).
+#[test]
+fn executors_that_scout_find_each_other_and_keep_streams_without_the_manager() {
+    if std::env::var_os("DYKNOW_SKIP_NETNS").is_some() {
+        eprintln!("DYKNOW_SKIP_NETNS is set: the scouting test does not run");
+        return;
+    }
+    let netns = LoopbackNetns::new();
+    let dir = tempfile::tempdir().unwrap();
+    let specs = dir.path().join("specs");
+    std::fs::create_dir(&specs).unwrap();
+    std::fs::write(
+        specs.join("a-greeter.ttl"),
+        tf(
+            "greeter",
+            "builtin",
+            "dyknow/signal",
+            &[("period_ms", "50")],
+            &[],
+            &[("out", "Greeting")],
+        )
+        .turtle()
+        .replace("dkros:hasType", "dkros:hasExecutor \"a\" ; dkros:hasType"),
+    )
+    .unwrap();
+    std::fs::write(
+        specs.join("b-target.ttl"),
+        target("hello", "/hello", "Greeting"),
+    )
+    .unwrap();
+    let specs = specs.to_str().unwrap();
+    // Samples on /hello, read through executor b's endpoint: whether `count` come within
+    // 10 s.
+    let heard_through_b = |b_listens: &str, count: &str| {
+        let mut listen =
+            Killed(netns.dyknow(&["listen", "/hello", "--connect", b_listens, "--count", count]));
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            if let Some(status) = listen.0.try_wait().unwrap() {
+                return status.success();
+            }
+            if Instant::now() > deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    for scouting in [true, false] {
+        let file = dir.path().join(format!("zenoh-{scouting}.json5"));
+        // Its own multicast port: nothing else answers.
+        let group = format!("224.0.0.224:{}", free_port());
+        std::fs::write(
+            &file,
+            if scouting {
+                format!("{{ scouting: {{ multicast: {{ enabled: true, interface: \"lo\", address: \"{group}\" }} }} }}")
+            } else {
+                "{ }".to_owned()
+            },
+        )
+        .unwrap();
+        let file = file.to_str().unwrap();
+        let (http, manager) = (free_port(), format!("tcp/127.0.0.1:{}", free_port()));
+        let mut serve = netns.dyknow(&[
+            "serve",
+            "--in-memory",
+            "--no-executor",
+            "--bind",
+            &format!("127.0.0.1:{http}"),
+            "--zenoh-listen",
+            &manager,
+            "--zenoh-config",
+            file,
+            "--specs",
+            specs,
+        ]);
+        wait_for_line(&mut serve, "listening on");
+        let mut serve = Killed(serve);
+        let executor = |name: &str| {
+            let listen = format!("tcp/127.0.0.1:{}", free_port());
+            let mut child = netns.dyknow(&[
+                "executor",
+                "--name",
+                name,
+                "--connect",
+                &manager,
+                "--listen",
+                &listen,
+                "--zenoh-config",
+                file,
+            ]);
+            wait_for_line(&mut child, "connected to");
+            (Killed(child), listen)
+        };
+        let (_a, _) = executor("a");
+        let (_b, b_listens) = executor("b");
+        assert!(
+            heard_through_b(&b_listens, "3"),
+            "scouting {scouting}: the greeter on a is not heard through b while the manager runs"
+        );
+        serve.0.kill().unwrap();
+        serve.0.wait().unwrap();
+        assert_eq!(
+            heard_through_b(&b_listens, "3"),
+            scouting,
+            "scouting {scouting}: after the manager is killed, the greeter on a is {} through b",
+            if scouting {
+                "not heard"
+            } else {
+                "heard (how?)"
+            }
+        );
+    }
 }
