@@ -131,6 +131,9 @@ pub struct ExecutorSummary {
     pub transformations: Vec<String>,
     /// The CUs it hosts.
     pub cus: Vec<String>,
+    /// The instance the manager took its `info` from, while present (`None` for an executor
+    /// that does not say which it is).
+    pub instance: Option<InstanceId>,
 }
 
 /// The implementation a spec names.
@@ -218,6 +221,7 @@ impl Fleet {
                         .map(|(c, _)| c.to_string())
                         .collect(),
                     present,
+                    instance: self.inner.taken(&name),
                     name,
                 }
             })

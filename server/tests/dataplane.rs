@@ -312,6 +312,8 @@ fn a_later_executor_of_a_present_name_steps_down_and_its_cus_are_replanned() {
     };
     let before = names(&service.get("/cus"));
     assert_eq!(before.len(), 2, "{before:?}");
+    let late_instance = service.get("/executors")[0]["instance"].clone();
+    assert!(late_instance.is_string(), "{late_instance}");
 
     // The link comes up: a router on the earlier twin's endpoint, linked to the manager's.
     let bridge = dyknow_cu::router_config(
@@ -363,6 +365,11 @@ fn a_later_executor_of_a_present_name_steps_down_and_its_cus_are_replanned() {
         executors[0]["cus"].as_array().unwrap().len(),
         2,
         "{executors}"
+    );
+    let early_instance = &executors[0]["instance"];
+    assert!(
+        early_instance.is_string() && *early_instance != late_instance,
+        "the manager follows the earlier twin: {early_instance} after {late_instance}"
     );
     assert!(
         names(&cus).iter().all(|cu| !before.contains(cu)),

@@ -152,6 +152,14 @@ impl Inner {
         }
     }
 
+    /// The instance whose `info` was taken for `name`, while its token is up.
+    pub(super) fn taken(&self, name: &str) -> Option<InstanceId> {
+        lock(&self.tokens)
+            .get(name)
+            .filter(|t| t.up)
+            .and_then(|t| t.instance.clone())
+    }
+
     /// The instance holding executor name `name`, if its instances are known.
     pub(super) fn holder(&self, name: &str) -> Option<InstanceId> {
         lock(&self.instances)

@@ -33,6 +33,9 @@ pub struct ExecutorJson {
     pub transformations: Vec<String>,
     /// The CUs it hosts.
     pub cus: Vec<String>,
+    /// The instance of the name the manager follows (`<start ms, 13 digits>-<Zenoh id>`,
+    /// docs/executors.md); null while it is absent, or for an executor that does not say.
+    pub instance: Option<String>,
 }
 
 impl From<ExecutorSummary> for ExecutorJson {
@@ -42,6 +45,7 @@ impl From<ExecutorSummary> for ExecutorJson {
             present: e.present,
             transformations: e.transformations,
             cus: e.cus,
+            instance: e.instance.map(|i| i.to_string()),
         }
     }
 }
