@@ -326,8 +326,15 @@ pub struct ExecutorArgs {
     /// The executor's name (one key chunk: no '/', '*', '$', '?', '#').
     #[arg(long, value_name = "NAME")]
     pub name: String,
-    /// The manager's Zenoh endpoint (e.g. tcp/127.0.0.1:7447).
-    #[arg(long, value_name = "ENDPOINT", required = true, num_args = 1..)]
+    /// The manager's Zenoh endpoint (e.g. tcp/127.0.0.1:7447); several may follow, or be
+    /// separated by commas, as for `serve --zenoh-listen`.
+    #[arg(
+        long,
+        value_name = "ENDPOINT",
+        required = true,
+        num_args = 1..,
+        value_delimiter = ','
+    )]
     pub connect: Vec<String>,
     /// An endpoint to listen on (its process CUs then connect here).
     #[arg(long, value_name = "ENDPOINT")]
@@ -1105,34 +1112,49 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     )));
     let executor = dyknow_executor::Executor::start(&session, config)
         .map_err(|e| Failure(2, format!("executor: {e}")))?;
-    // Zenoh keeps trying an endpoint that does not answer yet: say which it is.
-    let info = session.info();
-    let linked = dyknow_cu::zenoh::Wait::wait(info.routers_zid())
-        .next()
-        .is_some()
-        || dyknow_cu::zenoh::Wait::wait(info.peers_zid())
-            .next()
-            .is_some();
-    if linked {
-        tracing::info!(
-            "executor {} connected to {}",
-            args.name,
-            args.connect.join(", ")
-        );
-    } else {
-        tracing::warn!(
-            "executor {} is up, but {} does not answer yet (Zenoh keeps trying)",
-            args.name,
-            args.connect.join(", ")
-        );
-    }
+    // Zenoh keeps trying an endpoint that does not answer yet: say which it is, and say
+    // when the links come and go (a manager restarting, a partition).
+    let endpoints = args.connect.join(", ");
+    let said = |linked: usize, before: Option<usize>| {
+        if before.is_some_and(|b| b > 0) && linked == 0 {
+            tracing::warn!(
+                "executor {} lost its links to the data plane; Zenoh keeps trying {endpoints} (its CUs run on)",
+                args.name
+            );
+        } else if linked > 0 {
+            tracing::info!(
+                "executor {} connected to the data plane ({linked} link{}; its endpoints: {endpoints})",
+                args.name,
+                if linked == 1 { "" } else { "s" }
+            );
+        } else {
+            tracing::warn!(
+                "executor {} is up, but {endpoints} does not answer yet (Zenoh keeps trying)",
+                args.name
+            );
+        }
+    };
+    let mut linked = links(&session);
+    said(linked, None);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
     let earlier = runtime.block_on(async {
+        let watch = async {
+            let mut every = tokio::time::interval(Duration::from_millis(500));
+            loop {
+                every.tick().await;
+                let now = links(&session);
+                if (now > 0) != (linked > 0) {
+                    said(now, Some(linked));
+                }
+                linked = now;
+            }
+        };
         tokio::select! {
             () = shutdown_signal() => None,
             earlier = step_down.recv() => earlier,
+            () = watch => None,
         }
     });
     executor.shutdown();
@@ -1149,6 +1171,13 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     }
     tracing::info!("stopped");
     Ok(())
+}
+
+/// How many Zenoh nodes (routers and peers) `session` is linked to.
+fn links(session: &dyknow_cu::zenoh::Session) -> usize {
+    let info = session.info();
+    dyknow_cu::zenoh::Wait::wait(info.routers_zid()).count()
+        + dyknow_cu::zenoh::Wait::wait(info.peers_zid()).count()
 }
 
 /// `dyknow cu`: a builtin as a process CU; its exit status is the CU protocol's (0 stopped,

@@ -58,24 +58,71 @@ impl Scouting {
     }
 }
 
+/// A JSON5 syntax error in `path` as `path:line:column: message` (one line).
+fn json5_error(path: &std::path::Path, error: &json5::Error) -> String {
+    match error {
+        json5::Error::Message { msg, location } => {
+            // The parser's own report draws the line; its last `= ` part says what is wrong.
+            let said = msg.rsplit_once("= ").map_or(msg.as_str(), |(_, said)| said);
+            let message = said.split_whitespace().collect::<Vec<_>>().join(" ");
+            match location {
+                Some(at) => format!("{}:{}:{}: {message}", path.display(), at.line, at.column),
+                None => format!("{}: {message}", path.display()),
+            }
+        }
+    }
+}
+
+/// Zenoh's refusal of a configuration file in one line: `path:line:column: message` when it
+/// says where (`JSON error: Message { msg: "…", location: Some(Location { line: 1, column:
+/// 28 }) }`, an unknown or mistyped field), else `the Zenoh configuration path: message`.
+fn zenoh_file_error(path: &std::path::Path, message: &str) -> String {
+    let between = |start: &str, end: &str| {
+        let from = message.find(start)? + start.len();
+        let to = message[from..].find(end)? + from;
+        Some(&message[from..to])
+    };
+    let said = between("msg: \"", "\", location");
+    let line = between("line: ", ",");
+    let column = between("column: ", " ");
+    match (said, line, column) {
+        (Some(said), Some(line), Some(column)) => {
+            format!("{}:{line}:{column}: {said}", path.display())
+        }
+        _ => format!(
+            "the Zenoh configuration {}: {}",
+            path.display(),
+            message.split_whitespace().collect::<Vec<_>>().join(" ")
+        ),
+    }
+}
+
 impl ZenohFile {
     /// Reads `path`.
     pub fn read(path: &std::path::Path) -> Result<Self, String> {
-        let config = zenoh::Config::from_file(path).map_err(|e| {
+        let text = std::fs::read_to_string(path).map_err(|e| {
             format!(
                 "cannot read the Zenoh configuration {}: {e}",
                 path.display()
             )
         })?;
+        // A JSON5 file that does not parse is said as `file:line:column: message`, not as
+        // Zenoh's parser trace.
+        let yaml = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
+        if !yaml && let Err(e) = json5::from_str::<serde_json::Value>(&text) {
+            return Err(json5_error(path, &e));
+        }
+        let config = zenoh::Config::from_file(path)
+            .map_err(|e| zenoh_file_error(path, &dyknow_cu::zenoh_message(&e)))?;
         let endpoints = |c: &zenoh::Config| c.get_json("listen/endpoints").unwrap_or_default();
         // Zenoh's default (`tcp/[::]:7447` for a router: every interface) is never used: a
         // file that does not list endpoints leaves them to the flags and their defaults.
         let listen = (endpoints(&config) != endpoints(&zenoh::Config::default()))
             .then(|| router_endpoints(&endpoints(&config)))
             .filter(|listen| !listen.is_empty());
-        let scouting = std::fs::read_to_string(path)
-            .map(|text| Scouting::of(&text))
-            .unwrap_or_default();
+        let scouting = Scouting::of(&text);
         Ok(Self {
             path: path.to_owned(),
             config,
@@ -155,15 +202,26 @@ fn endpoint_setting<'a>(endpoint: &'a str, key: &str) -> Option<&'a str> {
 
 /// `endpoint` parses as a Zenoh endpoint, or the error says what it is not.
 fn well_formed(endpoint: &str) -> Result<(), String> {
-    endpoint
-        .parse::<zenoh::config::EndPoint>()
-        .map(|_| ())
-        .map_err(|e| {
-            format!(
-                "{endpoint:?} is not a Zenoh endpoint ({}); e.g. tcp/127.0.0.1:7447",
-                dyknow_cu::zenoh_message(&e)
-            )
-        })
+    let parsed = endpoint.parse::<zenoh::config::EndPoint>().map_err(|e| {
+        format!(
+            "{endpoint:?} is not a Zenoh endpoint ({}); e.g. tcp/127.0.0.1:7447",
+            dyknow_cu::zenoh_message(&e)
+        )
+    })?;
+    // An IP endpoint without a port parses, and is then retried for ever (connect) or fails
+    // deep in Zenoh (listen): say so here.
+    let ip = ["tcp", "udp", "tls", "quic", "ws"].contains(&parsed.protocol().as_str());
+    let port = parsed
+        .address()
+        .as_str()
+        .rsplit_once(':')
+        .is_some_and(|(_, port)| port.parse::<u16>().is_ok());
+    if ip && !port {
+        return Err(format!(
+            "{endpoint:?} is not a Zenoh endpoint (no port after the address); e.g. tcp/127.0.0.1:7447"
+        ));
+    }
+    Ok(())
 }
 
 /// The access rule (`docs/reliability.md`): the data plane carries every stream and lets any
@@ -495,6 +553,39 @@ mod tests {
         assert_eq!((multicast.as_str(), gossip.as_str()), ("false", "true"));
     }
 
+    /// A configuration file Zenoh or JSON5 refuses is said in one line, with where.
+    #[test]
+    fn a_bad_configuration_file_is_said_in_one_line() {
+        let dir = std::env::temp_dir().join(format!("dyknow-zenoh-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let read = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).unwrap();
+            ZenohFile::read(&path).unwrap_err()
+        };
+        let e = read(
+            "syntax.json5",
+            "{ scouting: { multicast: { enabled: true, }\n",
+        );
+        assert!(
+            e.ends_with("syntax.json5:1:43: expected identifier or string"),
+            "{e}"
+        );
+        let e = read(
+            "typo.json5",
+            "{ scouting: { multicast: { enabeld: true } } }\n",
+        );
+        assert!(
+            e.contains("typo.json5:1:28: unknown field `enabeld`, expected one of `enabled`"),
+            "{e}"
+        );
+        let missing = ZenohFile::read(&dir.join("missing.json5")).unwrap_err();
+        for e in [e.as_str(), &missing] {
+            assert!(!e.contains('\n') && !e.contains(".rs:"), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn a_malformed_endpoint_is_called_malformed() {
         let e = check_access(&["garbage".to_owned()], None).unwrap_err();
@@ -504,6 +595,24 @@ mod tests {
         );
         assert!(!e.contains(".rs:"), "{e}");
         assert!(check_access(&["tcp/127.0.0.1:7447".to_owned()], None).is_ok());
+        for portless in [
+            "tcp/127.0.0.1",
+            "tls/localhost",
+            "tcp/[::1]",
+            "tcp/127.0.0.1:x",
+        ] {
+            let e = router_config(None, &[], &[portless.to_owned()], None).unwrap_err();
+            assert!(e.contains("no port after the address"), "{portless}: {e}");
+        }
+        assert!(
+            router_config(
+                None,
+                &[],
+                &["unixsock-stream//tmp/dyknow.sock".to_owned()],
+                None
+            )
+            .is_ok()
+        );
         let e = check_access(&["tcp/0.0.0.0:7447".to_owned()], None).unwrap_err();
         assert!(
             e.starts_with("refusing to listen on the non-loopback"),

@@ -1012,3 +1012,43 @@ fn two_channels_wanting_one_stream_get_a_cu_each_of_the_same_transformation() {
     let status = service.sigterm();
     assert!(status.success(), "{status}");
 }
+
+/// A stand-alone executor says when it is linked and when it is not, whenever that changes
+/// (before, it said so once, at start); `--connect` takes endpoints separated by commas, as
+/// `serve --zenoh-listen` does (before, `a,b` was one endpoint that never answered).
+#[test]
+fn an_executor_says_when_its_links_come_and_go() {
+    let (first, second) = (
+        format!("tcp/127.0.0.1:{}", free_port()),
+        format!("tcp/127.0.0.1:{}", free_port()),
+    );
+    let mut child = Command::new(BIN)
+        .args(["executor", "--name", "says", "--connect"])
+        .arg(format!("{first},{second}"))
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (line, said) = wait_for_line_keeping(&mut child, "does not answer yet");
+    let _child = Killed(child);
+    assert!(
+        line.contains(&format!("{first}, {second} does not answer yet")),
+        "{line}"
+    );
+    let heard = |what: &str| {
+        eventually(what, Duration::from_secs(30), || {
+            said.lock()
+                .unwrap()
+                .iter()
+                .any(|l| l.contains(what))
+                .then_some(())
+        });
+    };
+    // A router comes on the second endpoint only.
+    let router = dyknow_cu::router_config(std::slice::from_ref(&second), &[]).unwrap();
+    let router = dyknow_cu::zenoh::open(router).wait().unwrap();
+    heard("executor says connected to the data plane (1 link;");
+    router.close().wait().unwrap();
+    heard("executor says lost its links to the data plane");
+}
