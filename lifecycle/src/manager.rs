@@ -764,6 +764,11 @@ impl Manager {
         let reviewed = dyknow_engine::review(&loaded.env, &loaded.candidates, &options, &mut ids);
         let searched_at = Instant::now();
         if reviewed.compiled.actions.is_empty() {
+            // Crashes no review could repair yet (their transformations run nowhere now) are
+            // the cause of the review that will: it names them.
+            if !reviewed.compiled.unsatisfied_targets.is_empty() {
+                lock(&self.schedule).keep_crashes(causes);
+            }
             return Ok(None);
         }
         let cause = match causes.first().cloned().unwrap_or(Cause::Review) {

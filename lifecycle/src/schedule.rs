@@ -227,6 +227,17 @@ impl Schedule {
         )
     }
 
+    /// A review could not repair the crashes among `causes` (nothing can run their
+    /// transformations now): the next review that changes something has them as its cause,
+    /// ahead of what came meanwhile. They start no review themselves.
+    pub(crate) fn keep_crashes(&mut self, causes: &[Cause]) {
+        let crashes = causes
+            .iter()
+            .filter(|c| matches!(c, Cause::CuCrashed { .. }))
+            .cloned();
+        self.causes.splice(0..0, crashes);
+    }
+
     /// A review ended; a failed one keeps its causes for the next attempt.
     pub(crate) fn review_ends(&mut self, causes: Vec<Cause>, error: Option<String>) {
         self.phase = Phase::Stable;

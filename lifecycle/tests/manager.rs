@@ -719,3 +719,62 @@ fn the_history_keeps_the_last_change_sets_and_the_names_they_used_stay_reserved(
         "{extra:?} {missing:?}"
     );
 }
+
+/// An executor whose transformations can all run, or none.
+#[derive(Default)]
+struct Switchable {
+    down: std::sync::atomic::AtomicBool,
+}
+
+impl Executor for Switchable {
+    fn apply(
+        &self,
+        change_set: &ChangeSet,
+        specs: &std::collections::BTreeMap<
+            dyknow_engine::Tid,
+            dyknow_store::spec::TransformationSpec,
+        >,
+    ) -> Applied {
+        ModelOnly.apply(change_set, specs)
+    }
+
+    fn runnable(&self, _: &dyknow_store::spec::TransformationSpec) -> Result<(), String> {
+        if self.down.load(std::sync::atomic::Ordering::SeqCst) {
+            Err("no executor is present".into())
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// CUs lost with the only executor cannot be repaired until one is back: the reviews that
+/// find nothing to do meanwhile keep the crashes, and the review that repairs them names
+/// them (before, it said only "review").
+#[test]
+fn crashes_no_review_could_repair_are_the_cause_of_the_review_that_does() {
+    use dyknow_lifecycle::FleetEvent;
+    use std::sync::atomic::Ordering;
+    let executor = Arc::new(Switchable::default());
+    let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
+    manager.review().unwrap().expect("the first configuration");
+    let lost: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
+    executor.down.store(true, Ordering::SeqCst);
+    manager.executors_changed().unwrap();
+    let vanished = FleetEvent::Vanished {
+        executor: "x".into(),
+        cus: lost.clone(),
+    };
+    assert_eq!(manager.handle(vanished).unwrap(), None);
+    assert!(manager.review().unwrap().is_none(), "nothing can run");
+    assert!(manager.review().unwrap().is_none(), "still nothing");
+    executor.down.store(false, Ordering::SeqCst);
+    manager.executors_changed().unwrap();
+    let repair = manager.review().unwrap().expect("the repair");
+    let Cause::CuCrashed { cu, also } = &repair.cause else {
+        panic!("{:?}", repair.cause);
+    };
+    let named: BTreeSet<&Cid> = std::iter::once(cu).chain(also).collect();
+    assert_eq!(named, lost.iter().collect(), "{:?}", repair.cause);
+    // Repaired: the next review has nothing to do, and no cause left over.
+    assert!(manager.review().unwrap().is_none());
+}

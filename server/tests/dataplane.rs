@@ -366,6 +366,21 @@ fn a_later_executor_of_a_present_name_steps_down_and_its_cus_are_replanned() {
         2,
         "{executors}"
     );
+    // The change set that replanned them says why: the CUs the later twin ran crashed.
+    let repair = service
+        .change_sets()
+        .into_iter()
+        .find(|c| c["cause"]["kind"] == "cu-crashed")
+        .unwrap_or_else(|| panic!("no change set names the crash: {:?}", service.change_sets()));
+    let named: Vec<&str> = std::iter::once(&repair["cause"]["cu"])
+        .chain(repair["cause"]["also"].as_array().into_iter().flatten())
+        .filter_map(Value::as_str)
+        .collect();
+    assert!(
+        before.iter().all(|cu| named.contains(&cu.as_str())),
+        "{before:?} are not all named in {}",
+        repair["cause"]
+    );
     let early_instance = &executors[0]["instance"];
     assert!(
         early_instance.is_string() && *early_instance != late_instance,
