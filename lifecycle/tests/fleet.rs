@@ -75,6 +75,29 @@ fn until_appeared(
     }
 }
 
+/// Executor `x`'s `info`: `instance` (if it says), no builtins, `cus` running CUs.
+fn info_of_x(instance: Option<InstanceId>, cus: u64) -> ExecutorInfo {
+    ExecutorInfo {
+        instance,
+        name: "x".into(),
+        builtins: Vec::new(),
+        processes: false,
+        cus: (0..cus)
+            .map(|i| CuReport {
+                cu: format!("cu{i}"),
+                transformation: "t".into(),
+                state: CuState::Running,
+                inputs: BTreeMap::new(),
+                outputs: BTreeMap::new(),
+                statistics: CuStatistics::default(),
+                reason: None,
+                pid: None,
+                generation: 0,
+            })
+            .collect(),
+    }
+}
+
 fn present(fleet: &Fleet, executor: &str) -> bool {
     fleet
         .executors(&BTreeMap::new())
@@ -95,25 +118,7 @@ fn a_flapping_token_ends_as_zenoh_last_said() {
         .declare_queryable(namespace.executor_service("x", "info"))
         .callback(move |query| {
             let n = answered.load(Ordering::SeqCst);
-            let info = ExecutorInfo {
-                instance: None,
-                name: "x".into(),
-                builtins: Vec::new(),
-                processes: false,
-                cus: (0..n)
-                    .map(|i| CuReport {
-                        cu: format!("cu{i}"),
-                        transformation: "t".into(),
-                        state: CuState::Running,
-                        inputs: BTreeMap::new(),
-                        outputs: BTreeMap::new(),
-                        statistics: CuStatistics::default(),
-                        reason: None,
-                        pid: None,
-                        generation: 0,
-                    })
-                    .collect(),
-            };
+            let info = info_of_x(None, n);
             reply_json(&query, &info);
         })
         .wait()
@@ -484,7 +489,7 @@ fn instance(
     client: &zenoh::Session,
     namespace: &Namespace,
     id: &str,
-    cus: usize,
+    cus: u64,
     delay: Duration,
 ) -> Instance {
     let id: InstanceId = id.parse().expect("an instance id");
@@ -492,25 +497,7 @@ fn instance(
     let info = client
         .declare_queryable(namespace.executor_service("x", "info"))
         .callback(move |query| {
-            let info = ExecutorInfo {
-                instance: Some(said.clone()),
-                name: "x".into(),
-                builtins: Vec::new(),
-                processes: false,
-                cus: (0..cus)
-                    .map(|i| CuReport {
-                        cu: format!("cu{i}"),
-                        transformation: "t".into(),
-                        state: CuState::Running,
-                        inputs: BTreeMap::new(),
-                        outputs: BTreeMap::new(),
-                        statistics: CuStatistics::default(),
-                        reason: None,
-                        pid: None,
-                        generation: 0,
-                    })
-                    .collect(),
-            };
+            let info = info_of_x(Some(said.clone()), cus);
             std::thread::spawn(move || {
                 std::thread::sleep(delay);
                 reply_json(&query, &info);
