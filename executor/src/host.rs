@@ -417,7 +417,8 @@ impl Parts {
     }
 
     /// Instances of its name that started earlier are on the data plane: while their tokens
-    /// stay up, they are asked for their `info` every second; once one answers, this one
+    /// stay up, they are asked for their `info` (a query of up to 2 s, then a pause of 1 s);
+    /// once one answers, this one
     /// steps down for it. Ends when none is left, or this executor stopped.
     fn check_earlier(parts: &std::sync::Weak<Self>) {
         loop {

@@ -43,10 +43,10 @@ pub struct Scouting {
 }
 
 impl Scouting {
-    /// What `text` (a JSON5 configuration) sets; nothing for text that is not JSON5 (a YAML
-    /// file: Zenoh reads it, DyKnow then keeps scouting off).
-    fn of(text: &str) -> Self {
-        let Ok(file) = json5::from_str::<serde_json::Value>(text) else {
+    /// What a configuration file, read as JSON, sets (`None`: a YAML file, which Zenoh reads
+    /// and in which DyKnow sees no request: scouting stays off).
+    fn of(file: Option<&serde_json::Value>) -> Self {
+        let Some(file) = file else {
             return Self::default();
         };
         let at = |path: &str| file.pointer(path);
@@ -111,9 +111,10 @@ impl ZenohFile {
         let yaml = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("yaml") || e.eq_ignore_ascii_case("yml"));
-        if !yaml && let Err(e) = json5::from_str::<serde_json::Value>(&text) {
-            return Err(json5_error(path, &e));
-        }
+        let json = (!yaml)
+            .then(|| json5::from_str::<serde_json::Value>(&text))
+            .transpose()
+            .map_err(|e| json5_error(path, &e))?;
         let config = zenoh::Config::from_file(path)
             .map_err(|e| zenoh_file_error(path, &dyknow_cu::zenoh_message(&e)))?;
         let endpoints = |c: &zenoh::Config| c.get_json("listen/endpoints").unwrap_or_default();
@@ -122,7 +123,7 @@ impl ZenohFile {
         let listen = (endpoints(&config) != endpoints(&zenoh::Config::default()))
             .then(|| router_endpoints(&endpoints(&config)))
             .filter(|listen| !listen.is_empty());
-        let scouting = Scouting::of(&text);
+        let scouting = Scouting::of(json.as_ref());
         Ok(Self {
             path: path.to_owned(),
             config,
