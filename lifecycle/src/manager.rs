@@ -375,18 +375,35 @@ impl Manager {
 
     /// What the running system says of a CU (`None` in model-only mode).
     pub fn describe(&self, cu: &Cid) -> Option<CuView> {
-        self.executor.describe(cu)
+        let view = self.executor.describe(cu)?;
+        self.until_reconciled(BTreeMap::from([(cu.clone(), view)]))
+            .into_values()
+            .next()
     }
 
     /// What the running system says of several CUs (empty in model-only mode).
     pub fn describe_all(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
-        self.executor.describe_all(cus)
+        self.until_reconciled(self.executor.describe_all(cus))
     }
 
     /// Where several CUs run and in what state, as last heard, asking no executor (empty in
     /// model-only mode): [`Executor::last_heard`].
     pub fn last_heard(&self, cus: &[Cid]) -> BTreeMap<Cid, CuView> {
-        self.executor.last_heard(cus)
+        self.until_reconciled(self.executor.last_heard(cus))
+    }
+
+    /// Until the start-up reconciliation, a CU of the model that no executor hosts is not
+    /// known to have crashed: its executor may not have reported yet, and if none does the
+    /// reconciliation respawns it. It is `starting` (with no executor), not `crashed`.
+    fn until_reconciled(&self, mut views: BTreeMap<Cid, CuView>) -> BTreeMap<Cid, CuView> {
+        if self.starting() {
+            for view in views.values_mut() {
+                if view.executor.is_none() && view.state == "crashed" {
+                    "starting".clone_into(&mut view.state);
+                }
+            }
+        }
+        views
     }
 
     /// The executors changed (one appeared or vanished): the transformations that became

@@ -391,6 +391,22 @@ impl Executor for Placing {
         self.placement.lock().unwrap().get(cu).cloned()
     }
 
+    /// As the fleet says: running where placed, else `crashed` with no executor.
+    fn describe(&self, cu: &Cid) -> Option<dyknow_lifecycle::CuView> {
+        let executor = self.placed(cu);
+        Some(dyknow_lifecycle::CuView {
+            state: if executor.is_some() {
+                "running"
+            } else {
+                "crashed"
+            }
+            .to_owned(),
+            executor,
+            statistics: serde_json::json!({}),
+            pid: None,
+        })
+    }
+
     fn adopt(&self, executor: &str, cus: &[Cid]) {
         let mut placement = self.placement.lock().unwrap();
         for cu in cus {
@@ -428,6 +444,15 @@ fn a_restarted_manager_adopts_stops_and_respawns() {
     manager.hold_reviews();
     assert!(manager.starting());
     assert!(!manager.all_placed().unwrap());
+    // Not yet reported is not crashed: until the start-up pass, such a CU is `starting`.
+    let unreported = |manager: &Manager| {
+        let views = manager.last_heard(std::slice::from_ref(&lost.cid));
+        assert_eq!(views.get(&lost.cid), manager.describe(&lost.cid).as_ref());
+        let view = manager.describe(&lost.cid).unwrap();
+        assert_eq!(view.executor, None);
+        view.state
+    };
+    assert_eq!(unreported(&manager), "starting");
     let report = |cu: &dyknow_engine::ComputationUnit| dyknow_lifecycle::ReportedCu {
         cu: cu.cid.clone(),
         transformation: cu.tid.clone(),
@@ -488,9 +513,10 @@ fn a_restarted_manager_adopts_stops_and_respawns() {
         change_set.cus[&Cid::from("ghost")].state,
         CuOutcomeState::Stopped
     );
-    assert_eq!(manager.describe(&kept.cid), None);
+    assert_eq!(manager.describe(&kept.cid).unwrap().state, "running");
     assert_eq!(executor.placed(&kept.cid).as_deref(), Some("x"));
     assert!(manager.starting(), "only the start-up pass ends the hold");
+    assert_eq!(unreported(&manager), "starting");
 
     // The start-up pass: `lost` runs nowhere and is spawned again under its name.
     let respawn = manager
@@ -507,6 +533,14 @@ fn a_restarted_manager_adopts_stops_and_respawns() {
     );
     assert!(!manager.starting());
     assert!(manager.all_placed().unwrap());
+    // After it, a CU no executor hosts is `crashed` again.
+    executor.placement.lock().unwrap().remove(&lost.cid);
+    assert_eq!(unreported(&manager), "crashed");
+    executor
+        .placement
+        .lock()
+        .unwrap()
+        .insert(lost.cid.clone(), "x".into());
     // The model is what it was, the history has no gap, and "ghost" is never handed out.
     assert_eq!(manager.load().unwrap().env.cus, model_before);
     let ids: Vec<u64> = manager

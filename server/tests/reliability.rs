@@ -246,7 +246,24 @@ fn a_graceful_stop_keeps_the_model_and_the_restart_respawns_the_cus_under_their_
     );
 
     let service = Service::start_with(&["--data", data], &zenoh, &[]);
-    let after = settled(&service, 2);
+    // While the restarted manager waits for its executors (the start-up grace) and respawns,
+    // its CUs are `starting`, never `crashed`: nothing crashed.
+    let mut seen = BTreeSet::new();
+    let after = eventually("the configuration", Duration::from_secs(60), || {
+        let cus: BTreeMap<String, Value> = (service.get("/cus").as_array().unwrap().iter())
+            .map(|c| (c["name"].as_str().unwrap().to_owned(), c.clone()))
+            .collect();
+        seen.extend(cus.values().map(|c| c["state"].to_string()));
+        // One CU asked for by name: the executor is asked, the answer is the same.
+        if let Some(name) = cus.keys().next() {
+            seen.insert(service.get(&format!("/cus/{name}"))["state"].to_string());
+        }
+        (cus.len() == 2 && cus.values().all(|c| c["state"] == "running")).then_some(cus)
+    });
+    assert!(
+        seen.contains("\"starting\"") && !seen.contains("\"crashed\""),
+        "states seen after the restart: {seen:?}"
+    );
     assert_eq!(
         after.keys().collect::<Vec<_>>(),
         before.keys().collect::<Vec<_>>(),
