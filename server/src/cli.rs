@@ -575,11 +575,23 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     for path in ontology.iter().chain(files) {
         data.extend(read_triples(path)?);
     }
-    let mut schema = dyknow_reasoner::builtin_ontology_triples();
+    let builtin = dyknow_reasoner::builtin_ontology_triples();
+    // What the built-in ontologies entail on their own holds for any input: it is not an
+    // inference for the given data, and their axioms outside OWL 2 RL are known
+    // (`--unsupported` lists them). Only the files' own are reported.
+    let mut alone = dyknow_reasoner::Reasoner::new(dyknow_reasoner::TBox::from_triples(&builtin)?);
+    alone.update(&[], &[]);
+    let given_anyway: std::collections::BTreeSet<String> =
+        alone.inferred().iter().map(ToString::to_string).collect();
+    let builtin_unsupported: std::collections::BTreeSet<&String> =
+        alone.tbox().unsupported_axioms().iter().collect();
+    let mut schema = builtin.clone();
     schema.extend(data.iter().cloned());
     let tbox = dyknow_reasoner::TBox::from_triples(&schema)?;
     for axiom in tbox.unsupported_axioms() {
-        eprintln!("dyknow: unsupported axiom (ignored): {axiom}");
+        if !builtin_unsupported.contains(axiom) {
+            eprintln!("dyknow: unsupported axiom (ignored): {axiom}");
+        }
     }
     let mut reasoner = dyknow_reasoner::Reasoner::new(tbox);
     reasoner.update(&[], &data);
@@ -602,6 +614,8 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     let mut lines: Vec<String> = reasoner
         .inferred()
         .iter()
+        .map(ToString::to_string)
+        .filter(|t| !given_anyway.contains(t))
         .map(|t| format!("{t} ."))
         .collect();
     lines.sort();

@@ -472,6 +472,56 @@ fn reason_prints_the_inferred_triples_sorted() {
     );
 }
 
+/// What the built-in ontologies entail on their own (the closure of their schema) is no
+/// inference for the given data, and their axioms outside OWL 2 RL are not warned of on
+/// every run: data that uses no DyKnow term gets no output at all.
+#[test]
+fn reason_prints_only_what_the_given_data_adds() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let unrelated = dir.path().join("unrelated.ttl");
+    std::fs::write(
+        &unrelated,
+        "<http://example.org/a> <http://example.org/p> <http://example.org/b> .\n",
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args(["reason", unrelated.to_str().unwrap()])
+        .output()
+        .expect("run dyknow reason");
+    assert!(out.status.success());
+    assert_eq!(String::from_utf8_lossy(&out.stdout), "");
+    assert_eq!(String::from_utf8_lossy(&out.stderr), "");
+    // A file's own axiom outside OWL 2 RL is still reported, and its inferences printed.
+    let own = dir.path().join("own.ttl");
+    std::fs::write(
+        &own,
+        "@prefix owl: <http://www.w3.org/2002/07/owl#> .
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+         @prefix ex: <http://example.org/> .
+         ex:p a owl:ObjectProperty , owl:FunctionalProperty ; rdfs:subPropertyOf ex:q .
+         ex:C owl:equivalentClass [ a owl:Restriction ; owl:onProperty ex:p ; owl:someValuesFrom ex:D ] .
+         ex:a ex:p ex:b .\n",
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args(["reason", own.to_str().unwrap()])
+        .output()
+        .expect("run dyknow reason");
+    assert!(out.status.success());
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("<http://example.org/a> <http://example.org/q> <http://example.org/b> ."),
+        "{stdout}"
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("EquivalentClasses(<http://example.org/C>")
+            && stderr.contains("FunctionalObjectProperty(<http://example.org/p>)")
+            && stderr.lines().all(|l| l.contains("example.org")),
+        "{stderr}"
+    );
+}
+
 /// The axioms outside OWL 2 RL are counted in one INFO line at start-up (not one WARN line
 /// each), and `dyknow reason --unsupported` lists as many.
 #[test]
