@@ -3,7 +3,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use dyknow_mstl::{CompileError, Domain, Domains, Formula, Symbol, ground_symbols, parse};
+use dyknow_mstl::{CompileError, Domains, Formula, Symbol, ground_atoms, ground_symbols, parse};
 use serde::{Deserialize, Serialize};
 
 use crate::sync::Policy;
@@ -99,33 +99,6 @@ pub struct Grounded {
 /// group definition of it took 2.6 GB and a minute of both cores before it was bounded.
 pub const MAX_GROUND_ATOMS: u64 = 10_000;
 
-/// How many ground atoms `f` expands to over `domains` (an unknown domain counts one; it is
-/// refused later with its own message).
-fn ground_atoms(f: &Formula, domains: &Domains) -> u64 {
-    let size = |d: &Domain| match d {
-        Domain::Named(n) => domains.get(n).map_or(1, Vec::len),
-        Domain::Set(cs) => cs.len(),
-    } as u64;
-    match f {
-        Formula::True | Formula::False => 0,
-        Formula::Atom(_) => 1,
-        Formula::Not(a)
-        | Formula::Always(_, a)
-        | Formula::Eventually(_, a)
-        | Formula::Next(_, a) => ground_atoms(a, domains),
-        Formula::And(a, b)
-        | Formula::Or(a, b)
-        | Formula::Implies(a, b)
-        | Formula::Iff(a, b)
-        | Formula::Until(_, a, b) => {
-            ground_atoms(a, domains).saturating_add(ground_atoms(b, domains))
-        }
-        Formula::Forall(_, d, body) | Formula::Exists(_, d, body) => {
-            size(d).saturating_mul(ground_atoms(body, domains))
-        }
-    }
-}
-
 /// Parses and grounds formula `index` over `domains`; one that expands to more than
 /// [`MAX_GROUND_ATOMS`] atoms is refused before it is expanded.
 pub fn ground(index: usize, text: &str, domains: &Domains) -> Result<Grounded, SpecError> {
@@ -167,21 +140,27 @@ pub fn ground(index: usize, text: &str, domains: &Domains) -> Result<Grounded, S
 
 /// The 1-based column (in characters) of domain `d` after `in` in `text`.
 fn domain_column(text: &str, d: &str) -> usize {
+    word_columns(text, d)
+        .find(|&i| {
+            let before: String = text.chars().take(i - 1).collect();
+            before.trim_end().ends_with("in")
+        })
+        .unwrap_or(1)
+}
+
+/// The 1-based columns (in characters) where `name` is written as a whole word in `text`.
+fn word_columns<'a>(text: &'a str, name: &'a str) -> impl Iterator<Item = usize> + 'a {
     let chars: Vec<char> = text.chars().collect();
-    let name: Vec<char> = d.chars().collect();
+    let name: Vec<char> = name.chars().collect();
     let word = |c: char| c.is_alphanumeric() || c == '_';
-    for i in 0..chars.len() {
-        if chars[i..].starts_with(&name)
-            && (i == 0 || !word(chars[i - 1]))
-            && chars.get(i + name.len()).is_none_or(|c| !word(*c))
-        {
-            let before: String = chars[..i].iter().collect();
-            if before.trim_end().ends_with("in") {
-                return i + 1;
-            }
-        }
-    }
-    1
+    (0..chars.len())
+        .filter(move |&i| {
+            !name.is_empty()
+                && chars[i..].starts_with(&name)
+                && (i == 0 || !word(chars[i - 1]))
+                && chars.get(i + name.len()).is_none_or(|c| !word(*c))
+        })
+        .map(|i| i + 1)
 }
 
 /// Checks a label, channel or region name: 1 to 200 characters, none of them a control
@@ -219,24 +198,55 @@ pub fn validate(spec: &GroupSpec) -> Result<(), SpecError> {
         check_name("a domain name", name)?;
         for c in constants {
             check_name(&format!("a constant of domain {name}"), c)?;
+            dyknow_mstl::check_constant(c)
+                .map_err(|e| SpecError::Invalid(format!("domain {name}: {e}")))?;
         }
     }
     for r in spec.landmarks.iter().chain(&spec.static_regions) {
         check_name("a region", r)?;
     }
-    for (symbol, g) in &spec.grounding {
-        match g {
-            Grounding::Tag { tag } => check_name(&format!("the grounding tag of {symbol}"), tag)?,
-            Grounding::Description { description } => {
-                if !is_iri(description) {
-                    return Err(SpecError::Invalid(format!(
-                        "the grounding of {symbol}: {description:?} is not an absolute IRI"
-                    )));
-                }
-            }
-        }
+    Ok(())
+}
+
+/// Checks the grounding entries once the formulas are grounded: an invalid one is refused
+/// naming the first formula that has the symbol, at the column where the symbol's name is
+/// written (else 1). Entries for symbols no formula has are left to the caller.
+pub fn check_groundings(
+    grounding: &BTreeMap<String, Grounding>,
+    formulas: &[String],
+    grounded: &[Grounded],
+) -> Result<(), SpecError> {
+    for (symbol, g) in grounding {
+        let wrong = match g {
+            Grounding::Tag { tag } => check_name(&format!("the grounding tag of {symbol}"), tag)
+                .err()
+                .map(|e| e.to_string()),
+            Grounding::Description { description } => (!is_iri(description)).then(|| {
+                format!("the grounding of {symbol}: {description:?} is not an absolute IRI")
+            }),
+        };
+        let Some(message) = wrong else { continue };
+        let Some(index) = grounded
+            .iter()
+            .position(|g| g.symbols.iter().any(|s| s.key() == *symbol))
+        else {
+            return Err(SpecError::Invalid(message));
+        };
+        return Err(SpecError::Grounding {
+            index,
+            column: symbol_column(&formulas[index], symbol),
+            message,
+        });
     }
     Ok(())
+}
+
+/// The 1-based column (in characters) where the name of `symbol` (`altitude` of
+/// `altitude(uav1)`, `PO` of `PO(a,b)`) is first written as a whole word in `text`; 1 when it
+/// is not found.
+fn symbol_column(text: &str, symbol: &str) -> usize {
+    let name = symbol.split('(').next().unwrap_or(symbol);
+    word_columns(text, name).next().unwrap_or(1)
 }
 
 fn is_iri(s: &str) -> bool {

@@ -57,6 +57,9 @@ pub(crate) enum AtomPlan {
         left: Region,
         right: Region,
         key: String,
+        /// The key of the converse atom (`PO(b,a)` for `PO(a,b)`, `TPPI(b,a)` for
+        /// `TPP(a,b)`): a state that gives that key says the same.
+        converse: String,
     },
 }
 
@@ -98,6 +101,12 @@ impl AtomPlan {
                     region_key(left),
                     region_key(right)
                 ),
+                converse: format!(
+                    "{}({},{})",
+                    relation.converse().name(),
+                    region_key(right),
+                    region_key(left)
+                ),
             },
         }
     }
@@ -117,7 +126,11 @@ impl AtomPlan {
                 left,
                 right,
                 key,
-            } => v.spatial(*relation, left, right, key),
+                converse,
+            } => match v.spatial(*relation, left, right, key) {
+                Truth::Unknown => v.spatial(relation.converse(), right, left, converse),
+                known => known,
+            },
         }
     }
 }

@@ -66,6 +66,10 @@ pub fn ground_symbols(
     formula: &Formula,
     domains: &Domains,
 ) -> Result<BTreeSet<Symbol>, CompileError> {
+    let atoms = crate::compile::ground_atoms(formula, domains);
+    if atoms > crate::compile::MAX_GROUND_ATOMS {
+        return Err(CompileError::TooLarge(atoms));
+    }
     let mut constants: BTreeSet<String> = domains.values().flatten().cloned().collect();
     collect_set_constants(formula, &mut constants);
     let mut out = BTreeSet::new();
@@ -133,6 +137,9 @@ fn walk(
                     .ok_or_else(|| CompileError::UnknownDomain(name.clone()))?,
                 Domain::Set(cs) => cs.clone(),
             };
+            for v in &values {
+                crate::compile::check_constant(v)?;
+            }
             if values.is_empty() {
                 // The body still names domains that must exist.
                 check_domains(body, domains)?;

@@ -32,7 +32,9 @@ pub mod syntax;
 pub mod trace;
 
 pub use atom::{Valuation, Value};
-pub use compile::{CompileError, Domains};
+pub use compile::{
+    CompileError, Domains, MAX_GROUND_ATOMS, check_constant, ground_atoms, ground_instances,
+};
 pub use ground::{Symbol, ground_symbols};
 pub use monitor::{Monitor, StepError, Verdict};
 pub use parser::{MAX_DEPTH, MAX_LEN, MAX_TREE_DEPTH, ParseError, is_keyword, parse};

@@ -614,12 +614,12 @@ impl Parser {
 
     /// `atom := RCC8 "(" region "," region ")" | term CMP term | NAME ( "(" term ("," term)* ")" )?`.
     fn atom(&mut self) -> Result<Atom, ParseError> {
-        if let Tok::Ident(word) = self.peek().clone()
-            && let Some(relation) = Rcc8::from_name(&word)
-            && self.peek_at(1) == &Tok::LParen
+        if let Some((tokens, relation)) = self.relation_name()
+            && self.peek_at(tokens) == &Tok::LParen
         {
-            self.bump();
-            self.bump();
+            for _ in 0..=tokens {
+                self.bump();
+            }
             let left = self.region()?;
             self.expect(&Tok::Comma)?;
             let right = self.region()?;
@@ -644,6 +644,33 @@ impl Parser {
                 message: "a number or string must be compared (= != < > <= >=)".to_owned(),
             }),
         }
+    }
+
+    /// An RCC-8 relation name at the current token, and how many tokens it takes: one, or
+    /// four for `TPP^-1` and `NTPP^-1` (rcc8.md's spellings of TPPI and NTPPI), which must be
+    /// written without spaces.
+    fn relation_name(&self) -> Option<(usize, Rcc8)> {
+        let Tok::Ident(word) = self.peek() else {
+            return None;
+        };
+        let converse = match word.as_str() {
+            "TPP" => Rcc8::Tppi,
+            "NTPP" => Rcc8::Ntppi,
+            _ => return Rcc8::from_name(word).map(|r| (1, r)),
+        };
+        let column = |k: usize| self.toks.get(self.pos + k).map(|t| t.1);
+        let end = self.column() + word.chars().count();
+        let written = self.peek_at(1) == &Tok::Caret
+            && self.peek_at(2) == &Tok::Minus
+            && self.peek_at(3) == &Tok::Number(1.0)
+            && (1..=3).all(|k| column(k) == Some(end + k - 1))
+            && self.peek_at(4) == &Tok::LParen
+            && column(4) == Some(end + 3);
+        Some(if written {
+            (4, converse)
+        } else {
+            (1, Rcc8::from_name(word)?)
+        })
     }
 
     /// `term := NUMBER | STRING | NAME ( "(" term ("," term)* ")" )?` (a number may be negative).

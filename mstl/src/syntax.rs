@@ -179,7 +179,19 @@ impl Rcc8 {
         }
     }
 
-    /// Reads a relation name: the canonical spellings, `TPPi`, `NTPPi`, and the seed's `NTTP`.
+    /// The converse relation: `R(a, b)` holds iff `R.converse()(b, a)` does.
+    pub const fn converse(self) -> Self {
+        match self {
+            Self::Tpp => Self::Tppi,
+            Self::Ntpp => Self::Ntppi,
+            Self::Tppi => Self::Tpp,
+            Self::Ntppi => Self::Ntpp,
+            symmetric => symmetric,
+        }
+    }
+
+    /// Reads a relation name: the canonical spellings, `TPPi`, `NTPPi`, and the seed's `NTTP`
+    /// (a formula may also write `TPP^-1` and `NTPP^-1`, which the parser reads).
     pub fn from_name(name: &str) -> Option<Self> {
         Some(match name {
             "DC" => Self::Dc,

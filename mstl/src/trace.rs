@@ -87,7 +87,7 @@ type Line = (usize, serde_json::Map<String, Json>);
 struct Reader<R> {
     input: R,
     line: usize,
-    buf: String,
+    buf: Vec<u8>,
 }
 
 impl<R: BufRead> Reader<R> {
@@ -95,15 +95,26 @@ impl<R: BufRead> Reader<R> {
     fn next(&mut self) -> Result<Option<Line>, CheckError> {
         loop {
             self.buf.clear();
-            if self.input.read_line(&mut self.buf)? == 0 {
+            if self.input.read_until(b'\n', &mut self.buf)? == 0 {
                 return Ok(None);
             }
             self.line += 1;
-            if self.buf.trim().is_empty() {
+            let line = self.line;
+            let text = match std::str::from_utf8(&self.buf) {
+                Ok(text) => text,
+                Err(e) => {
+                    let valid = std::str::from_utf8(&self.buf[..e.valid_up_to()]).unwrap_or("");
+                    return Err(CheckError::Trace {
+                        line,
+                        column: Some(valid.chars().count() + 1),
+                        message: "not UTF-8".to_owned(),
+                    });
+                }
+            };
+            if text.trim().is_empty() {
                 continue;
             }
-            let line = self.line;
-            return match serde_json::from_str::<Json>(self.buf.trim_end()) {
+            return match serde_json::from_str::<Json>(text.trim_end()) {
                 Ok(Json::Object(map)) => Ok(Some((line, map))),
                 Ok(_) => Err(trace_error(line, "expected a JSON object")),
                 Err(e) => {
@@ -293,7 +304,7 @@ pub fn check<R: BufRead, W: Write>(
     let mut reader = Reader {
         input,
         line: 0,
-        buf: String::new(),
+        buf: Vec::new(),
     };
     let mut first = reader.next()?;
     let mut h = Header::default();

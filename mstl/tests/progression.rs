@@ -157,19 +157,22 @@ fn atom(a: &Atom, i: usize, trace: &[State], env: &BTreeMap<String, String>) -> 
             if at >= trace.len() {
                 return future(&Formula::Atom(a.clone()));
             }
-            let k = format!(
-                "{}({},{})",
-                relation.name(),
+            let (l, r) = (
                 region(&Region {
                     offset: l.offset - m,
-                    name: l.name.clone()
+                    name: l.name.clone(),
                 }),
                 region(&Region {
                     offset: r.offset - m,
-                    name: r.name.clone()
-                })
+                    name: r.name.clone(),
+                }),
             );
-            match trace[at].values.get(&k) {
+            // The atom's key, else its converse's (`PO(b,a)`, `TPPI(b,a)` for `TPP(a,b)`).
+            let keys = [
+                format!("{}({l},{r})", relation.name()),
+                format!("{}({r},{l})", relation.converse().name()),
+            ];
+            match keys.iter().find_map(|k| trace[at].values.get(k)) {
                 Some(V::B(b)) => from(*b),
                 _ => Truth::Unknown,
             }

@@ -199,3 +199,116 @@ fn landmarks_relate_states_any_distance_apart() {
         ]
     );
 }
+
+/// A state that gives a spatial atom directly as a key (`"PO(a,b)": true`) says the same of
+/// its converse: `PO(b,a)`, and `TPPI(b,a)` for `TPP(a,b)`.
+#[test]
+fn a_spatial_key_answers_for_the_converse_atom_too() {
+    let trace =
+        "{\"t\": 0, \"state\": {\"PO(a,b)\": true, \"TPP(c,d)\": true, \"DC(e,f)\": false}}\n";
+    let formulas: Vec<_> = [
+        "PO(a, b)",
+        "PO(b, a)",
+        "TPPI(d, c)",
+        "TPP^-1(d, c)",
+        "TPP(d, c)",
+        "DC(f, e)",
+        "EC(b, a)",
+    ]
+    .iter()
+    .map(|f| parse(f).unwrap())
+    .collect();
+    let mut out = Vec::new();
+    let verdicts = check(&formulas, trace.as_bytes(), Header::default(), &mut out).unwrap();
+    let truth: Vec<Truth> = (0..formulas.len())
+        .map(|i| verdicts.iter().find(|v| v.formula == i).unwrap().truth)
+        .collect();
+    use Truth::{False, True, Unknown};
+    // TPP(d, c) is not the converse of TPP(c, d): the key says nothing of it.
+    assert_eq!(truth, [True, True, True, True, Unknown, False, Unknown]);
+}
+
+/// Bad traces and domains are refused with where and why: bytes that are not UTF-8 name their
+/// line and column, a domain constant that would make state keys ambiguous is refused, and so
+/// is a formula whose quantifiers expand it past `MAX_GROUND_ATOMS` (before any is expanded:
+/// this one would be 10⁸ atoms).
+#[test]
+fn bad_input_is_refused_with_where_and_why() {
+    use dyknow_mstl::trace::CheckError;
+    use dyknow_mstl::{CompileError, MAX_GROUND_ATOMS};
+    let p = [parse("p").unwrap()];
+    let trace = b"{\"t\": 0}\n{\"t\": 1, \"state\": {\"p\xff\": true}}\n";
+    match check(&p, &trace[..], Header::default(), &mut Vec::new()) {
+        Err(CheckError::Trace {
+            line,
+            column,
+            message,
+        }) => {
+            assert_eq!((line, column), (2, Some(22)), "{message}");
+            assert!(message.contains("UTF-8"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let domain = |constants: &[&str]| Header {
+        domains: [(
+            "D".to_owned(),
+            constants.iter().map(|c| (*c).to_owned()).collect(),
+        )]
+        .into(),
+        ..Header::default()
+    };
+    let unary = [parse("forall x in D: P(x)").unwrap()];
+    for bad in ["a,b", "a b", "f(a)", ""] {
+        match check(
+            &unary,
+            &b"{\"t\": 0}\n"[..],
+            domain(&[bad]),
+            &mut Vec::new(),
+        ) {
+            Err(CheckError::Compile {
+                formula: 0,
+                source: CompileError::BadConstant(c),
+            }) => assert_eq!(c, bad),
+            other => panic!("{bad:?}: {other:?}"),
+        }
+    }
+    // Names a formula cannot write are still constants: keys stay unambiguous.
+    for good in ["uav-1", "next", "é"] {
+        check(
+            &unary,
+            &b"{\"t\": 0}\n"[..],
+            domain(&[good]),
+            &mut Vec::new(),
+        )
+        .unwrap();
+    }
+    let ten: Vec<String> = (0..10).map(|i| format!("a{i}")).collect();
+    let ten: Vec<&str> = ten.iter().map(String::as_str).collect();
+    let huge = [parse(
+        "forall a in D: forall b in D: forall c in D: forall d in D: forall e in D: \
+         forall f in D: forall g in D: forall h in D: P(a, b, c, d, e, f, g, h)",
+    )
+    .unwrap()];
+    match check(&huge, &b"{\"t\": 0}\n"[..], domain(&ten), &mut Vec::new()) {
+        Err(CheckError::Compile {
+            source: CompileError::TooLarge(instances),
+            ..
+        }) => assert_eq!(instances, 111_111_111, "10⁸ atoms, 10⁷ … 1 bodies"),
+        other => panic!("{other:?}"),
+    }
+    // Quantifiers whose variables the body does not use do not multiply: 10 instances of
+    // P(x), however deep the others nest.
+    let idle = [parse(
+        "forall a in D: forall b in D: forall c in D: forall d in D: forall e in D: \
+         forall f in D: forall g in D: forall x in D: P(x)",
+    )
+    .unwrap()];
+    let ten = domain(&ten);
+    assert_eq!(
+        dyknow_mstl::ground_atoms(&idle[0], &ten.domains),
+        100_000_000
+    );
+    assert_eq!(dyknow_mstl::ground_instances(&idle[0], &ten.domains), 18);
+    check(&idle, &b"{\"t\": 0}\n"[..], ten, &mut Vec::new()).unwrap();
+    assert_eq!(MAX_GROUND_ATOMS, 1_000_000);
+}

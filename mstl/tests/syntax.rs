@@ -149,6 +149,48 @@ fn intervals_units_regions_and_comparisons() {
     );
 }
 
+/// rcc8.md's spellings `TPP^-1` and `NTPP^-1` name TPPI and NTPPI in formulas too, written
+/// as one word; `TPP` alone and `^` elsewhere keep their meaning.
+#[test]
+fn converse_spellings_name_the_inverse_relations() {
+    let spatial = |relation, left: &str, right: &str| {
+        Formula::Atom(Atom::Spatial {
+            relation,
+            left: Region {
+                offset: 0,
+                name: left.into(),
+            },
+            right: Region {
+                offset: 0,
+                name: right.into(),
+            },
+        })
+    };
+    assert_eq!(
+        parse("TPP^-1(a, b)").unwrap(),
+        spatial(Rcc8::Tppi, "a", "b")
+    );
+    assert_eq!(
+        parse("NTPP^-1(a,b)").unwrap(),
+        spatial(Rcc8::Ntppi, "a", "b")
+    );
+    assert_eq!(parse("TPP(a, b)").unwrap(), spatial(Rcc8::Tpp, "a", "b"));
+    assert_eq!(
+        parse("always TPP^-1(a, b) && next^2 p").unwrap(),
+        parse("always TPPI(a, b) && next^2 p").unwrap()
+    );
+    // Printed in the canonical spelling, which reads back the same.
+    assert_eq!(parse("NTPP^-1(a, b)").unwrap().to_string(), "NTPPI(a, b)");
+    for (text, column) in [
+        ("TPP ^-1(a, b)", 5),
+        ("TPP^-2(a, b)", 4),
+        ("DC^-1(a, b)", 3),
+    ] {
+        let e = parse(text).unwrap_err();
+        assert_eq!(e.column, column, "{text}: {e}");
+    }
+}
+
 #[test]
 fn errors_name_the_column() {
     for (text, column) in [

@@ -97,11 +97,74 @@ fn parse_rdf_detailed(
                     )
                 )
             })
-            .map(|t| format!("{t:?}")),
+            .map(|t| triples_text(std::slice::from_ref(t.triple()))),
     );
-    unparsed.extend(incomplete.bnode.iter().map(|t| format!("{t:?}")));
-    unparsed.extend(incomplete.bnode_seq.iter().map(|t| format!("{t:?}")));
+    unparsed.extend(
+        incomplete
+            .bnode
+            .iter()
+            .map(|t| triples_text(t.vec_triple())),
+    );
+    unparsed.extend(
+        incomplete
+            .bnode_seq
+            .iter()
+            .map(|seq| format!("the list {}", terms_text(seq))),
+    );
     Ok((ontology.into(), unparsed))
+}
+
+type RdfTerm = horned_owl::io::rdf::reader::Term<ArcStr>;
+
+/// Triples horned-owl left unmapped, as N-Triples on one line.
+fn triples_text(triples: &[[RdfTerm; 3]]) -> String {
+    triples
+        .iter()
+        .map(|[s, p, o]| format!("{} {} {} .", term_text(s), term_text(p), term_text(o)))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn terms_text(terms: &[RdfTerm]) -> String {
+    let items: Vec<String> = terms.iter().map(term_text).collect();
+    format!("({})", items.join(" "))
+}
+
+/// A horned-owl RDF term in N-Triples.
+fn term_text(term: &RdfTerm) -> String {
+    use horned_owl::io::rdf::reader::Term;
+    use horned_owl::model::Literal as L;
+    match term {
+        Term::OWL(v) => format!("<{}>", v.as_ref()),
+        Term::RDF(v) => format!("<{}>", v.as_ref()),
+        Term::RDFS(v) => format!("<{}>", v.as_ref()),
+        Term::SWRL(v) => format!("<{}>", v.as_ref()),
+        Term::FacetTerm(v) => format!("<{}>", v.as_ref()),
+        Term::Iri(iri) => format!("<{}>", iri.as_ref()),
+        // Its label is only shown by `Debug`: `BNode("b0")`.
+        Term::BNode(b) => {
+            let debug = format!("{b:?}");
+            let label = debug
+                .strip_prefix("BNode(\"")
+                .and_then(|d| d.strip_suffix("\")"))
+                .unwrap_or(&debug);
+            format!("_:{label}")
+        }
+        Term::Literal(l) => match l {
+            L::Simple { literal } => oxrdf::Literal::new_simple_literal(literal).to_string(),
+            L::Language { literal, lang } => {
+                oxrdf::Literal::new_language_tagged_literal_unchecked(literal, lang).to_string()
+            }
+            L::Datatype {
+                literal,
+                datatype_iri,
+            } => oxrdf::Literal::new_typed_literal(
+                literal,
+                oxrdf::NamedNode::new_unchecked(datatype_iri.as_ref()),
+            )
+            .to_string(),
+        },
+    }
 }
 
 /// Converts an RDF document (the RDF mapping of OWL 2) into an OWL exchange syntax.

@@ -102,6 +102,8 @@ impl TBox {
                 .into_iter()
                 .map(|t| format!("triples horned-owl maps to no axiom: {t}")),
         );
+        // horned-owl leaves them in hash order: sorted, the same input lists them the same.
+        tbox.unsupported.sort();
         Ok(tbox)
     }
 

@@ -575,6 +575,7 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     for path in ontology.iter().chain(files) {
         data.extend(read_triples(path)?);
     }
+    let data = stable_blank_nodes(data);
     let builtin = dyknow_reasoner::builtin_ontology_triples();
     // What the built-in ontologies entail on their own holds for any input: it is not an
     // inference for the given data, and their axioms outside OWL 2 RL are known
@@ -624,6 +625,34 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     }
     out.flush()?;
     Ok(())
+}
+
+/// The triples with their blank nodes named `b0`, `b1`, … in the order they first occur: the
+/// parser names them at random, so the same input would print differently on every run.
+fn stable_blank_nodes(
+    triples: Vec<dyknow_store::oxigraph::model::Triple>,
+) -> Vec<dyknow_store::oxigraph::model::Triple> {
+    use dyknow_store::oxigraph::model::{BlankNode, NamedOrBlankNode, Term};
+    let mut names: std::collections::HashMap<BlankNode, BlankNode> = Default::default();
+    let mut rename = |b: BlankNode| {
+        let next = names.len();
+        names
+            .entry(b)
+            .or_insert_with(|| BlankNode::new_unchecked(format!("b{next}")))
+            .clone()
+    };
+    triples
+        .into_iter()
+        .map(|mut t| {
+            if let NamedOrBlankNode::BlankNode(b) = t.subject {
+                t.subject = rename(b).into();
+            }
+            if let Term::BlankNode(b) = t.object {
+                t.object = rename(b).into();
+            }
+            t
+        })
+        .collect()
 }
 
 /// `dyknow explore`: everything but computation units goes into an in-memory knowledge base
@@ -745,13 +774,29 @@ fn check(
 fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
     use std::io::Read;
     let name = file.display().to_string();
-    let mut text = String::new();
+    let mut bytes = Vec::new();
     let read = if name == "-" {
-        std::io::stdin().read_to_string(&mut text)
+        std::io::stdin().read_to_end(&mut bytes)
     } else {
-        std::fs::File::open(file).and_then(|mut f| f.read_to_string(&mut text))
+        std::fs::File::open(file).and_then(|mut f| f.read_to_end(&mut bytes))
     };
     read.map_err(|e| Failure(2, format!("{name}: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let valid = &e.as_bytes()[..e.utf8_error().valid_up_to()];
+        let valid = std::str::from_utf8(valid).unwrap_or_default();
+        let line = valid.matches('\n').count() + 1;
+        let column = valid
+            .rsplit('\n')
+            .next()
+            .unwrap_or_default()
+            .chars()
+            .count()
+            + 1;
+        Failure(
+            2,
+            format!("{name}: line {line}, column {column}: not UTF-8"),
+        )
+    })?;
     let networks =
         dyknow_rcc8::gqr::parse(&text).map_err(|e| Failure(2, format!("{name}: {e}")))?;
     let mut out = String::new();

@@ -249,14 +249,18 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 body.insert("result_channel".into(), json!(c));
             }
             body.insert("formulas".into(), json!(formulas));
-            let mut d = Map::new();
+            // Repeated flags of one domain add up, as `dyknow check --domain` does.
+            let mut header = dyknow_mstl::trace::Header::default();
             for arg in &domains {
                 // The message names the flag and the argument already.
                 let (name, values) =
                     dyknow_mstl::trace::parse_domain(arg).map_err(|e| Failure(2, e))?;
-                d.insert(name, json!(values));
+                header.extend(dyknow_mstl::trace::Header {
+                    domains: [(name, values)].into(),
+                    ..Default::default()
+                });
             }
-            body.insert("domains".into(), Value::Object(d));
+            body.insert("domains".into(), json!(header.domains));
             body.insert("landmarks".into(), json!(landmarks));
             body.insert("static".into(), json!(static_regions));
             let mut g = Map::new();

@@ -20,7 +20,7 @@ use crate::negotiate::content_type;
 pub struct JsonBody<T>(pub T);
 
 /// Whether a media type declares JSON: `application/json` or `application/*+json`.
-fn is_json(media: &str) -> bool {
+pub(crate) fn is_json(media: &str) -> bool {
     media == "application/json"
         || media
             .strip_prefix("application/")

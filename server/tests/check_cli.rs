@@ -167,6 +167,21 @@ fn bad_input_is_a_usage_error_naming_the_place() {
     let (code, _, stderr) = check(&["p"], &t, &["--domain", "nameless"]);
     assert_eq!(code, 2);
     assert!(stderr.contains("NAME=a,b"), "{stderr}");
+    // Eight quantifiers over ten constants: 10⁸ atoms, refused before any is expanded (it
+    // took 3.7 GB and aborted before the bound).
+    let eight = "forall a in D: forall b in D: forall c in D: forall d in D: forall e in D: \
+                 forall f in D: forall g in D: forall h in D: P(a, b, c, d, e, f, g, h)";
+    let (code, _, stderr) = check(
+        &[eight],
+        &t,
+        &["--domain", "D=a0,a1,a2,a3,a4,a5,a6,a7,a8,a9"],
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("grounds to 111111111 instances"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
     let dir = tempfile::tempdir().unwrap();
     for (body, expected) in [
         (
@@ -229,6 +244,15 @@ fn bad_input_is_a_usage_error_naming_the_place() {
         assert_eq!(code, 2, "{body}");
         assert!(stderr.contains(expected), "{body}: {stderr}");
     }
+    let path = dir.path().join("latin1.jsonl");
+    std::fs::write(
+        &path,
+        b"{\"t\": 0}\n{\"t\": 1, \"state\": {\"p\xff\": true}}\n",
+    )
+    .unwrap();
+    let (code, _, stderr) = check(&["always p"], &path, &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("line 2, column 22: not UTF-8"), "{stderr}");
 }
 
 /// Spatial observations decide spatial atoms without a closure yet: exactly `{R}` is true,

@@ -599,7 +599,12 @@ fn bad_groups_are_refused_and_nothing_is_created() {
             None,
         ),
         (
-            json!({"formulas": ["p"], "grounding": {"p": {"description": "not an iri"}}}),
+            json!({"formulas": ["q", "always (q -> p)"], "grounding": {"p": {"description": "not an iri"}}}),
+            422,
+            Some((1, 14)),
+        ),
+        (
+            json!({"formulas": ["forall x in D: P(x)"], "domains": {"D": ["a,b"]}}),
             422,
             None,
         ),
@@ -626,18 +631,20 @@ fn bad_groups_are_refused_and_nothing_is_created() {
             );
         }
     }
-    // Not JSON, or not declared as JSON.
-    let mut r = agent()
-        .post(&format!("{}/groups", service.url))
-        .header("Content-Type", "text/plain")
-        .send("{}")
-        .unwrap();
-    assert_eq!(
-        r.status().as_u16(),
-        415,
-        "{}",
-        r.body_mut().read_to_string().unwrap()
-    );
+    // Not JSON, or not declared as JSON (no Content-Type declares nothing).
+    for content_type in [Some("text/plain"), None] {
+        let mut request = agent().post(&format!("{}/groups", service.url));
+        if let Some(t) = content_type {
+            request = request.header("Content-Type", t);
+        }
+        let mut r = request.send("{}").unwrap();
+        assert_eq!(
+            r.status().as_u16(),
+            415,
+            "{content_type:?}: {}",
+            r.body_mut().read_to_string().unwrap()
+        );
+    }
     let (got, _) = {
         let mut r = agent()
             .post(&format!("{}/groups", service.url))
@@ -863,6 +870,15 @@ fn groups_survive_a_restart() {
         "always altitude(uav1) > 0",
     ];
     let service = start(true);
+    // A label of 200 characters, each percent-encoded to six bytes, is kept on disk too.
+    let long = "é".repeat(200);
+    let (status, g) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": long, "formulas": ["TPP^-1(a, b)"]})),
+    );
+    assert_eq!(status, 201, "{g}");
     let (status, g) = send(
         &service,
         "POST",
@@ -887,6 +903,13 @@ fn groups_survive_a_restart() {
     std::mem::forget(service);
 
     let service = start(false);
+    let labels: Vec<Value> = (service.get("/groups").as_array().unwrap().iter())
+        .map(|g| g["label"].clone())
+        .collect();
+    assert!(
+        labels.len() == 2 && labels.contains(&json!(long)) && labels.contains(&json!("uav")),
+        "{labels:?}"
+    );
     let after = group(&service, "uav");
     assert_eq!(after["state"], "running");
     assert_eq!(verdicts(&after), verdicts(&before), "verdicts survive");
@@ -946,17 +969,23 @@ fn the_group_command_line() {
         "cli",
         "--formula",
         "forall x in UAV: always (altitude(x) > 50)",
+        // Repeated flags of one domain add up (as `dyknow check`'s do).
         "--domain",
-        "UAV=uav1,uav2",
+        "UAV=uav1",
+        "--domain",
+        "UAV=uav2,uav1",
         "--period-ms",
         "100",
         "--max-delay-ms",
         "400",
     ]);
     assert_eq!(code, 0, "{err}");
+    let created = serde_json::from_str::<Value>(&out).unwrap();
+    assert_eq!(created["state"], "created");
     assert_eq!(
-        serde_json::from_str::<Value>(&out).unwrap()["state"],
-        "created"
+        created["domains"],
+        json!({"UAV": ["uav1", "uav2"]}),
+        "{created}"
     );
     let (code, out, _) = cli(&["list"]);
     assert_eq!(code, 0);

@@ -79,3 +79,18 @@ fn bad_input_names_line_and_column() {
     assert_eq!(code, 2);
     assert!(stderr.contains("variable 7 beyond"), "{stderr}");
 }
+
+/// Bytes that are not UTF-8 are named by line and column, like any other bad input.
+#[test]
+fn bytes_that_are_not_utf8_are_located() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.csp");
+    std::fs::write(&path, b"2\n0 1 ( DC \xff )\n.\n").unwrap();
+    let out = Command::new(BIN).arg("rcc8").arg(&path).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("bad.csp: line 2, column 10: not UTF-8"),
+        "{stderr}"
+    );
+}

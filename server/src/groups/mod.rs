@@ -387,6 +387,7 @@ impl Groups {
             ))
             .into());
         }
+        spec::check_groundings(&spec.grounding, &spec.formulas, &grounded)?;
         let mut map = self.map();
         let label = match spec.label.clone() {
             Some(l) => {

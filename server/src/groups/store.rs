@@ -1,6 +1,8 @@
 //! Groups on disk: `<data>/groups/<label, percent-encoded>/group.json` (written atomically)
 //! and `trace.jsonl` (the header, then one line per state, appended).
 
+#[cfg(test)]
+use std::collections::BTreeSet;
 use std::fs::{self, File, OpenOptions};
 use std::io::{BufRead, BufReader, BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -69,16 +71,46 @@ impl TraceWriter {
     }
 }
 
+/// The most bytes of a group's directory name. A label may be 200 characters, and each byte
+/// of one that is not ASCII alphanumeric takes three when percent-encoded: 200 `é` would be
+/// 1,200 bytes, and file systems allow 255 (ext4, XFS, Btrfs, tmpfs).
+const MAX_DIR_NAME: usize = 120;
+
+/// A group's directory name: its label percent-encoded (bytes other than ASCII letters,
+/// digits, `_` and `-`). One that would be longer than [`MAX_DIR_NAME`] is cut at an
+/// escape's boundary and ends in `~` and a hash of the whole label (`~` is always escaped,
+/// so no short name ends so). The label itself is read from `group.json`.
 fn encode(label: &str) -> String {
-    let mut out = String::new();
-    for b in label.bytes() {
-        if b.is_ascii_alphanumeric() || b == b'_' || b == b'-' {
-            out.push(char::from(b));
-        } else {
-            out.push_str(&format!("%{b:02X}"));
-        }
+    let pieces: Vec<String> = label
+        .bytes()
+        .map(|b| {
+            if b.is_ascii_alphanumeric() || b == b'_' || b == b'-' {
+                char::from(b).to_string()
+            } else {
+                format!("%{b:02X}")
+            }
+        })
+        .collect();
+    let whole: String = pieces.concat();
+    if whole.len() <= MAX_DIR_NAME {
+        return whole;
     }
-    out
+    // The prefix leaves room for `~` and 16 hex digits.
+    let mut out = String::new();
+    for piece in &pieces {
+        if out.len() + piece.len() > MAX_DIR_NAME - 17 {
+            break;
+        }
+        out.push_str(piece);
+    }
+    format!("{out}~{:016x}", fnv1a(label.as_bytes()))
+}
+
+/// FNV-1a, 64 bits: stable across builds and platforms (unlike `std`'s hasher).
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
 }
 
 impl GroupStore {
@@ -110,6 +142,18 @@ impl GroupStore {
     /// A new group: its definition and a trace holding only the header.
     pub fn create(&self, def: &GroupDef) -> Result<TraceWriter, String> {
         let dir = self.group_dir(&def.label);
+        // Two labels cut to one directory name (their hashes equal too) are refused, never
+        // written over each other.
+        if let Ok(bytes) = fs::read(dir.join("group.json"))
+            && let Ok(other) = serde_json::from_slice::<GroupDef>(&bytes)
+            && other.label != def.label
+        {
+            return Err(format!(
+                "{}: already holds group {:?}",
+                dir.display(),
+                other.label
+            ));
+        }
         fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         let path = dir.join("trace.jsonl");
         let mut f = File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -228,4 +272,50 @@ fn read_lines(path: &Path, def: &GroupDef) -> Result<Vec<String>, String> {
         }
     }
     Ok(lines)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_directory_name_fits_every_file_system_and_names_one_label() {
+        assert_eq!(encode("g-1"), "g-1");
+        assert_eq!(encode("a b/é"), "a%20b%2F%C3%A9");
+        let long = [
+            " ".repeat(200),
+            "é".repeat(200),
+            "é".repeat(150),
+            format!("{}x", "é".repeat(150)),
+            "x".repeat(200),
+            format!("{}%", "x".repeat(118)),
+        ];
+        let names: BTreeSet<String> = long.iter().map(|l| encode(l)).collect();
+        assert_eq!(names.len(), long.len(), "{names:#?}");
+        for (label, name) in long.iter().zip(long.iter().map(|l| encode(l))) {
+            assert!(name.len() <= MAX_DIR_NAME, "{label:?}: {name}");
+            assert!(name.contains('~'), "{name}");
+            // Cut at an escape's boundary: what precedes `~` is a run of whole escapes.
+            let prefix = &name[..name.find('~').unwrap()];
+            assert!(label.starts_with(&decode(prefix)), "{label:?}: {name}");
+        }
+    }
+
+    /// A percent-encoded prefix back to the label's bytes.
+    fn decode(encoded: &str) -> String {
+        let mut bytes = Vec::new();
+        let mut rest = encoded.as_bytes();
+        while let Some((&b, tail)) = rest.split_first() {
+            if b == b'%' {
+                bytes.push(
+                    u8::from_str_radix(std::str::from_utf8(&tail[..2]).unwrap(), 16).unwrap(),
+                );
+                rest = &tail[2..];
+            } else {
+                bytes.push(b);
+                rest = tail;
+            }
+        }
+        String::from_utf8(bytes).unwrap()
+    }
 }

@@ -66,17 +66,17 @@ impl From<GroupError> for ApiError {
     }
 }
 
-/// A JSON body: 415 unless the content type is JSON (or absent), 400 if it is not JSON, 422 if
-/// it does not fit.
+/// A JSON body: 415 unless it is declared as JSON (`application/json` or
+/// `application/*+json`, as the other JSON endpoints take it; a body with no `Content-Type` is
+/// not declared), 400 if it is not JSON, 422 if it does not fit.
 fn json_body<T: serde::de::DeserializeOwned>(
     headers: &HeaderMap,
     body: &[u8],
 ) -> Result<T, ApiError> {
-    if let Some(media) = content_type(headers)
-        && media != "application/json"
-    {
+    let media = content_type(headers);
+    if !media.as_deref().is_some_and(crate::json_body::is_json) {
         return Err(ApiError::unsupported_media_type(
-            Some(&media),
+            media.as_deref(),
             &["application/json"],
         ));
     }
