@@ -890,6 +890,20 @@ fn deep_sparql_queries_are_refused_and_the_service_lives_on() {
         );
         assert_eq!(status, 400, "{branches}: {body}");
     }
+    // A path of 7,000 steps (56 KB) kept a core busy for more than 11 minutes, planning the
+    // join order, and held up the shutdown: refused at once.
+    let path = format!(
+        "SELECT * WHERE {{ ?s {} ?o }}",
+        vec!["<urn:p>"; 7_000].join("/")
+    );
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        &path,
+    );
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("triple patterns"), "{body}");
     let (status, _) = get(&agent, &format!("{base}/health"));
     assert_eq!(status, 200);
     let ok = "SELECT * WHERE { { ?s <urn:p> ?o } UNION { ?s <urn:q> ?o } }";

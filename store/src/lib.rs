@@ -21,6 +21,6 @@ pub use knowledge_base::{
 pub use oxigraph;
 pub use rdf_input::{InputFormat, parse_triples};
 pub use sparql::{
-    MAX_QUERY_DEPTH, MAX_QUERY_NESTING, MAX_QUERY_OPERATORS, ParsedQuery, QueryAnswer, QueryForm,
-    ResultFormat,
+    MAX_QUERY_DEPTH, MAX_QUERY_NESTING, MAX_QUERY_OPERATORS, MAX_QUERY_PATTERNS, ParsedQuery,
+    QueryAnswer, QueryForm, ResultFormat,
 };

@@ -109,6 +109,13 @@ pub const MAX_QUERY_NESTING: usize = 128;
 /// is long; 1,000 UNION branches overflowed a worker's stack.
 pub const MAX_QUERY_DEPTH: usize = 256;
 
+/// How many triple patterns a query may join in all, each IRI step of a property path
+/// counting one. Planning the join order takes time cubic in their number and cannot be
+/// cancelled (`--query-timeout` stops evaluation, not planning): 300 took 0.8 s, 1,000 (an
+/// 8 KB query) 92 s, and 7,000 kept a core busy for more than 11 minutes and held up the
+/// service's shutdown. 256 plan within about half a second.
+pub const MAX_QUERY_PATTERNS: usize = 256;
+
 /// How many operators that chain (`UNION`, `MINUS`, `OPTIONAL`, `||`, `&&`, `|`, `/`, `+`, `-`,
 /// `*`, `^`, `!`) a query may hold in all: the parser recurses along a chain as it does into
 /// brackets (1,000 UNION branches overflowed a 2 MiB stack in the parser itself), so their
@@ -245,7 +252,15 @@ fn scan(query: &str, mut f: impl FnMut(char, (usize, usize))) {
 
 /// Whether `query`'s algebra is deeper than `limit` (walked with a stack of its own, so the
 /// walk itself never recurses).
-fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
+/// Whether `query`'s algebra is deeper than `limit` operators, and how many triple patterns it
+/// joins (each IRI step of a property path counts one: `?s <p>/<p> ?o` is two).
+fn algebra_shape(query: &spargebra::Query, limit: usize) -> (bool, usize) {
+    let mut patterns = 0usize;
+    let deeper = deeper_than(query, limit, &mut patterns);
+    (deeper, patterns)
+}
+
+fn deeper_than(query: &spargebra::Query, limit: usize, patterns: &mut usize) -> bool {
     use spargebra::algebra::PropertyPathExpression as Path;
     use spargebra::algebra::{AggregateExpression, Expression, GraphPattern, OrderExpression};
     enum Node<'a> {
@@ -267,7 +282,8 @@ fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
         let d = depth + 1;
         match node {
             Node::Pattern(p) => match p {
-                GraphPattern::Bgp { .. } | GraphPattern::Values { .. } => {}
+                GraphPattern::Bgp { patterns: bgp } => *patterns += bgp.len(),
+                GraphPattern::Values { .. } => {}
                 GraphPattern::Path { path, .. } => stack.push((Node::Path(path), d)),
                 GraphPattern::Join { left, right }
                 | GraphPattern::Lateral { left, right }
@@ -326,7 +342,7 @@ fn deeper_than(query: &spargebra::Query, limit: usize) -> bool {
                 stack.extend(sub_expressions(e).into_iter().map(|e| (Node::Expr(e), d)))
             }
             Node::Path(p) => match p {
-                Path::NamedNode(_) | Path::NegatedPropertySet(_) => {}
+                Path::NamedNode(_) | Path::NegatedPropertySet(_) => *patterns += 1,
                 Path::Reverse(a)
                 | Path::ZeroOrMore(a)
                 | Path::OneOrMore(a)
@@ -396,11 +412,20 @@ impl ParsedQuery {
         }
         let cancel = CancellationToken::new();
         // One parse: the form is read from the algebra, which is then handed to the evaluator.
-        match spargebra::SparqlParser::new().parse_query(query) {
-            Ok(algebra) if deeper_than(&algebra, MAX_QUERY_DEPTH) => {
+        let parsed = spargebra::SparqlParser::new().parse_query(query);
+        let shape = parsed
+            .as_ref()
+            .map(|algebra| algebra_shape(algebra, MAX_QUERY_DEPTH));
+        match parsed {
+            Ok(_) if matches!(shape, Ok((true, _))) => Err(SparqlQueryError::TooDeep(format!(
+                "the query's algebra is deeper than {MAX_QUERY_DEPTH} operators (a chain of \
+                 UNION, OPTIONAL, ||, && or + of that length, or nesting)"
+            ))),
+            Ok(_) if shape.as_ref().is_ok_and(|(_, n)| *n > MAX_QUERY_PATTERNS) => {
+                let n = shape.as_ref().map_or(0, |(_, n)| *n);
                 Err(SparqlQueryError::TooDeep(format!(
-                    "the query's algebra is deeper than {MAX_QUERY_DEPTH} operators (a chain of \
-                     UNION, OPTIONAL, ||, && or + of that length, or nesting)"
+                    "the query joins {n} triple patterns (property path steps included); at most \
+                     {MAX_QUERY_PATTERNS} are taken"
                 )))
             }
             Ok(algebra) => {
@@ -649,6 +674,57 @@ mod tests {
         matches!(ParsedQuery::parse(q), Err(SparqlQueryError::TooDeep(_)))
     }
 
+    /// A long chain of joins is refused before its join order is planned (planning is cubic
+    /// in the patterns and cannot be cancelled); up to the bound it is taken, written as
+    /// patterns or as a property path.
+    #[test]
+    fn queries_joining_too_many_patterns_are_refused_before_they_are_planned() {
+        // On a stack as large as the service's threads have (`dyknow serve`): the parser
+        // recurses along a path.
+        std::thread::Builder::new()
+            .stack_size(64 << 20)
+            .spawn(|| {
+                let path = |n: usize| {
+                    format!(
+                        "SELECT * WHERE {{ ?s {} ?o }}",
+                        vec!["<urn:p>"; n].join("/")
+                    )
+                };
+                let chain = |n: usize| {
+                    let patterns: Vec<String> = (0..n)
+                        .map(|i| format!("?v{i} <urn:p> ?v{}", i + 1))
+                        .collect();
+                    format!("SELECT * WHERE {{ {} }}", patterns.join(" . "))
+                };
+                assert!(ParsedQuery::parse(&path(MAX_QUERY_PATTERNS)).is_ok());
+                assert!(ParsedQuery::parse(&chain(MAX_QUERY_PATTERNS)).is_ok());
+                for q in [
+                    path(MAX_QUERY_PATTERNS + 1),
+                    chain(MAX_QUERY_PATTERNS + 1),
+                    path(7_000),
+                ] {
+                    match ParsedQuery::parse(&q) {
+                        Err(SparqlQueryError::TooDeep(m)) => {
+                            assert!(m.contains("triple patterns"), "{m}")
+                        }
+                        other => panic!("{}", other.is_ok()),
+                    }
+                }
+                // Spread over UNION branches, or as a path alternative, they count all the same.
+                let union = format!(
+                    "SELECT * WHERE {{ {{ {} }} UNION {{ ?a <urn:p>|<urn:q> ?b }} }}",
+                    (0..MAX_QUERY_PATTERNS - 1)
+                        .map(|i| format!("?v{i} <urn:p> ?v{}", i + 1))
+                        .collect::<Vec<_>>()
+                        .join(" . ")
+                );
+                assert!(too_deep(&union));
+            })
+            .unwrap()
+            .join()
+            .unwrap();
+    }
+
     #[test]
     fn queries_nested_deeper_than_the_limits_are_refused_before_they_recurse() {
         // On a stack as large as the service's threads have (`dyknow serve`).
@@ -743,7 +819,7 @@ mod tests {
         // Hyphens of prefixed names and IRIs with operators in them count only outside IRIs.
         let flat = format!(
             "PREFIX dyknow-ros: <http://e/a/b-c+d*e> SELECT * WHERE {{ {} }}",
-            "?s dyknow-ros:has-port ?o . ".repeat(500)
+            "?s dyknow-ros:has-port ?o . ".repeat(200)
         );
         assert!(ParsedQuery::parse(&flat).is_ok());
     }
