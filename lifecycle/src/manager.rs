@@ -845,6 +845,11 @@ impl Manager {
         reconciled: Reconciled,
     ) -> Result<Committed, LifecycleError> {
         let planned = model::delta(&loaded.env, &after, &loaded.iris);
+        // A change set the model would refuse (an ontology violation: a CU subscribing to
+        // the channel it publishes on) is refused before any executor carries it out, and
+        // takes no number: applied first, it rewired the live CU while the model kept the old
+        // binding, and nothing repaired the difference.
+        self.kb.check_environment(&planned.parts)?;
         let id = match reconciled.id {
             Some(id) => id,
             None => self

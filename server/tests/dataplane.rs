@@ -839,8 +839,19 @@ fn set_config_rewires_make_before_break_and_refuses_what_would_break_the_environ
         let text = r.body_mut().read_to_string().unwrap();
         (r.status().as_u16(), text)
     };
-    // Refused, nothing changed.
-    let before = (service.get("/cus"), service.change_sets().len());
+    // Refused, nothing changed: not the model, not the history, not the running CU (the
+    // self-loop, which only the reasoner refuses, was carried out by the executor before the
+    // model refused it, and the CU then read its own output while the model said otherwise).
+    let reconfigurations = || {
+        service.get(&format!("/cus/{name}"))["statistics"]["reconfigurations"]
+            .as_u64()
+            .unwrap()
+    };
+    let before = (
+        service.get("/cus"),
+        service.change_sets().len(),
+        reconfigurations(),
+    );
     for (body, needle) in [
         (json!({"inputs": {"nope": "x"}}), "no in port"),
         (
@@ -848,13 +859,21 @@ fn set_config_rewires_make_before_break_and_refuses_what_would_break_the_environ
             "has a publisher",
         ),
         (json!({"inputs": {"in": "a*b"}}), "reserve"),
+        (json!({"inputs": {"in": "/echoed"}}), "prp-pdw"),
     ] {
         let (status, text) = put(body);
         assert_eq!(status, 422, "{text}");
         assert!(text.contains(needle), "{text}");
     }
     assert_eq!(put(json!({"bogus": {}})).0, 400);
-    assert_eq!((service.get("/cus"), service.change_sets().len()), before);
+    assert_eq!(
+        (
+            service.get("/cus"),
+            service.change_sets().len(),
+            reconfigurations()
+        ),
+        before
+    );
     // Rewired while samples flow: a sample published once the rebinding is acknowledged
     // arrives.
     for round in 0..10 {

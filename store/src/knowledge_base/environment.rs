@@ -43,6 +43,28 @@ impl KnowledgeBase {
         Ok(())
     }
 
+    /// Whether [`KnowledgeBase::set_environment`] of `parts` would be refused for violating
+    /// the ontology, as it is now, writing nothing: the life-cycle asks before an executor
+    /// carries a change set out, so that one the model cannot take never runs. (A write made
+    /// in between can still make the write itself fail; it is checked again then.)
+    pub fn check_environment(
+        &self,
+        parts: &[(EnvironmentPart, Vec<Triple>)],
+    ) -> Result<(), IngestError> {
+        let changes: Vec<(String, Vec<Triple>)> = parts
+            .iter()
+            .map(|(part, triples)| (part.graph().as_str().to_owned(), triples.clone()))
+            .collect();
+        let mut reasoner = self.lock();
+        let (update, previous) = reasoner.set_graphs(&changes);
+        reasoner.set_graphs(&previous);
+        if update.violations.is_empty() {
+            Ok(())
+        } else {
+            Err(super::write::inconsistency(&update.violations))
+        }
+    }
+
     /// The channels named in the model, sorted, with the targets that name them.
     pub fn channels(&self) -> Result<Vec<(String, Vec<String>)>, StorageError> {
         let mut out: BTreeMap<String, Vec<String>> = BTreeMap::new();

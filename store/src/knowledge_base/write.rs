@@ -446,7 +446,7 @@ impl KnowledgeBase {
 
 /// The 422 answer for violated consistency rules: one detail per violation, naming the rule and
 /// the axiom, with the first node as subject and every node involved.
-fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
+pub(super) fn inconsistency(violations: &[dyknow_reasoner::Violation]) -> IngestError {
     IngestError::Invalid(SpecValidationError(
         violations
             .iter()
