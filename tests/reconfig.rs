@@ -139,6 +139,51 @@ async fn example_12() -> (Api, Value) {
     (api, env)
 }
 
+/// A target is satisfied when a CU publishes on its channel what it asks for, as `GET
+/// /environment` judges it: a CU publishing something else on the channel is its producer
+/// but does not satisfy it (before, `GET /targets` said satisfied for any publisher).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_target_is_satisfied_by_what_its_channel_carries_not_by_a_publisher_alone() {
+    let (api, env) = example_12().await;
+    assert_eq!(env["valid"], true, "{env}");
+    let targets = api.get("/targets").await.expect(200).json();
+    for t in targets.as_array().unwrap() {
+        assert_eq!(t["satisfied"], true, "{t}");
+    }
+    let n = reviews(&api).await;
+    api.post_turtle(
+        "/targets",
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+         [] a dyknow:Target ; rdfs:label \"zzz\" ;
+            dyknow:hasChannel [ a dyknow:Channel ; dyknow:hasChannelName \"101\" ] ;
+            dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription <http://example.org/ex12#Zzz> ] .",
+    )
+    .await
+    .expect(201);
+    let env = settle(&api, n + 1).await;
+    assert_eq!(env["unsatisfied_targets"], json!(["zzz"]), "{env}");
+    let zzz = api.get("/targets/zzz").await.expect(200).json();
+    assert!(zzz["producer"].is_string(), "{zzz}");
+    assert_eq!(zzz["satisfied"], false, "{zzz}");
+    let qid1 = api.get("/targets/qid1").await.expect(200).json();
+    assert_eq!(qid1["producer"], zzz["producer"]);
+    assert_eq!(qid1["satisfied"], true, "{qid1}");
+    // The model's JSON says the same.
+    let model = api.get("/model?format=dyknow").await.expect(200).json();
+    let satisfied: Vec<(Value, Value)> = (model["targets"].as_array().unwrap().iter())
+        .map(|t| (t["label"].clone(), t["satisfied"].clone()))
+        .collect();
+    assert_eq!(
+        satisfied,
+        [
+            (json!("qid1"), json!(true)),
+            (json!("qid2"), json!(true)),
+            (json!("zzz"), json!(false))
+        ]
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn example_12_over_http() {
     let (api, env) = example_12().await;

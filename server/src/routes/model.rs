@@ -100,6 +100,7 @@ pub fn model_json(
     let loaded = dyknow_store::model::load(kb)?;
     let names: Vec<Cid> = loaded.env.cus.keys().cloned().collect();
     let views = describe(&names);
+    let unsatisfied = super::specs::unsatisfied_targets(&loaded);
     // Every channel of the model: those targets name and those CUs are bound to.
     let mut by_name: BTreeMap<String, ChannelJson> = BTreeMap::new();
     fn channel<'a>(
@@ -136,12 +137,12 @@ pub fn model_json(
         transformations: kb
             .specs(SpecKind::Transformation)?
             .into_iter()
-            .map(|s| spec_json(kb, runnable, s))
+            .map(|s| spec_json(kb, runnable, &unsatisfied, s))
             .collect::<Result<_, _>>()?,
         targets: kb
             .specs(SpecKind::Target)?
             .into_iter()
-            .map(|s| spec_json(kb, runnable, s))
+            .map(|s| spec_json(kb, runnable, &unsatisfied, s))
             .collect::<Result<_, _>>()?,
         cus: loaded
             .env

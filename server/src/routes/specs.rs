@@ -103,9 +103,10 @@ pub struct TargetJson {
     pub tags: Vec<String>,
     /// The tags in full.
     pub tag_details: Vec<TagJson>,
-    /// Whether a CU currently produces the stream on the channel.
+    /// Whether a CU currently produces the stream on the channel: it publishes there, with
+    /// the target's tags (as `GET /environment` judges it).
     pub satisfied: bool,
-    /// The name of that CU.
+    /// The name of the CU publishing on the channel (whatever its tags).
     pub producer: Option<String>,
     /// The IRI of the target in the model.
     pub iri: String,
@@ -145,10 +146,26 @@ fn port_json(port: &Port) -> PortJson {
     }
 }
 
-/// The JSON of a spec (targets look up their producer in the model).
+/// The labels of the targets the environment leaves unsatisfied (`GET /environment`'s
+/// `unsatisfied_targets`): no CU publishes on the channel, or what it publishes lacks the
+/// target's tags.
+pub(crate) fn unsatisfied_targets(
+    loaded: &dyknow_store::model::Loaded,
+) -> std::collections::BTreeSet<String> {
+    (loaded.env.invalidities(&loaded.candidates).into_iter())
+        .filter_map(|i| match i {
+            dyknow_engine::Invalidity::UnsatisfiedTarget { target } => Some(target.to_string()),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The JSON of a spec (targets look up their producer in the model; `unsatisfied` are the
+/// targets [`unsatisfied_targets`] names, so `satisfied` agrees with `GET /environment`).
 pub(crate) fn spec_json(
     kb: &KnowledgeBase,
     runnable: &dyn Fn(&dyknow_store::spec::TransformationSpec) -> Result<(), String>,
+    unsatisfied: &std::collections::BTreeSet<String>,
     spec: Spec,
 ) -> Result<serde_json::Value, ApiError> {
     let value = match spec {
@@ -174,13 +191,14 @@ pub(crate) fn spec_json(
         }
         Spec::Target(t) => {
             let producer = kb.channel_producer(&t.channel)?;
+            let satisfied = producer.is_some() && !unsatisfied.contains(&t.label);
             let (tags, tag_details) = tags_json(&t.tags);
             serde_json::to_value(TargetJson {
                 label: t.label,
                 channel: t.channel,
                 tags,
                 tag_details,
-                satisfied: producer.is_some(),
+                satisfied,
                 producer,
                 iri: t.iri,
                 groups: Vec::new(),
@@ -268,9 +286,16 @@ async fn list_specs(
     let groups = state.groups.clone();
     let list = in_turn(&state, move || {
         let users = groups.target_users();
+        let unsatisfied = match kind {
+            SpecKind::Target => unsatisfied_targets(&lifecycle.load_now()?),
+            SpecKind::Transformation => Default::default(),
+        };
         kb.specs(kind)?
             .into_iter()
-            .map(|s| spec_json(&kb, &|t| lifecycle.runnable(t), s).map(|v| with_groups(v, &users)))
+            .map(|s| {
+                spec_json(&kb, &|t| lifecycle.runnable(t), &unsatisfied, s)
+                    .map(|v| with_groups(v, &users))
+            })
             .collect::<Result<Vec<_>, _>>()
     })
     .await?;
@@ -299,8 +324,14 @@ async fn get_spec(
     let label2 = label.clone();
     let groups = state.groups.clone();
     let value = in_turn(&state, move || match kb.spec(kind, &label2)? {
-        Some(spec) => spec_json(&kb, &|t| lifecycle.runnable(t), spec)
-            .map(|v| Some(with_groups(v, &groups.target_users()))),
+        Some(spec) => {
+            let unsatisfied = match kind {
+                SpecKind::Target => unsatisfied_targets(&lifecycle.load_now()?),
+                SpecKind::Transformation => Default::default(),
+            };
+            spec_json(&kb, &|t| lifecycle.runnable(t), &unsatisfied, spec)
+                .map(|v| Some(with_groups(v, &groups.target_users())))
+        }
         None => Ok(None),
     })
     .await?
