@@ -1340,6 +1340,17 @@ async fn invalid_specs_are_422_with_constraints() {
         "{PREFIXES}[] a dyknow:Transformation ;\n dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"x\" ] ] .\n"
     );
     expect_422(&api, "/transformations", body, "rdfs:label").await;
+    // An empty or blank label: such a spec could never be read or deleted by its label.
+    for label in ["", "  "] {
+        let body = format!(
+            "{PREFIXES}[] a dyknow:Transformation ; rdfs:label \"{label}\" ;\n dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"x\" ] ] .\n"
+        );
+        expect_422(&api, "/transformations", body, "not empty").await;
+        let body = format!(
+            "{PREFIXES}[] a dyknow:Target ; rdfs:label \"{label}\" ;\n dyknow:hasChannel [ dyknow:hasChannelName \"c\" ] ; dyknow:hasTag [ dyknow:hasValue \"x\" ] .\n"
+        );
+        expect_422(&api, "/targets", body, "not empty").await;
+    }
 
     // Duplicate port names.
     let body = format!(

@@ -273,6 +273,19 @@ fn extract(
                 continue;
             }
         };
+        if label.trim().is_empty() || label.chars().any(char::is_control) {
+            // It names the spec in URLs (`DELETE /targets/{label}`): an empty one could never
+            // be read or removed again.
+            violations.push(Violation::new(
+                format!(
+                    "a {} spec's rdfs:label is not empty or blank and holds no control \
+                     character: it names the spec",
+                    kind.name()
+                ),
+                describe(root, &HashMap::default()),
+            ));
+            continue;
+        }
         if !labels_seen.insert((*kind, label.clone())) {
             violations.push(Violation::new(
                 format!(
