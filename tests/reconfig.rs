@@ -468,7 +468,9 @@ async fn bad_input_changes_nothing() {
     )
     .await
     .expect_error(404);
-    for bad in ["-1.0", "1e999"] {
+    // 1.7e308 is finite, but sums of it overflow (the change set's cost was written as null
+    // and its record lost at the next start).
+    for bad in ["-1.0", "1e999", "1.7e308", "1e13"] {
         api.post(
             "/statistics",
             "application/json",

@@ -10,6 +10,18 @@ use serde::{Deserialize, Serialize};
 use crate::ids::Tid;
 use crate::model::Environment;
 
+/// The largest cost a spec may give or an observation report (labour, or upkeep per time
+/// unit). Costs are summed over CUs and multiplied by the horizon: with 1.7e308 the change
+/// set's total became infinite, was written as `null`, and the record could not be read back
+/// after a restart (its history lost). A trillion CPU milliseconds (about 32 years) per time
+/// unit is far above any measured cost.
+pub const MAX_COST: f64 = 1e12;
+
+/// Whether `value` can be a cost: finite, non-negative and at most [`MAX_COST`].
+pub fn valid_cost(value: f64) -> bool {
+    value.is_finite() && (0.0..=MAX_COST).contains(&value)
+}
+
 /// A learned estimate: the historical average of the observations so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {

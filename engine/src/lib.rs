@@ -37,7 +37,7 @@ pub use change_set::{
     rfc3339,
 };
 pub use compile::{Compiled, CostSummary, compile};
-pub use estimate::{CostKind, Estimate, Learned};
+pub use estimate::{CostKind, Estimate, Learned, MAX_COST, valid_cost};
 pub use explore::{Cost, Exploration, ExploreOptions, Plan, ProbeOptions, explore, lower_bound};
 pub use ids::{ChangeSetId, Channel, Cid, Ids, Qid, Tid};
 pub use model::{Action, ComputationUnit, Environment, Invalidity, Target, Transformation};

@@ -35,8 +35,8 @@ pub enum LifecycleError {
     /// CUs by name on the data plane).
     #[error("{0}")]
     InvalidName(String),
-    /// An observed cost must be a finite, non-negative number.
-    #[error("{what} must be a finite non-negative number, not {value}")]
+    /// An observed cost must be a non-negative number up to [`dyknow_engine::MAX_COST`].
+    #[error("{what} must be a non-negative number up to 1e12, not {value}")]
     InvalidCost {
         /// `labour` or `upkeep`.
         what: &'static str,

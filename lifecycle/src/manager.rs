@@ -1213,7 +1213,7 @@ impl Manager {
                     value,
                 } => (transformation, CostKind::Labour, value),
             };
-            if !(value.is_finite() && value >= 0.0 && loaded.specs.contains_key(&tid)) {
+            if !(dyknow_engine::valid_cost(value) && loaded.specs.contains_key(&tid)) {
                 continue;
             }
             learned.observe(tid, kind, value);
@@ -1235,7 +1235,7 @@ impl Manager {
             Observation::Upkeep { value, .. } => (CostKind::Upkeep, *value),
             Observation::Labour { value, .. } => (CostKind::Labour, *value),
         };
-        if !(value.is_finite() && value >= 0.0) {
+        if !dyknow_engine::valid_cost(value) {
             return Err(LifecycleError::InvalidCost {
                 what: match kind {
                     CostKind::Labour => "labour",

@@ -899,6 +899,9 @@ fn rejects_invalid_costs() {
         ("\"NaN\"^^xsd:double", "NaN"),
         ("\"INF\"^^xsd:double", "INF"),
         ("\"-INF\"^^xsd:double", "-INF"),
+        // Finite, but sums over CUs times the horizon overflow to infinity.
+        ("\"1.7e308\"^^xsd:double", "a double past MAX_COST"),
+        ("1000000000001", "an integer past MAX_COST"),
         ("\"1.0\"", "a string literal"),
         ("\"1.0\"@en", "a language-tagged string"),
         ("\"one\"^^xsd:double", "an ill-formed double"),
@@ -2418,7 +2421,9 @@ mod generated {
             && !(spec.class == Class::Sink && spec.ports.iter().any(|p| !p.input))
             && [spec.labour, spec.upkeep]
                 .iter()
-                .all(|c| c.is_none_or(|(x, _)| x >= 0.0))
+                .all(|c| c.is_none_or(|(x, _)| (0.0..=1e12).contains(&x)))
+            && !spec.label.trim().is_empty()
+            && !spec.label.chars().any(char::is_control)
     }
 
     fn sorted_tags(tags: &[String]) -> Vec<Tag> {

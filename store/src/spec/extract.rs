@@ -857,18 +857,16 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             }
             let (values, not_literal) = self.index.literals(&node, &[dyknow::HAS_VALUE]);
             match (values.as_slice(), not_literal) {
-                ([v], false) => {
-                    match cost_value(v) {
-                        Some(x) => *slot = Some(x),
-                        None => {
-                            self.violation(
-                            format!("a {which} cost is a non-negative number (dyknow:hasValue), not {v}"),
+                ([v], false) => match cost_value(v) {
+                    Some(x) => *slot = Some(x),
+                    None => {
+                        self.violation(
+                            format!("a {which} cost is a non-negative number up to 1e12 (dyknow:hasValue), not {v}"),
                             &node,
                         );
-                            *slot = Some(DEFAULT_COST);
-                        }
+                        *slot = Some(DEFAULT_COST);
                     }
-                }
+                },
                 _ => {
                     self.violation(
                         format!("a {which} cost model has exactly 1 dyknow:hasValue, a non-negative number"),
@@ -978,7 +976,8 @@ fn encode_id(node: &Node) -> String {
     }
 }
 
-/// A cost: a finite, non-negative number given as an XSD numeric literal.
+/// A cost: a non-negative number up to [`dyknow_engine::MAX_COST`] given as an XSD numeric
+/// literal.
 fn cost_value(literal: &Literal) -> Option<f64> {
     const NUMERIC: [&str; 13] = [
         "double",
@@ -1001,7 +1000,7 @@ fn cost_value(literal: &Literal) -> Option<f64> {
         return None;
     }
     let x: f64 = literal.value().trim().parse().ok()?;
-    (x.is_finite() && x >= 0.0).then_some(x)
+    dyknow_engine::valid_cost(x).then_some(x)
 }
 
 /// Rebuilds the spec held in a spec graph (the graph is in normal form).
