@@ -13,7 +13,7 @@ use std::net::TcpStream;
 use std::time::Duration;
 
 use serde_json::Value;
-use support::Service;
+use support::{Service, agent};
 
 /// The service's `--max-body` in these tests.
 const MAX_BODY: usize = 1024 * 1024;
@@ -236,4 +236,37 @@ fn json_endpoints_answer_415_to_other_content_types() {
             );
         }
     }
+}
+
+/// Methods no standard names are counted as `other` in `/metrics`: a client sending random
+/// ones cannot grow it without bound (2,000 of them made it 38 KB → 3 MB).
+#[test]
+fn random_methods_do_not_grow_the_metrics() {
+    let service = Service::start(&["--model-only"]);
+    let stream = connect(&service);
+    let mut reader = BufReader::new(stream.try_clone().unwrap());
+    let mut w = &stream;
+    for i in 0..50 {
+        write!(
+            w,
+            "M{i:04X} /cus HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n"
+        )
+        .unwrap();
+        w.flush().unwrap();
+        let answer = read_answer(&mut reader);
+        assert_eq!(answer.status, 405, "{i}");
+    }
+    let metrics = agent()
+        .get(&format!("{}/metrics", service.url))
+        .call()
+        .unwrap()
+        .body_mut()
+        .read_to_string()
+        .unwrap();
+    assert!(!metrics.contains("method=\"M00"), "{metrics}");
+    assert!(
+        metrics
+            .contains(r#"dyknow_http_requests_total{method="other",route="/cus",status="405"} 50"#),
+        "{metrics}"
+    );
 }
