@@ -627,6 +627,21 @@ async fn sparql_result_formats_by_accept() {
         "{tsv:?}"
     );
 
+    // Plain JSON and XML are the results formats, labelled as asked (a client asking for
+    // `application/json` was refused 406 by the check of the answer's type).
+    let answer = api.get_accept(&uri, "application/json").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "application/json");
+    let v = answer.json();
+    assert_eq!(
+        v["results"]["bindings"][0]["t"]["value"], UNDISTORT_IRI,
+        "{v}"
+    );
+    let answer = api.get_accept(&uri, "application/xml").await;
+    answer.expect(200);
+    assert_eq!(answer.media_type(), "application/xml");
+    assert!(answer.text().contains("<sparql"));
+
     // Quality values are honoured.
     let answer = api
         .get_accept(&uri, "application/sparql-results+json;q=0.1, text/csv")

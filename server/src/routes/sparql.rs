@@ -112,7 +112,8 @@ async fn answer(
     if let Some(bytes) = state.config.query_memory {
         parsed = parsed.with_memory_limit(bytes);
     }
-    let owl = owl_syntax(parsed.form(), &headers)?;
+    let parsed_form = parsed.form();
+    let owl = owl_syntax(parsed_form, &headers)?;
     let format = match owl {
         Some(_) => ResultFormat::Rdf(RdfFormat::NTriples),
         None => result_format(parsed.form(), &headers)?,
@@ -161,6 +162,15 @@ async fn answer(
     .await?;
     drop(cancel);
     let (media_type, body, unparsed) = answer;
+    // A client that asked for plain `application/json` (or `application/xml`) gets the
+    // results labelled so: they are JSON (XML), and the answer's type is what it accepts.
+    let media_type = match parsed_form {
+        QueryForm::Solutions => match negotiate(&headers, &SOLUTION_TYPES)? {
+            plain @ ("application/json" | "application/xml") => plain,
+            _ => media_type,
+        },
+        QueryForm::Graph => media_type,
+    };
     let mut response = typed(StatusCode::OK, media_type, body);
     if let Some(n) = unparsed {
         // As `GET /model` says it: triples no OWL construct holds.
