@@ -593,6 +593,96 @@ async fn sparql_post_form_and_direct() {
         .expect_error(415);
 }
 
+/// The protocol's `default-graph-uri` and `named-graph-uri` set the dataset (they were
+/// ignored: every query ran over the union).
+#[tokio::test]
+async fn sparql_protocol_dataset_parameters_set_the_dataset() {
+    let api = api_with_undistort().await;
+    let count = |answer: Answer| {
+        let v = answer.expect(200).json();
+        v["results"]["bindings"][0]["n"]["value"]
+            .as_str()
+            .unwrap()
+            .parse::<u64>()
+            .unwrap()
+    };
+    let graph_of = "SELECT ?g WHERE { GRAPH ?g { ?t <http://www.w3.org/2000/01/rdf-schema#label> \"Undistort(cam1)\" } }";
+    let v = api
+        .get(&format!("/sparql?query={}", encode(graph_of)))
+        .await
+        .expect(200)
+        .json();
+    let graph = v["results"]["bindings"][0]["g"]["value"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let all = "SELECT (COUNT(*) AS ?n) WHERE { ?s ?p ?o }";
+    let union = count(api.get(&format!("/sparql?query={}", encode(all))).await);
+    let none = count(
+        api.get(&format!(
+            "/sparql?query={}&default-graph-uri=urn:none",
+            encode(all)
+        ))
+        .await,
+    );
+    let spec = count(
+        api.get(&format!(
+            "/sparql?query={}&default-graph-uri={}",
+            encode(all),
+            encode(&graph)
+        ))
+        .await,
+    );
+    assert_eq!(none, 0);
+    assert!(0 < spec && spec < union, "{spec} of {union}");
+    // Two default graphs merge; named graphs are only those named.
+    let both = count(
+        api.get(&format!(
+            "/sparql?query={}&default-graph-uri={}&default-graph-uri=urn:none",
+            encode(all),
+            encode(&graph)
+        ))
+        .await,
+    );
+    assert_eq!(both, spec);
+    let named = "SELECT (COUNT(DISTINCT ?g) AS ?n) WHERE { GRAPH ?g { ?s ?p ?o } }";
+    let one = count(
+        api.get(&format!(
+            "/sparql?query={}&named-graph-uri={}",
+            encode(named),
+            encode(&graph)
+        ))
+        .await,
+    );
+    assert_eq!(one, 1);
+    // The same as a form, and with the query as the body (graphs in the URL).
+    let form = format!("query={}&default-graph-uri=urn:none", encode(all));
+    assert_eq!(
+        count(
+            api.post("/sparql", "application/x-www-form-urlencoded", form)
+                .await
+        ),
+        0
+    );
+    assert_eq!(
+        count(
+            api.post(
+                "/sparql?default-graph-uri=urn:none",
+                "application/sparql-query",
+                all
+            )
+            .await
+        ),
+        0
+    );
+    api.get(&format!(
+        "/sparql?query={}&default-graph-uri=not%20an%20iri",
+        encode(all)
+    ))
+    .await
+    .expect_error(400);
+}
+
 #[tokio::test]
 async fn sparql_result_formats_by_accept() {
     let api = api_with_undistort().await;

@@ -486,6 +486,26 @@ impl ParsedQuery {
         self.memory = Some(bytes);
         self
     }
+
+    /// The dataset the SPARQL 1.1 Protocol's `default-graph-uri` and `named-graph-uri` give:
+    /// when either is given, the default graph is the merge of the `default` graphs (empty
+    /// if none) and the named graphs are the `named` ones (none if none), whatever the query's
+    /// `FROM` and `FROM NAMED` say (the protocol's parameters win). Neither given: the
+    /// query's own dataset, else the union of every graph.
+    #[must_use]
+    pub fn with_protocol_dataset(
+        mut self,
+        default: Vec<oxigraph::model::NamedNode>,
+        named: Vec<oxigraph::model::NamedNode>,
+    ) -> Self {
+        if default.is_empty() && named.is_empty() {
+            return self;
+        }
+        let dataset = self.prepared.dataset_mut();
+        dataset.set_default_graph(default.into_iter().map(Into::into).collect());
+        dataset.set_available_named_graphs(named.into_iter().map(Into::into).collect());
+        self
+    }
 }
 
 /// Extracts `line:column` from a peg error message such as `error at 1:8: expected ...`.

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use axum::Router;
 use axum::body::Bytes;
-use axum::extract::{Query, State};
+use axum::extract::{RawQuery, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::Response;
 use axum::routing::get;
@@ -34,6 +34,50 @@ pub struct SparqlParams {
     pub query: Option<String>,
     /// An update: always refused here (403).
     pub update: Option<String>,
+    /// The protocol's `default-graph-uri` (repeatable): the graphs whose merge is the
+    /// default graph.
+    #[serde(rename = "default-graph-uri", default)]
+    #[param(rename = "default-graph-uri")]
+    #[schema(rename = "default-graph-uri")]
+    pub default_graph_uri: Vec<String>,
+    /// The protocol's `named-graph-uri` (repeatable): the named graphs.
+    #[serde(rename = "named-graph-uri", default)]
+    #[param(rename = "named-graph-uri")]
+    #[schema(rename = "named-graph-uri")]
+    pub named_graph_uri: Vec<String>,
+}
+
+impl SparqlParams {
+    /// Reads the protocol's parameters from a query string or a form body, taking every
+    /// `default-graph-uri` and `named-graph-uri` (they repeat) and ignoring unknown ones.
+    fn from_pairs(text: &[u8]) -> Result<Self, ApiError> {
+        let pairs: Vec<(String, String)> = serde_urlencoded::from_bytes(text)
+            .map_err(|e| ApiError::bad_request(format!("malformed parameters: {e}")))?;
+        let mut params = Self::default();
+        for (key, value) in pairs {
+            match key.as_str() {
+                "query" => params.query = Some(value),
+                "update" => params.update = Some(value),
+                "default-graph-uri" => params.default_graph_uri.push(value),
+                "named-graph-uri" => params.named_graph_uri.push(value),
+                _ => {}
+            }
+        }
+        Ok(params)
+    }
+
+    /// The dataset's graphs as IRIs; one that is no IRI is 400.
+    fn graphs(
+        uris: &[String],
+        what: &str,
+    ) -> Result<Vec<dyknow_store::oxigraph::model::NamedNode>, ApiError> {
+        uris.iter()
+            .map(|u| {
+                dyknow_store::oxigraph::model::NamedNode::new(u.as_str())
+                    .map_err(|e| ApiError::bad_request(format!("{what} {u:?} is not an IRI: {e}")))
+            })
+            .collect()
+    }
 }
 
 const SOLUTION_TYPES: [&str; 6] = [
@@ -108,7 +152,9 @@ async fn answer(
     let query = params
         .query
         .ok_or_else(|| ApiError::bad_request("no query: pass it as ?query=, as form field query=, or as an application/sparql-query body"))?;
-    let mut parsed = ParsedQuery::parse(&query)?;
+    let default = SparqlParams::graphs(&params.default_graph_uri, "default-graph-uri")?;
+    let named = SparqlParams::graphs(&params.named_graph_uri, "named-graph-uri")?;
+    let mut parsed = ParsedQuery::parse(&query)?.with_protocol_dataset(default, named);
     if let Some(bytes) = state.config.query_memory {
         parsed = parsed.with_memory_limit(bytes);
     }
@@ -189,8 +235,9 @@ async fn answer(
 pub async fn sparql_get(
     State(state): State<AppState>,
     headers: HeaderMap,
-    Query(params): Query<SparqlParams>,
+    RawQuery(raw): RawQuery,
 ) -> Result<Response, ApiError> {
+    let params = SparqlParams::from_pairs(raw.unwrap_or_default().as_bytes())?;
     answer(state, headers, params).await
 }
 
@@ -204,18 +251,20 @@ pub async fn sparql_get(
 pub async fn sparql_post(
     State(state): State<AppState>,
     headers: HeaderMap,
+    RawQuery(raw): RawQuery,
     body: Bytes,
 ) -> Result<Response, ApiError> {
     let media = content_type(&headers);
     let params = match media.as_deref() {
-        Some("application/x-www-form-urlencoded") => serde_urlencoded::from_bytes(&body)
-            .map_err(|e| ApiError::bad_request(format!("malformed form body: {e}")))?,
+        Some("application/x-www-form-urlencoded") => SparqlParams::from_pairs(&body)?,
+        // The query is the body; the dataset's graphs come in the URL (the protocol's
+        // "query via POST directly").
         Some("application/sparql-query") => SparqlParams {
             query: Some(
                 String::from_utf8(body.to_vec())
                     .map_err(|_| ApiError::bad_request("the query is not UTF-8"))?,
             ),
-            update: None,
+            ..SparqlParams::from_pairs(raw.unwrap_or_default().as_bytes())?
         },
         Some("application/sparql-update") => return Err(SparqlQueryError::UpdateRefused.into()),
         other => {
