@@ -1364,6 +1364,16 @@ async fn malformed_turtle_is_400_with_line_and_column() {
     api.assert_healthy().await;
 }
 
+/// A UTF-8 byte order mark before a Turtle body is no syntax error (it was 400).
+#[tokio::test]
+async fn a_byte_order_mark_is_taken() {
+    let api = Api::new();
+    let mut body = b"\xEF\xBB\xBF".to_vec();
+    body.extend_from_slice(source_spec("bom").as_bytes());
+    api.post("/transformations", TURTLE, body).await.expect(201);
+    assert_eq!(api.labels("/transformations").await, ["bom"]);
+}
+
 #[tokio::test]
 async fn non_utf8_body_is_400() {
     let api = Api::new();

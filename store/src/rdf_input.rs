@@ -55,6 +55,9 @@ impl InputFormat {
 /// blank nodes by IRIs; vocabulary goes through [`fresh_blank_nodes`] before it is stored).
 /// Quads in named graphs are refused: specs are graphs of their own.
 pub fn parse_triples(body: &[u8], format: InputFormat) -> Result<Vec<Triple>, SpecParseError> {
+    // A UTF-8 byte order mark (editors on Windows write one) is no syntax error: RFC 3629 lets a
+    // reader drop it, and line and column positions are unchanged by it.
+    let body = body.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(body);
     let parser = RdfParser::from_format(format.rdf_format()).rename_blank_nodes();
     let mut triples = Vec::new();
     for quad in parser.for_slice(body) {
