@@ -367,7 +367,15 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
             let mut r = agent(Some(Duration::from_secs(120)))
                 .get(client.url(&format!("/groups/{}/trace", enc(&label))))
                 .call()
-                .map_err(|e| Failure(2, e.to_string()))?;
+                .map_err(|e| {
+                    Failure(
+                        2,
+                        format!(
+                            "cannot reach {} ({e}); is `dyknow serve` running?",
+                            client.http.url
+                        ),
+                    )
+                })?;
             let text = r
                 .body_mut()
                 .with_config()

@@ -65,10 +65,13 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
 /// A 400 whose `details` give where in the body `e` is (1-based, as the contract's syntax
 /// errors are).
 pub(crate) fn at(e: &serde_json::Error, message: String) -> ApiError {
-    ApiError::bad_request(message).with_details(vec![
-        // serde_json counts columns from 1, but says 0 for an error before the first
-        // character (an empty body): positions here are 1-based.
-        json!({"line": e.line().max(1), "column": e.column().max(1), "message": e.to_string()}),
+    // serde_json counts columns from 1, but says 0 for an error before the first character
+    // (an empty body): positions here are 1-based, in `details` and in the words alike.
+    let (line, column) = (e.line().max(1), e.column().max(1));
+    let said = format!("at line {} column {}", e.line(), e.column());
+    let located = format!("at line {line} column {column}");
+    ApiError::bad_request(message.replace(&said, &located)).with_details(vec![
+        json!({"line": line, "column": column, "message": e.to_string().replace(&said, &located)}),
     ])
 }
 
@@ -175,6 +178,9 @@ mod tests {
             ),
             (Some(1), Some(1))
         );
+        // And the words say the same (they said column 0).
+        assert!(e.message.contains("line 1 column 1"), "{}", e.message);
+        assert!(!e.message.contains("column 0"), "{}", e.message);
         // A field of the wrong type, or one the body may not have: where it is.
         for (body, line) in [
             ("{\n  \"name\": 7\n}", 2),

@@ -1102,3 +1102,29 @@ fn the_group_command_line() {
     assert_eq!(err.trim(), "dyknow: --domain UAV: expected NAME=a,b,...");
     assert_eq!(cli(&["list"]).1, "");
 }
+
+/// With no service at the URL, every `dyknow group` subcommand says which URL it could not
+/// reach and exits 2 (`group trace` said only "io: Connection refused").
+#[test]
+fn the_group_command_line_names_a_url_it_cannot_reach() {
+    let url = format!("http://127.0.0.1:{}", free_port());
+    for args in [
+        &["list"][..],
+        &["show", "g"],
+        &["trace", "g"],
+        &["create", "--formula", "p"],
+    ] {
+        let out = Command::new(BIN)
+            .arg("group")
+            .args(args)
+            .args(["--url", &url])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains(&format!("cannot reach {url}")),
+            "{args:?}: {stderr}"
+        );
+    }
+}
