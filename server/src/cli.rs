@@ -1089,9 +1089,33 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
                 tracing::debug!("TCP_NODELAY not set on a connection: {e}");
             }
         });
-        axum::serve(listener, app(state))
-            .with_graceful_shutdown(shutdown_signal())
-            .await?;
+        // A graceful shutdown waits for every connection to close, and event streams
+        // (`/changesets/stream`, a group's verdicts) never do on their own: with a client
+        // watching, the service did not stop. Connections still open `CLOSE_GRACE` after the
+        // signal are closed.
+        const CLOSE_GRACE: Duration = Duration::from_secs(2);
+        let (signalled, on_signal) = tokio::sync::oneshot::channel::<()>();
+        let serve = axum::serve(listener, app(state))
+            .with_graceful_shutdown(async move {
+                shutdown_signal().await;
+                let _ = signalled.send(());
+            })
+            .into_future();
+        tokio::pin!(serve);
+        tokio::select! {
+            served = &mut serve => served?,
+            () = async move {
+                match on_signal.await {
+                    Ok(()) => tokio::time::sleep(CLOSE_GRACE).await,
+                    Err(_) => std::future::pending().await,
+                }
+            } => {
+                tracing::info!(
+                    "closing the connections still open {} s after the signal (event streams)",
+                    CLOSE_GRACE.as_secs()
+                );
+            }
+        }
         // The costs the executors measured since the last batch are written before the
         // runtime (and with it the forwarding) stops.
         if let Some((stop, forwarding)) = forward {

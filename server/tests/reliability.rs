@@ -285,6 +285,41 @@ fn a_graceful_stop_keeps_the_model_and_the_restart_respawns_the_cus_under_their_
     });
 }
 
+/// A client watching an event stream does not keep the service from stopping: a graceful
+/// stop waits for open connections, and an event stream never closes on its own (with a
+/// watcher, SIGTERM left the service running for minutes). Connections still open 2 s after
+/// the signal are closed.
+#[test]
+fn a_watched_event_stream_does_not_hold_up_a_graceful_stop() {
+    let service = Service::start(&[]);
+    let url = format!("{}/changesets/stream", service.url);
+    let watcher = std::thread::spawn(move || {
+        let mut answer = agent().get(&url).call().unwrap();
+        let mut text = String::new();
+        // Ends when the service closes the stream (or its connection).
+        let _ = std::io::Read::read_to_string(&mut answer.body_mut().as_reader(), &mut text);
+    });
+    // The stream is open once its answer has started (the metrics count it then).
+    eventually("the stream to be open", Duration::from_secs(30), || {
+        let metrics = agent()
+            .get(&format!("{}/metrics", service.url))
+            .call()
+            .ok()?
+            .body_mut()
+            .read_to_string()
+            .ok()?;
+        metrics
+            .contains("route=\"/changesets/stream\"")
+            .then_some(())
+    });
+    let signalled = Instant::now();
+    let status = service.sigterm();
+    let took = signalled.elapsed();
+    assert!(status.success(), "{status}");
+    assert!(took < Duration::from_secs(10), "stopped after {took:?}");
+    watcher.join().unwrap();
+}
+
 #[test]
 fn a_manager_killed_while_applying_a_change_set_is_reconciled_on_restart() {
     let dir = tempfile::tempdir().unwrap();
