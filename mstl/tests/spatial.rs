@@ -172,21 +172,16 @@ fn landmarks_relate_states_any_distance_apart() {
         "{\"t\": 1}\n",
         "{\"t\": 2, \"spatial\": [[\"x\", \"a\", [\"NTPP\"]]]}\n",
     );
-    let formulas: Vec<_> = [
-        "next^2 EQ(prev^2 a, a)",
-        "next^2 NTPP(a, b)",
-        "next^2 DC(prev^2 x, x)",
-        "next^2 EQ(prev^2 x, x)",
-        "next^2 DC(prev x, x)",
-    ]
-    .iter()
-    .map(|f| parse(f).unwrap())
-    .collect();
-    let mut out = Vec::new();
-    let verdicts = check(&formulas, trace.as_bytes(), Header::default(), &mut out).unwrap();
-    let truth: Vec<Truth> = (0..formulas.len())
-        .map(|i| verdicts.iter().find(|v| v.formula == i).unwrap().truth)
-        .collect();
+    let truth = truths(
+        &[
+            "next^2 EQ(prev^2 a, a)",
+            "next^2 NTPP(a, b)",
+            "next^2 DC(prev^2 x, x)",
+            "next^2 EQ(prev^2 x, x)",
+            "next^2 DC(prev x, x)",
+        ],
+        trace,
+    );
     // x was outside b and is now inside a, which is inside b: it moved, DC to where it was.
     assert_eq!(
         truth,
@@ -206,23 +201,18 @@ fn landmarks_relate_states_any_distance_apart() {
 fn a_spatial_key_answers_for_the_converse_atom_too() {
     let trace =
         "{\"t\": 0, \"state\": {\"PO(a,b)\": true, \"TPP(c,d)\": true, \"DC(e,f)\": false}}\n";
-    let formulas: Vec<_> = [
-        "PO(a, b)",
-        "PO(b, a)",
-        "TPPI(d, c)",
-        "TPP^-1(d, c)",
-        "TPP(d, c)",
-        "DC(f, e)",
-        "EC(b, a)",
-    ]
-    .iter()
-    .map(|f| parse(f).unwrap())
-    .collect();
-    let mut out = Vec::new();
-    let verdicts = check(&formulas, trace.as_bytes(), Header::default(), &mut out).unwrap();
-    let truth: Vec<Truth> = (0..formulas.len())
-        .map(|i| verdicts.iter().find(|v| v.formula == i).unwrap().truth)
-        .collect();
+    let truth = truths(
+        &[
+            "PO(a, b)",
+            "PO(b, a)",
+            "TPPI(d, c)",
+            "TPP^-1(d, c)",
+            "TPP(d, c)",
+            "DC(f, e)",
+            "EC(b, a)",
+        ],
+        trace,
+    );
     use Truth::{False, True, Unknown};
     // TPP(d, c) is not the converse of TPP(c, d): the key says nothing of it.
     assert_eq!(truth, [True, True, True, True, Unknown, False, Unknown]);
@@ -311,4 +301,18 @@ fn bad_input_is_refused_with_where_and_why() {
     assert_eq!(dyknow_mstl::ground_instances(&idle[0], &ten.domains), 18);
     check(&idle, &b"{\"t\": 0}\n"[..], ten, &mut Vec::new()).unwrap();
     assert_eq!(MAX_GROUND_ATOMS, 1_000_000);
+}
+
+/// Each formula's verdict over `trace` (a `dyknow check` trace), in the formulas' order.
+#[expect(
+    clippy::unwrap_used,
+    reason = "test helper: a formula or trace that fails is a failed test"
+)]
+fn truths(formulas: &[&str], trace: &str) -> Vec<Truth> {
+    let formulas: Vec<_> = formulas.iter().map(|f| parse(f).unwrap()).collect();
+    let mut out = Vec::new();
+    let verdicts = check(&formulas, trace.as_bytes(), Header::default(), &mut out).unwrap();
+    (0..formulas.len())
+        .map(|i| verdicts.iter().find(|v| v.formula == i).unwrap().truth)
+        .collect()
 }
