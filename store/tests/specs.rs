@@ -933,6 +933,29 @@ fn rejects_invalid_costs() {
     );
 }
 
+/// Which implementation runs must not be a guess: two types, sources or executors are
+/// refused (two types were accepted and one picked).
+#[test]
+fn rejects_ambiguous_implementations() {
+    for (extra, needle) in [
+        (
+            "dkros:hasType \"builtin\" , \"process\"",
+            "at most 1 dkros:hasType",
+        ),
+        ("dkros:hasSource \"a\" , \"b\"", "at most 1 dkros:hasSource"),
+        (
+            "dkros:hasExecutor \"a\" , \"b\"",
+            "at most 1 dkros:hasExecutor",
+        ),
+    ] {
+        assert_rejected(
+            &tf_with(&format!("{OUT_PORT} ; {extra}")),
+            SpecKind::Transformation,
+            needle,
+        );
+    }
+}
+
 #[test]
 fn rejects_ambiguous_cost_models() {
     assert_rejected(

@@ -743,6 +743,10 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             self.violation("a transformation has at most 1 dkros:hasSource", &root);
         }
         let (types, _) = self.index.literals(&root, &[dkros::HAS_TYPE]);
+        if types.len() > 1 {
+            // One was picked silently: which implementation runs must not be a guess.
+            self.violation("a transformation has at most 1 dkros:hasType", &root);
+        }
         let (executors, _) = self.index.literals(&root, &[dkros::HAS_EXECUTOR]);
         if executors.len() > 1 {
             self.violation("a transformation has at most 1 dkros:hasExecutor", &root);
