@@ -1403,6 +1403,19 @@ async fn non_utf8_body_is_400() {
     )
     .await
     .expect_error(400);
+    // Percent-encoded bytes that are not UTF-8 are refused too (they were decoded lossily and
+    // another query ran), in the URL and in a form.
+    api.get("/sparql?query=ASK%20%7B%7D%FF")
+        .await
+        .expect_error(400);
+    api.post(
+        "/sparql",
+        "application/x-www-form-urlencoded",
+        "query=ASK%20%7B%7D%FF",
+    )
+    .await
+    .expect_error(400);
+    api.get("/sparql?query=ASK+%7B%7D").await.expect(200);
     assert_eq!(api.snapshot().await, before);
     api.assert_healthy().await;
 }
@@ -1895,6 +1908,14 @@ async fn ontology_violations_are_422_and_nothing_is_written() {
             .any(|n| n == "http://example.org/env#cu1"),
         "{d}"
     );
+    // dyknow:similarTo a literal: no concept, silently useless before.
+    expect_422(
+        &api,
+        "/ontology",
+        format!("{PREFIXES_TTL} ex:A dyknow:similarTo \"B\" ."),
+        "similarTo relates tag concepts",
+    )
+    .await;
     // A port that is both in and out (the spec validator names it before the reasoner would).
     expect_422(
         &api,

@@ -51,10 +51,20 @@ impl SparqlParams {
     /// Reads the protocol's parameters from a query string or a form body, taking every
     /// `default-graph-uri` and `named-graph-uri` (they repeat) and ignoring unknown ones.
     fn from_pairs(text: &[u8]) -> Result<Self, ApiError> {
-        let pairs: Vec<(String, String)> = serde_urlencoded::from_bytes(text)
-            .map_err(|e| ApiError::bad_request(format!("malformed parameters: {e}")))?;
+        // Decoded strictly: `%FF` is no character (form decoding would make it U+FFFD and run
+        // another query than the one sent).
+        let decode = |part: &str| {
+            percent_encoding::percent_decode_str(&part.replace('+', " "))
+                .decode_utf8()
+                .map(std::borrow::Cow::into_owned)
+                .map_err(|_| ApiError::bad_request("a parameter is not UTF-8 once percent-decoded"))
+        };
+        let text = std::str::from_utf8(text)
+            .map_err(|_| ApiError::bad_request("the parameters are not UTF-8"))?;
         let mut params = Self::default();
-        for (key, value) in pairs {
+        for pair in text.split('&').filter(|p| !p.is_empty()) {
+            let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
+            let (key, value) = (decode(key)?, decode(value)?);
             match key.as_str() {
                 "query" => params.query = Some(value),
                 "update" => params.update = Some(value),

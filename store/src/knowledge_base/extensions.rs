@@ -114,6 +114,23 @@ impl KnowledgeBase {
             )])
             .into());
         }
+        // `dyknow:similarTo` relates tag concepts: a literal is no concept, and the candidate
+        // table would have ignored the statement without a word.
+        let literal_similar: Vec<Violation> = triples
+            .iter()
+            .filter(|t| {
+                t.predicate.as_ref() == dyknow::SIMILAR_TO && matches!(t.object, Term::Literal(_))
+            })
+            .map(|t| {
+                Violation::new(
+                    "dyknow:similarTo relates tag concepts (IRIs), not literals",
+                    t.to_string(),
+                )
+            })
+            .collect();
+        if !literal_similar.is_empty() {
+            return Err(SpecValidationError(literal_similar).into());
+        }
         let graph = extension_graph(fnv1a(body));
         let mut reasoner = self.lock();
         let triples = fresh_blank_nodes(&triples);
