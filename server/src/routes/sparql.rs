@@ -132,22 +132,36 @@ fn to_owl(ntriples: &[u8], syntax: OwlSyntax) -> Result<(Vec<u8>, usize), ApiErr
     Ok((owl.text.into_bytes(), owl.unparsed_triples))
 }
 
-fn result_format(form: QueryForm, headers: &HeaderMap) -> Result<ResultFormat, ApiError> {
+/// The answer's format, and the media type to label it with when the client asked for plain
+/// `application/json` or `application/xml` (the results are JSON or XML, and the label is
+/// what it accepts); else the format's own.
+fn result_format(
+    form: QueryForm,
+    headers: &HeaderMap,
+) -> Result<(ResultFormat, Option<&'static str>), ApiError> {
     Ok(match form {
-        QueryForm::Solutions => ResultFormat::Results(match negotiate(headers, &SOLUTION_TYPES)? {
-            "application/sparql-results+xml" | "application/xml" => QueryResultsFormat::Xml,
-            "text/csv" => QueryResultsFormat::Csv,
-            "text/tab-separated-values" => QueryResultsFormat::Tsv,
-            _ => QueryResultsFormat::Json,
-        }),
-        QueryForm::Graph => ResultFormat::Rdf(match negotiate(headers, &GRAPH_TYPES)? {
-            "application/n-triples" => RdfFormat::NTriples,
-            "application/rdf+xml" => RdfFormat::RdfXml,
-            "application/ld+json" => RdfFormat::JsonLd {
-                profile: Default::default(),
-            },
-            _ => RdfFormat::Turtle,
-        }),
+        QueryForm::Solutions => {
+            let asked = negotiate(headers, &SOLUTION_TYPES)?;
+            let format = match asked {
+                "application/sparql-results+xml" | "application/xml" => QueryResultsFormat::Xml,
+                "text/csv" => QueryResultsFormat::Csv,
+                "text/tab-separated-values" => QueryResultsFormat::Tsv,
+                _ => QueryResultsFormat::Json,
+            };
+            let plain = matches!(asked, "application/json" | "application/xml").then_some(asked);
+            (ResultFormat::Results(format), plain)
+        }
+        QueryForm::Graph => (
+            ResultFormat::Rdf(match negotiate(headers, &GRAPH_TYPES)? {
+                "application/n-triples" => RdfFormat::NTriples,
+                "application/rdf+xml" => RdfFormat::RdfXml,
+                "application/ld+json" => RdfFormat::JsonLd {
+                    profile: Default::default(),
+                },
+                _ => RdfFormat::Turtle,
+            }),
+            None,
+        ),
     })
 }
 
@@ -168,10 +182,9 @@ async fn answer(
     if let Some(bytes) = state.config.query_memory {
         parsed = parsed.with_memory_limit(bytes);
     }
-    let parsed_form = parsed.form();
-    let owl = owl_syntax(parsed_form, &headers)?;
-    let format = match owl {
-        Some(_) => ResultFormat::Rdf(RdfFormat::NTriples),
+    let owl = owl_syntax(parsed.form(), &headers)?;
+    let (format, label) = match owl {
+        Some(_) => (ResultFormat::Rdf(RdfFormat::NTriples), None),
         None => result_format(parsed.form(), &headers)?,
     };
     let timeout = state.config.query_timeout;
@@ -218,16 +231,7 @@ async fn answer(
     .await?;
     drop(cancel);
     let (media_type, body, unparsed) = answer;
-    // A client that asked for plain `application/json` (or `application/xml`) gets the
-    // results labelled so: they are JSON (XML), and the answer's type is what it accepts.
-    let media_type = match parsed_form {
-        QueryForm::Solutions => match negotiate(&headers, &SOLUTION_TYPES)? {
-            plain @ ("application/json" | "application/xml") => plain,
-            _ => media_type,
-        },
-        QueryForm::Graph => media_type,
-    };
-    let mut response = typed(StatusCode::OK, media_type, body);
+    let mut response = typed(StatusCode::OK, label.unwrap_or(media_type), body);
     if let Some(n) = unparsed {
         // As `GET /model` says it: triples no OWL construct holds.
         response.headers_mut().insert(
