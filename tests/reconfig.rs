@@ -500,6 +500,39 @@ async fn bad_input_changes_nothing() {
     )
     .await
     .expect_error(422);
+    // A field that does not fit is named with its line and column, as on every JSON endpoint
+    // (the body was read as a value first, and the position was lost).
+    for (body, message) in [
+        (
+            "{\"kind\": \"cu-crashed\",\n \"cu\": 5}",
+            "expected a string",
+        ),
+        ("{\"kind\": \"cu-crashed\"}", "missing field `cu`"),
+        (
+            "{\"kind\": \"cu-crashed\", \"cu\": \"x\", \"y\": 1}",
+            "unknown field `y`",
+        ),
+    ] {
+        let details = api
+            .post("/perturbations", "application/json", body.to_owned())
+            .await
+            .expect_error(400);
+        assert_eq!(details.len(), 1, "{body}: {details:?}");
+        assert!(
+            details[0]["line"].as_u64().is_some_and(|l| l >= 1),
+            "{details:?}"
+        );
+        assert!(
+            details[0]["column"].as_u64().is_some_and(|c| c >= 1),
+            "{details:?}"
+        );
+        assert!(
+            details[0]["message"]
+                .as_str()
+                .is_some_and(|m| m.contains(message)),
+            "{body}: {details:?}"
+        );
+    }
     api.post(
         "/cus",
         "application/json",

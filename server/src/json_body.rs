@@ -31,13 +31,45 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
     type Rejection = ApiError;
 
     async fn from_request(request: Request, state: &S) -> Result<Self, ApiError> {
+        JsonObject::from_request(request, state)
+            .await?
+            .read()
+            .map(Self)
+    }
+}
+
+/// A JSON object body, kept as its text too: a route that must look at a field before it
+/// knows the shape (`POST /perturbations` answers an unknown `kind` with 422) still reads the
+/// body with [`JsonObject::read`], so a field of the wrong type is named with its line and
+/// column as [`JsonBody`] names it.
+#[derive(Debug)]
+pub struct JsonObject {
+    /// The body as a JSON object.
+    pub value: Value,
+    text: Bytes,
+}
+
+impl JsonObject {
+    /// The body read as `T`: 400 with the line and column of the first field that does not fit.
+    pub fn read<T: DeserializeOwned>(&self) -> Result<T, ApiError> {
+        // Read again from the text, not the value: a field of the wrong type or an unknown
+        // one is then named with its line and column too.
+        serde_json::from_slice(&self.text)
+            .map_err(|e| at(&e, format!("the body does not fit: {e}")))
+    }
+}
+
+impl<S: Send + Sync> FromRequest<S> for JsonObject {
+    type Rejection = ApiError;
+
+    async fn from_request(request: Request, state: &S) -> Result<Self, ApiError> {
         if !content_type(request.headers()).is_some_and(|m| is_json(&m)) {
             return Err(ApiError::new(
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
                 "the body must be declared as JSON: use Content-Type application/json",
             ));
         }
-        let body = Bytes::from_request(request, state).await.map_err(|e| {
+        let text = Bytes::from_request(request, state).await.map_err(|e| {
             if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
                 ApiError::new(
                     StatusCode::PAYLOAD_TOO_LARGE,
@@ -47,18 +79,14 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
                 ApiError::new(e.status(), e.body_text())
             }
         })?;
-        let value: Value = serde_json::from_slice(&body)
+        let value: Value = serde_json::from_slice(&text)
             .map_err(|e| at(&e, format!("the body is not JSON: {e}")))?;
         if !value.is_object() {
             return Err(ApiError::bad_request(
                 "the body must be a JSON object (see /openapi.json)",
             ));
         }
-        // Read again from the text, not the value: a field of the wrong type or an unknown
-        // one is then named with its line and column too.
-        serde_json::from_slice(&body)
-            .map(Self)
-            .map_err(|e| at(&e, format!("the body does not fit: {e}")))
+        Ok(Self { value, text })
     }
 }
 

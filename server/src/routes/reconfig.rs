@@ -17,7 +17,7 @@ use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking, in_turn, typed};
 use crate::error::ApiError;
-use crate::json_body::JsonBody;
+use crate::json_body::{JsonBody, JsonObject};
 use crate::negotiate::negotiate;
 
 pub(crate) fn router() -> Router<AppState> {
@@ -350,9 +350,10 @@ pub enum PerturbationKind {
     responses((status = 202), (status = 400, body = crate::error::ErrorBody), (status = 404, body = crate::error::ErrorBody), (status = 422, body = crate::error::ErrorBody)))]
 pub async fn post_perturbation(
     State(state): State<AppState>,
-    JsonBody(body): JsonBody<serde_json::Value>,
+    body: JsonObject,
 ) -> Result<StatusCode, ApiError> {
     let kind = body
+        .value
         .get("kind")
         .and_then(serde_json::Value::as_str)
         .unwrap_or_default();
@@ -370,8 +371,7 @@ pub async fn post_perturbation(
             ),
         ));
     }
-    let perturbation: Perturbation = serde_json::from_value(body)
-        .map_err(|e| ApiError::bad_request(format!("not a perturbation: {e}")))?;
+    let perturbation: Perturbation = body.read()?;
     let s = state.clone();
     blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::ACCEPTED)
