@@ -45,6 +45,6 @@ pub use process::{ProcessEnv, client_config, client_config_file, router_config, 
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};
 pub use transformation::{Collect, NodeHandle, Outputs, TimerId, Transformation};
-pub use unit::{CrashHook, Started, Unit, UnitSpec, panic_message};
+pub use unit::{CrashHook, INBOX_CAPACITY, Started, Unit, UnitSpec, panic_message};
 
 pub use zenoh;

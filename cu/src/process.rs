@@ -222,6 +222,7 @@ fn serve<T: Transformation>(
         })
         .wait()?;
     let crash_tx = exit_tx.clone();
+    crate::unit::one_cu_process();
     let started = Unit::start(
         &session,
         &env.namespace,
