@@ -427,14 +427,17 @@ impl<V: Clone> Synchroniser<V> {
         if matches!(self.policy, Policy::Event { .. }) {
             let d = self.policy.max_delay();
             while let Some(t) = self.first_pending() {
-                // Every stream has shown a sample at or after t (t is the earliest pending),
-                // or the delay is over.
+                // Not before the wall clock reaches t (a sample stamped ahead of it, by a
+                // clock that runs fast, waits: emitted at once, its state would make every
+                // sample up to that time late and stop the group); then once every stream
+                // has shown a sample at or after t (t is the earliest pending), or the delay
+                // is over.
                 let all = self
                     .streams
                     .iter()
                     .filter(|s| s.active)
                     .all(|s| !s.pending.is_empty());
-                if !(all || now >= t.saturating_add(d)) {
+                if now < t || !(all || now >= t.saturating_add(d)) {
                     break;
                 }
                 out.push(self.emit_event(t));

@@ -248,6 +248,32 @@ fn event_makes_a_state_at_every_sample_time_with_the_latest_of_every_stream() {
 }
 
 #[test]
+fn event_emits_no_state_before_its_time_and_a_sample_from_the_future_stops_nothing() {
+    // One stream, as a group over one symbol: a sample stamped ten years ahead (a robot whose
+    // clock runs fast) was a state at once; every later sample was late and no state came
+    // again.
+    let mut s = Synchroniser::new(Policy::Event { max_delay_ms: None }, 1);
+    s.start(1_000);
+    assert_eq!(s.offer(0, 1_000, 1, 1_000), vec![st(1_000, &[Some(1)])]);
+    let ahead = 1_000 + 315_360_000_000;
+    assert!(
+        s.offer(0, ahead, 0, 1_005).is_empty(),
+        "not before its time"
+    );
+    assert_eq!(s.offer(0, 1_100, 2, 1_100), vec![st(1_100, &[Some(2)])]);
+    assert_eq!(s.offer(0, 1_200, 3, 1_200), vec![st(1_200, &[Some(3)])]);
+    assert_eq!(s.stats(0).late, 0);
+    assert!(s.poll(ahead - 1).is_empty());
+    assert_eq!(s.poll(ahead), vec![st(ahead, &[Some(0)])], "at its time");
+    // Two streams: a state whose samples are all in is still not emitted early.
+    let mut s = Synchroniser::new(Policy::Event { max_delay_ms: None }, 2);
+    s.start(0);
+    assert!(s.offer(0, 500, 1, 100).is_empty());
+    assert!(s.offer(1, 500, 2, 101).is_empty());
+    assert_eq!(s.poll(500), vec![st(500, &[Some(1), Some(2)])]);
+}
+
+#[test]
 fn event_counts_a_stream_without_a_value_yet_as_missing() {
     let mut s = Synchroniser::new(Policy::Event { max_delay_ms: None }, 2);
     s.start(0);
