@@ -174,12 +174,18 @@ pub fn check_name(what: &str, name: &str) -> Result<(), SpecError> {
     Ok(())
 }
 
-/// Checks a group label: also no '/' (it is a path segment).
+/// Checks a group label: also no '/', and not `.` or `..` (it is a path segment, and clients
+/// resolve those before they send a request: `/groups/..` becomes `/`).
 pub fn check_label(label: &str) -> Result<(), SpecError> {
     check_name("label", label)?;
     if label.contains('/') {
         return Err(SpecError::Invalid(format!(
             "a group label cannot hold '/': {label:?}"
+        )));
+    }
+    if label == "." || label == ".." {
+        return Err(SpecError::Invalid(format!(
+            "a group label cannot be {label:?} (URLs resolve it away)"
         )));
     }
     Ok(())

@@ -730,6 +730,37 @@ fn bad_groups_are_refused_and_nothing_is_created() {
     assert!(targets(&service).contains_key("symbol:p"));
     // Another label with the same tag is the client's own.
     assert_eq!(post_target("mine").0, 201);
+    // A result channel that is a stream of the configuration is refused: verdict lines on a
+    // CU's input crashed it at every verdict (the engine's `ch-N` channels), and on a target's
+    // channel they mix with the target's stream.
+    for channel in ["/mine", "mine", "/dyknow/symbols/p", "ch-7", "/ch-1"] {
+        let (status, answer) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"label": "r", "formulas": ["q"], "result_channel": channel})),
+        );
+        assert_eq!(status, 422, "{channel}: {answer}");
+        assert!(
+            answer["error"].as_str().unwrap().contains("result_channel"),
+            "{answer}"
+        );
+    }
+    // Labels that URLs resolve away could not be reached (`/groups/..` is `/`).
+    for label in [".", ".."] {
+        let (status, answer) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"label": label, "formulas": ["q"]})),
+        );
+        assert_eq!(status, 422, "{label}: {answer}");
+    }
+    assert_eq!(
+        service.get("/groups").as_array().unwrap().len(),
+        1,
+        "nothing was created"
+    );
     assert_eq!(send(&service, "DELETE", "/targets/mine", None).0, 204);
     // Stop then start: 409.
     assert_eq!(send(&service, "POST", "/groups/g/stop", None).0, 200);

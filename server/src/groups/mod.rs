@@ -24,6 +24,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use dyknow_cu::zenoh::{self, Wait};
+use dyknow_engine::Channel;
 use dyknow_group::progression::read_state_line;
 use dyknow_group::spec::{self, Grounded, target_tag, unused_groundings};
 use dyknow_group::{
@@ -410,6 +411,7 @@ impl Groups {
                 SpecError::Invalid(format!("result_channel {result_channel:?}: {e}"))
             })?;
         }
+        self.check_result_channel(&result_channel)?;
         let header = TraceHeader {
             domains: spec.domains.clone(),
             landmarks: spec.landmarks.clone(),
@@ -814,6 +816,53 @@ impl Groups {
             }
         }
         out
+    }
+
+    /// Refuses a result channel that is a stream of the configuration: verdict lines written
+    /// on a CU's input crash it, and on a target's channel they mix with the stream the
+    /// target asked for. So not a channel a CU reads or writes now, nor a target's channel,
+    /// nor one of the channels the engine names (`ch-N`: a later review may wire CUs through
+    /// it), nor a symbol channel (`/dyknow/symbols/...`, groups' own targets).
+    fn check_result_channel(&self, channel: &str) -> Result<(), GroupError> {
+        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
+        let name = bare(channel);
+        let refuse = |why: String| -> Result<(), GroupError> {
+            Err(SpecError::Invalid(format!(
+                "result_channel {channel:?} {why}: verdicts would be written into that stream; \
+                 choose another channel"
+            ))
+            .into())
+        };
+        if name.starts_with("dyknow/symbols/") {
+            return refuse("is a symbol channel".into());
+        }
+        if Channel::from(name.as_str()).minted_number().is_some() {
+            return refuse("is a name the engine gives channels between CUs".into());
+        }
+        let environment = self
+            .lifecycle
+            .cus()
+            .map_err(|e| GroupError::Internal(e.to_string()))?;
+        for cu in environment.cus.values() {
+            let ports = cu.inputs.iter().chain(&cu.outputs);
+            for (port, bound) in ports {
+                if bound.as_ref().is_some_and(|c| bare(c.as_str()) == name) {
+                    return refuse(format!("is bound to port {port:?} of CU {}", cu.cid));
+                }
+            }
+        }
+        let targets = self
+            .kb
+            .specs(SpecKind::Target)
+            .map_err(|e| GroupError::Internal(e.to_string()))?;
+        for spec in targets {
+            if let Spec::Target(target) = spec
+                && bare(&target.channel) == name
+            {
+                return refuse(format!("is the channel of target {:?}", target.label));
+            }
+        }
+        Ok(())
     }
 
     /// Makes the group targets in the knowledge base match what the groups need: posts the
