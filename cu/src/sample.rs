@@ -7,13 +7,62 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-/// One sample of a stream.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// One sample of a stream. Read from a JSON object only: serde's derived reading of a struct
+/// would take an array `[t, value]` too, which the contract's sample is not.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Sample {
     /// When the value holds, ms since the Unix epoch, set by the producing CU.
     pub t: i64,
     /// The value.
     pub value: Value,
+}
+
+impl<'de> Deserialize<'de> for Sample {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Fields;
+        impl<'de> serde::de::Visitor<'de> for Fields {
+            type Value = Sample;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("an object {\"t\": integer, \"value\": any}")
+            }
+
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Sample, A::Error> {
+                use serde::de::Error;
+                let (mut t, mut value) = (None, None);
+                #[derive(Deserialize)]
+                #[serde(field_identifier, rename_all = "lowercase")]
+                enum Field {
+                    T,
+                    Value,
+                    #[serde(other)]
+                    Other,
+                }
+                while let Some(key) = map.next_key::<Field>()? {
+                    match key {
+                        Field::T if t.is_some() => return Err(A::Error::duplicate_field("t")),
+                        Field::T => t = Some(map.next_value::<i64>()?),
+                        Field::Value if value.is_some() => {
+                            return Err(A::Error::duplicate_field("value"));
+                        }
+                        Field::Value => value = Some(map.next_value::<Value>()?),
+                        // Readers ignore fields they do not know.
+                        Field::Other => {
+                            map.next_value::<serde::de::IgnoredAny>()?;
+                        }
+                    }
+                }
+                Ok(Sample {
+                    t: t.ok_or_else(|| A::Error::missing_field("t"))?,
+                    value: value.ok_or_else(|| A::Error::missing_field("value"))?,
+                })
+            }
+        }
+        deserializer.deserialize_map(Fields)
+    }
 }
 
 /// Why a payload is not a sample.
@@ -76,6 +125,10 @@ mod tests {
             b"{\"t\": 1.5, \"value\": 0}",
             b"{\"value\": 1}",
             b"[]",
+            // The array serde reads a struct from, field by field: not a sample.
+            b"[1, 2]",
+            b"[1700000000000, {\"a\": 1}]",
+            b"{\"t\": 1, \"t\": 2, \"value\": 0}",
             b"nope",
         ] {
             assert!(Sample::from_slice(bad).is_err(), "{bad:?}");
