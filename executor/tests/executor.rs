@@ -671,3 +671,29 @@ fn a_later_executor_of_a_name_steps_down_when_it_meets_an_earlier_one() {
     );
     assert_eq!(early.info().instance.as_ref(), Some(early.instance()));
 }
+
+/// `dyknow-cu --help` prints the usage and succeeds; no builtin, or an unknown one, is a usage
+/// error (64), as `dyknow cu` answers.
+#[test]
+fn dyknow_cu_answers_help_and_usage_errors() {
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    for flag in ["--help", "-h"] {
+        let out = std::process::Command::new(program)
+            .arg(flag)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{flag}: {out:?}");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.contains("usage: dyknow-cu BUILTIN") && text.contains("dyknow/relay"),
+            "{text}"
+        );
+    }
+    for args in [&[][..], &["--nope"][..], &["dyknow/none"][..]] {
+        let out = std::process::Command::new(program)
+            .args(args)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(64), "{args:?}: {out:?}");
+    }
+}

@@ -7,14 +7,24 @@ use std::process::ExitCode;
 
 use dyknow_executor::builtins::{self, Host};
 
+fn usage() -> String {
+    format!(
+        "usage: dyknow-cu BUILTIN   (one of: {})\n\
+         Runs a builtin as a process CU; an executor starts it and sets its environment \
+         (DYKNOW_CU, DYKNOW_CONNECT, ...: docs/executors.md)",
+        builtins::names().join(", ")
+    )
+}
+
 fn main() -> ExitCode {
     let Some(name) = std::env::args().nth(1) else {
-        eprintln!(
-            "usage: dyknow-cu BUILTIN   (one of: {})",
-            builtins::names().join(", ")
-        );
+        eprintln!("{}", usage());
         return ExitCode::from(64);
     };
+    if name == "--help" || name == "-h" {
+        println!("{}", usage());
+        return ExitCode::SUCCESS;
+    }
     let Some(factory) = builtins::builtin(&name) else {
         eprintln!(
             "no builtin {name:?} (one of: {})",
