@@ -3,7 +3,6 @@
 //! once twice over: the waiter thread returns and its liveliness token vanishes.
 
 use std::collections::BTreeMap;
-use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -181,14 +180,7 @@ impl ProcessCu {
             let name = spec.name.clone();
             let _ = std::thread::Builder::new()
                 .name(format!("{name}-stderr"))
-                .spawn(move || {
-                    for line in std::io::BufReader::new(stderr)
-                        .lines()
-                        .map_while(Result::ok)
-                    {
-                        tracing::info!(target: "dyknow::cu", "{name}: {line}");
-                    }
-                });
+                .spawn(move || copy_stderr(&name, stderr));
         }
         let cu = Arc::new(Self {
             spec,
@@ -466,5 +458,150 @@ fn wait(child: &mut Child) -> String {
             _ => "exited".to_owned(),
         },
         Err(e) => format!("cannot be waited for: {e}"),
+    }
+}
+
+/// How many lines of a process CU's standard error the executor logs per second at most (a
+/// burst of as many may come at once); the lines past it are counted, and the count is logged
+/// once a second later.
+pub const STDERR_LINES_PER_SECOND: u32 = 100;
+
+/// How many bytes of one line of a process CU's standard error are logged.
+pub const STDERR_LINE_BYTES: usize = 4096;
+
+/// At most [`STDERR_LINES_PER_SECOND`] lines in each second, counting the others.
+struct LineBudget {
+    window: std::time::Instant,
+    logged: u32,
+    dropped: u64,
+}
+
+impl LineBudget {
+    fn new(now: std::time::Instant) -> Self {
+        Self {
+            window: now,
+            logged: 0,
+            dropped: 0,
+        }
+    }
+
+    /// Whether a line coming at `now` is logged, and how many were not in the second that
+    /// ended before it (when that second ended with some not logged).
+    fn admit(&mut self, now: std::time::Instant) -> (bool, Option<u64>) {
+        let mut report = None;
+        if now.duration_since(self.window) >= std::time::Duration::from_secs(1) {
+            report = (self.dropped > 0).then_some(self.dropped);
+            *self = Self::new(now);
+        }
+        if self.logged >= STDERR_LINES_PER_SECOND {
+            self.dropped += 1;
+            return (false, report);
+        }
+        self.logged += 1;
+        (true, report)
+    }
+}
+
+fn report_dropped(name: &str, dropped: u64) {
+    tracing::warn!(
+        target: "dyknow::cu",
+        "{name}: {dropped} lines of standard error not logged (at most \
+         {STDERR_LINES_PER_SECOND} a second)"
+    );
+}
+
+/// Copies a process CU's standard error into the executor's log, line by line, as long as the
+/// process writes: at most [`STDERR_LINES_PER_SECOND`] lines a second (a CU writing errors in
+/// a loop filled the executor's log at 15 MB a second), each cut at [`STDERR_LINE_BYTES`],
+/// bytes that are not UTF-8 replaced. The pipe is always read, so the process never blocks on
+/// it (before, a line that was not UTF-8 ended the reading).
+fn copy_stderr(name: &str, stderr: impl std::io::Read) {
+    use std::io::{BufRead, Read};
+    let mut reader = std::io::BufReader::new(stderr);
+    let mut line = Vec::new();
+    let mut budget = LineBudget::new(std::time::Instant::now());
+    loop {
+        line.clear();
+        match reader
+            .by_ref()
+            .take(STDERR_LINE_BYTES as u64)
+            .read_until(b'\n', &mut line)
+        {
+            Ok(0) | Err(_) => break,
+            Ok(_) => {}
+        }
+        let cut = line.last() != Some(&b'\n') && line.len() >= STDERR_LINE_BYTES;
+        if cut {
+            // The rest of a long line is read and not logged.
+            let mut rest = Vec::new();
+            if reader.read_until(b'\n', &mut rest).is_err() {
+                break;
+            }
+        }
+        let (log, dropped) = budget.admit(std::time::Instant::now());
+        if let Some(dropped) = dropped {
+            report_dropped(name, dropped);
+        }
+        if log {
+            let text = String::from_utf8_lossy(&line);
+            let text = text.trim_end_matches(['\n', '\r']);
+            let more = if cut { " [cut]" } else { "" };
+            tracing::info!(target: "dyknow::cu", "{name}: {text}{more}");
+        }
+    }
+    if budget.dropped > 0 {
+        report_dropped(name, budget.dropped);
+    }
+}
+
+#[cfg(test)]
+mod stderr_tests {
+    use super::*;
+
+    /// A reader that counts what was read from it.
+    struct Counted<R>(R, std::sync::Arc<std::sync::atomic::AtomicUsize>);
+
+    impl<R: std::io::Read> std::io::Read for Counted<R> {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = self.0.read(buf)?;
+            self.1.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+            Ok(n)
+        }
+    }
+
+    #[test]
+    fn standard_error_is_read_to_its_end_whatever_it_holds() {
+        // A flood, a line that is not UTF-8 and a very long line: all of it is read (the
+        // process never blocks on a full pipe), and the copy ends with the stream.
+        let mut input = Vec::new();
+        for i in 0..10_000 {
+            input.extend_from_slice(format!("error line {i}\n").as_bytes());
+        }
+        input.extend_from_slice(b"\xff\xfe not UTF-8\n");
+        input.extend(std::iter::repeat_n(b'x', 3 * STDERR_LINE_BYTES));
+        input.extend_from_slice(b"\nlast\n");
+        let read = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        copy_stderr("cu-1", Counted(&input[..], read.clone()));
+        assert_eq!(read.load(std::sync::atomic::Ordering::Relaxed), input.len());
+    }
+
+    #[test]
+    fn at_most_the_budget_of_lines_is_logged_each_second() {
+        let start = std::time::Instant::now();
+        let mut budget = LineBudget::new(start);
+        let admitted = (0..250).filter(|_| budget.admit(start).0).count();
+        assert_eq!(admitted, STDERR_LINES_PER_SECOND as usize);
+        let later = start + std::time::Duration::from_millis(999);
+        assert_eq!(budget.admit(later), (false, None), "the same second");
+        let next = start + std::time::Duration::from_secs(1);
+        assert_eq!(
+            budget.admit(next),
+            (true, Some(151)),
+            "the count, then a new second"
+        );
+        assert_eq!(
+            budget.admit(next + std::time::Duration::from_secs(1)),
+            (true, None)
+        );
     }
 }
