@@ -41,7 +41,9 @@ mod unit;
 pub use error::{CuError, KeyError, zenoh_message};
 pub use keys::Namespace;
 pub use pins::{KEPT as KEPT_KEYS, pinned_key};
-pub use process::{ProcessEnv, client_config, client_config_file, router_config, run_process};
+pub use process::{
+    ProcessEnv, client_config, client_config_file, process_identity, router_config, run_process,
+};
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};
 pub use transformation::{Collect, NodeHandle, Outputs, TimerId, Transformation};

@@ -43,8 +43,39 @@ pub struct ProcessEnv {
     pub connect: Vec<String>,
     /// The executor's name.
     pub executor: Option<String>,
+    /// The executor's process ([`process_identity`]), when the executor said it
+    /// (`DYKNOW_EXECUTOR_PROCESS`): the CU exits when that process is gone, even when its
+    /// parent is a wrapper (a shell that started it) that outlives the executor.
+    pub executor_process: Option<String>,
     /// Zenoh's own configuration file the executor runs with, if any (TLS certificates).
     pub zenoh_config: Option<std::path::PathBuf>,
+}
+
+/// A process's identity on this host, `<pid>:<start time>` (field 22 of `/proc/<pid>/stat`,
+/// clock ticks since boot): unlike the pid alone, it is never another process's after this one
+/// is gone. `None` without `/proc` or when no such process runs.
+pub fn process_identity(pid: u32) -> Option<String> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command (field 2) is in parentheses and may hold anything: count after the last ')'
+    // (the state, field 3, comes first).
+    let start = stat.rsplit_once(')')?.1.split_whitespace().nth(19)?;
+    Some(format!("{pid}:{start}"))
+}
+
+/// Whether the process `identity` ([`process_identity`]) still runs; a zombie (exited, not
+/// yet reaped) does not.
+fn still_runs(identity: &str) -> bool {
+    let Some(pid) = identity.split(':').next().and_then(|p| p.parse().ok()) else {
+        return true;
+    };
+    let zombie = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit_once(')')
+                .map(|(_, r)| r.trim_start().starts_with('Z'))
+        })
+        .unwrap_or(false);
+    !zombie && process_identity(pid).as_deref() == Some(identity)
 }
 
 fn list(var: &str) -> Vec<String> {
@@ -80,6 +111,9 @@ impl ProcessEnv {
             )?,
             connect: list("DYKNOW_CONNECT"),
             executor: std::env::var("DYKNOW_EXECUTOR").ok(),
+            executor_process: std::env::var("DYKNOW_EXECUTOR_PROCESS")
+                .ok()
+                .filter(|v| !v.is_empty()),
             zenoh_config: std::env::var_os("DYKNOW_ZENOH_CONFIG")
                 .filter(|v| !v.is_empty())
                 .map(Into::into),
@@ -181,6 +215,14 @@ fn serve<T: Transformation>(
     make: impl FnOnce(&UnitSpec) -> Result<T, CuError>,
 ) -> Result<Exit, CuError> {
     let env = ProcessEnv::from_env()?;
+    if env
+        .executor_process
+        .as_deref()
+        .is_some_and(|e| !still_runs(e))
+    {
+        // Started after the executor died (a wrapper that took its time): never run.
+        return Ok(Exit::Orphaned);
+    }
     let session = zenoh::open(client_config_file(
         env.zenoh_config.as_deref(),
         &env.connect,
@@ -236,16 +278,21 @@ fn serve<T: Transformation>(
     let unit = started.unit;
     let _ = slot.set(unit.clone());
     // Orphaned when the executor is gone: its process is our parent, so a new parent (init or
-    // a subreaper) means it died. This needs no Zenoh at all, so it works whatever the state
+    // a subreaper) means it died; and when the executor said which process it is, that
+    // process being gone (a wrapper between it and us, a shell that did not `exec`, outlives
+    // it and stays our parent). This needs no Zenoh at all, so it works whatever the state
     // of the connection.
     let parent = std::os::unix::process::parent_id();
     let orphan_tx = exit_tx.clone();
+    let executor_process = env.executor_process.clone();
     let _ = std::thread::Builder::new()
         .name("dyknow-parent-watch".into())
         .spawn(move || {
             loop {
                 std::thread::sleep(std::time::Duration::from_millis(200));
-                if std::os::unix::process::parent_id() != parent {
+                if std::os::unix::process::parent_id() != parent
+                    || executor_process.as_deref().is_some_and(|e| !still_runs(e))
+                {
                     let _ = orphan_tx.send(Exit::Orphaned);
                     return;
                 }

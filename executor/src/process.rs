@@ -164,6 +164,10 @@ impl ProcessCu {
             .env("DYKNOW_NAMESPACE", launch.namespace.as_str())
             .env("DYKNOW_CONNECT", launch.connect.join(","))
             .env("DYKNOW_EXECUTOR", &launch.executor)
+            .env(
+                "DYKNOW_EXECUTOR_PROCESS",
+                dyknow_cu::process_identity(std::process::id()).unwrap_or_default(),
+            )
             .env("DYKNOW_INPUTS", spec.inputs.join(","))
             .env("DYKNOW_OUTPUTS", spec.outputs.join(","))
             .env(

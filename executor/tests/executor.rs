@@ -697,3 +697,60 @@ fn dyknow_cu_answers_help_and_usage_errors() {
         assert_eq!(out.status.code(), Some(64), "{args:?}: {out:?}");
     }
 }
+
+/// A CU started through a wrapper (a shell that does not `exec`) keeps the wrapper as its
+/// parent when the executor is `kill -9`ed, so watching its parent never saw the executor go;
+/// it kept publishing beside its replacement. The executor names its process
+/// (`DYKNOW_EXECUTOR_PROCESS`), and the SDK exits (2, orphaned) once that process is gone, or
+/// at once when it is gone before the CU starts.
+#[test]
+fn a_process_cu_exits_when_its_executor_process_is_gone_whatever_its_parent() {
+    let (_session, endpoint) = session();
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    let run = |executor: &str| {
+        std::process::Command::new(program)
+            .arg("dyknow/signal")
+            .env("DYKNOW_CU", "orphan")
+            .env("DYKNOW_CONNECT", &endpoint)
+            .env("DYKNOW_OUTPUTS", "out")
+            .env("DYKNOW_EXECUTOR_PROCESS", executor)
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("dyknow-cu starts")
+    };
+    // The "executor": a process that is not the CU's parent (this test is).
+    let mut executor = std::process::Command::new("sleep")
+        .arg("60")
+        .spawn()
+        .expect("sleep starts");
+    let identity = dyknow_cu::process_identity(executor.id()).expect("/proc");
+    let mut cu = run(&identity);
+    // It runs while the executor does.
+    std::thread::sleep(Duration::from_millis(600));
+    assert!(cu.try_wait().expect("wait").is_none(), "exited early");
+    executor.kill().expect("kill");
+    executor.wait().expect("reaped");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(status) = cu.try_wait().expect("wait") {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = cu.kill();
+            panic!("the CU outlived its executor's process by 10 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(2), "orphaned");
+    // Gone before the CU starts: it exits at once.
+    let mut late = run(&identity);
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = late.try_wait().expect("wait") {
+            break status;
+        }
+        assert!(started.elapsed() < Duration::from_secs(10), "it ran");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(2));
+}
