@@ -784,9 +784,21 @@ impl Manager {
             // Crashes no review could repair yet (their transformations run nowhere now) are
             // the cause of the review that will: it names them.
             if !reviewed.compiled.unsatisfied_targets.is_empty() {
-                lock(&self.schedule).keep_crashes(causes);
+                lock(&self.schedule).keep_crashes(causes, &reviewed.compiled.unsatisfied_targets);
             }
             return Ok(None);
+        }
+        // Crashes kept from earlier that this change set does not repair stay kept: it is
+        // not theirs (a target added meanwhile is its cause).
+        let unsatisfied = &reviewed.compiled.unsatisfied_targets;
+        let unrepaired = lock(&self.schedule).unrepaired(causes, unsatisfied);
+        let causes: Vec<Cause> = causes
+            .iter()
+            .filter(|c| !unrepaired.contains(c))
+            .cloned()
+            .collect();
+        if !unrepaired.is_empty() {
+            lock(&self.schedule).keep_crashes(&unrepaired, unsatisfied);
         }
         let cause = match causes.first().cloned().unwrap_or(Cause::Review) {
             // One review for a burst of crashes: its cause names every CU it repairs.

@@ -6,9 +6,10 @@
 //! longer after each failure in a row (from 100 ms, doubling, at most the stable interval), so
 //! an executor that cannot run something is not asked again and again.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant, SystemTime};
 
-use dyknow_engine::{Cause, Tid};
+use dyknow_engine::{Cause, Cid, Qid, Tid};
 use serde::Serialize;
 
 use crate::manager::Settings;
@@ -69,6 +70,9 @@ pub(crate) struct Schedule {
     last_error: Option<String>,
     /// Change sets in a row with failed actions.
     failures_in_a_row: u32,
+    /// Crashes a review could not repair, with the targets it left unsatisfied then: a later
+    /// change set repairs the crash when it satisfies one of them.
+    kept: BTreeMap<Cid, BTreeSet<Qid>>,
 }
 
 /// The wait before the review after the first failed change set; it doubles with each one in
@@ -92,6 +96,7 @@ impl Schedule {
             crashes: 0,
             last_error: None,
             failures_in_a_row: 0,
+            kept: BTreeMap::new(),
         }
     }
 
@@ -228,14 +233,49 @@ impl Schedule {
     }
 
     /// A review could not repair the crashes among `causes` (nothing can run their
-    /// transformations now): the next review that changes something has them as its cause,
-    /// ahead of what came meanwhile. They start no review themselves.
-    pub(crate) fn keep_crashes(&mut self, causes: &[Cause]) {
-        let crashes = causes
+    /// transformations now) and left `unsatisfied` unsatisfied: the next change set that
+    /// satisfies one of those targets has them as its cause, ahead of what came meanwhile.
+    /// They start no review themselves.
+    pub(crate) fn keep_crashes(&mut self, causes: &[Cause], unsatisfied: &[Qid]) {
+        let crashes: Vec<Cause> = causes
             .iter()
             .filter(|c| matches!(c, Cause::CuCrashed { .. }))
-            .cloned();
+            .cloned()
+            .collect();
+        for crash in &crashes {
+            if let Cause::CuCrashed { cu, .. } = crash {
+                self.kept
+                    .entry(cu.clone())
+                    .or_default()
+                    .extend(unsatisfied.iter().cloned());
+            }
+        }
         self.causes.splice(0..0, crashes);
+    }
+
+    /// Of `causes`, the crashes kept earlier ([`Schedule::keep_crashes`]) that a change set
+    /// leaving `unsatisfied` unsatisfied does not repair (every target they left unsatisfied
+    /// still is): they are kept for a later one, which they remain the cause of; the change
+    /// set is not theirs. The others are repaired and forgotten.
+    pub(crate) fn unrepaired(&mut self, causes: &[Cause], unsatisfied: &[Qid]) -> Vec<Cause> {
+        let still: BTreeSet<&Qid> = unsatisfied.iter().collect();
+        let mut out = Vec::new();
+        for cause in causes {
+            let Cause::CuCrashed { cu, .. } = cause else {
+                continue;
+            };
+            match self.kept.get(cu) {
+                Some(targets)
+                    if !targets.is_empty() && targets.iter().all(|q| still.contains(q)) =>
+                {
+                    out.push(cause.clone());
+                }
+                _ => {
+                    self.kept.remove(cu);
+                }
+            }
+        }
+        out
     }
 
     /// A review ended; a failed one keeps its causes for the next attempt.
