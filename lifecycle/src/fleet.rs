@@ -7,7 +7,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use dyknow_cu::Namespace;
 use dyknow_cu::keys::InstanceId;
@@ -366,6 +366,7 @@ impl Inner {
     ) -> Result<T, String> {
         // Every reply, not Zenoh's default of the latest per key: two instances of one name
         // answer on the same key.
+        let asked = Instant::now();
         let replies = self
             .session
             .get(self.namespace.executor_service(name, service))
@@ -398,12 +399,22 @@ impl Inner {
             }
         }
         Err(error.unwrap_or_else(|| {
+            let waited = asked.elapsed();
             if other {
                 format!("executor {name}: only another instance of the name answered")
+            } else if waited + Duration::from_millis(50) < timeout {
+                // Zenoh ended the request early: the executor's queryable went away (it
+                // vanished, or left the network) before it answered.
+                format!(
+                    "executor {name} went away before it answered (the request ended after \
+                     {:.1} s of the {:.1} s it had)",
+                    waited.as_secs_f64(),
+                    timeout.as_secs_f64()
+                )
             } else {
                 format!(
-                    "executor {name} did not answer within {} s",
-                    timeout.as_secs()
+                    "executor {name} did not answer within {:.1} s",
+                    timeout.as_secs_f64()
                 )
             }
         }))

@@ -547,6 +547,18 @@ fn an_executor_that_vanishes_mid_change_set_fails_it_and_its_cus_count_as_crashe
             .any(|f| f["cu"] == mute),
         "{failed}"
     );
+    // The reason says what happened: the executor went away (it said "did not answer within
+    // 15 s", a second after the kill).
+    assert!(
+        failed["failures"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|f| f["reason"]
+                .as_str()
+                .is_some_and(|r| r.contains("went away before it answered"))),
+        "{failed}"
+    );
     assert_eq!(failed["cus"][mute.as_str().unwrap()]["state"], "crashed");
     // Its CUs count as crashed: none is left in the model, nothing claims to run them, and
     // with no executor left the environment is invalid until one joins.
