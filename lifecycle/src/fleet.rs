@@ -84,9 +84,14 @@ struct Known {
     present: bool,
     builtins: BTreeSet<String>,
     processes: bool,
-    /// Answers of its `check` service, by command line.
-    checks: BTreeMap<String, Result<(), String>>,
+    /// Answers of its `check` service, by command line, and when they came: a refusal is
+    /// asked again after [`REFUSAL_KEPT`] (the program may be installed since).
+    checks: BTreeMap<String, (Result<(), String>, Instant)>,
 }
+
+/// How long an executor's answer that it cannot run a command line is kept before it is asked
+/// again. A yes is kept until the executor reappears.
+pub const REFUSAL_KEPT: Duration = Duration::from_secs(5);
 
 struct Inner {
     session: zenoh::Session,
@@ -443,7 +448,9 @@ impl Inner {
                 if !known.processes {
                     return Err(format!("executor {name} runs no processes"));
                 }
-                if let Some(answer) = known.checks.get(&implementation.source) {
+                if let Some((answer, at)) = known.checks.get(&implementation.source)
+                    && (answer.is_ok() || at.elapsed() < REFUSAL_KEPT)
+                {
                     return answer.clone();
                 }
                 drop(executors);
@@ -459,9 +466,10 @@ impl Inner {
                 // steps down (another host, other programs).
                 let shared = lock(&self.instances).get(name).is_some_and(|l| l.len() > 1);
                 if !shared && let Some(known) = lock(&self.executors).get_mut(name) {
-                    known
-                        .checks
-                        .insert(implementation.source.clone(), answer.clone());
+                    known.checks.insert(
+                        implementation.source.clone(),
+                        (answer.clone(), Instant::now()),
+                    );
                 }
                 answer
             }

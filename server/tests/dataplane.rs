@@ -683,6 +683,48 @@ fn implementations_that_cannot_run_are_never_planned_and_failed_starts_back_off(
         labour > 1.0,
         "a failed start raises the labour estimate: {statistics}"
     );
+    // A program installed after its spec was posted: the executor's "no" is asked again after
+    // 5 s (before, it was kept until the executor reappeared, re-posting the spec or not).
+    let dir = std::env::temp_dir().join(format!("dyknow-later-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let program = dir.join("later.sh");
+    let later = tf(
+        "later",
+        "process",
+        program.to_str().unwrap(),
+        &[],
+        &[],
+        &[("out", "Later")],
+    );
+    service.post("/transformations", &later.turtle());
+    assert_eq!(service.get("/transformations/later")["runnable"], false);
+    std::fs::write(
+        &program,
+        format!("#!/bin/sh\nexec {BIN} cu dyknow/signal\n"),
+    )
+    .unwrap();
+    std::fs::set_permissions(
+        &program,
+        std::os::unix::fs::PermissionsExt::from_mode(0o755),
+    )
+    .unwrap();
+    eventually(
+        "the installed program to be found",
+        Duration::from_secs(20),
+        || (service.get("/transformations/later")["runnable"] == true).then_some(()),
+    );
+    service.post("/transformations", &later.turtle());
+    service.post("/targets", &target("later-q", "/later", "Later"));
+    eventually("a CU of it to run", Duration::from_secs(30), || {
+        service
+            .get("/cus")
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|c| c["transformation"] == "later" && c["state"] == "running")
+            .then_some(())
+    });
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
