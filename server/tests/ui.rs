@@ -330,6 +330,11 @@ fn the_web_view_follows_the_live_lab() {
         "eventually (InsideCircle(ball) or not InsideCircle(ball))",
     );
     browser.choose("#group-policy", "hold");
+    // The one field is the max age under hold, the max delay otherwise.
+    assert_eq!(
+        browser.js("return document.getElementById('group-max-name').textContent"),
+        "Max age ms"
+    );
     browser.type_into("#group-max", "1000");
     browser.click("#group-form button[type=submit]");
     let verdict = browser
@@ -341,7 +346,43 @@ fn the_web_view_follows_the_live_lab() {
     assert_eq!(verdict, "true");
     let group = service.get("/groups/watch");
     assert_eq!(group["formulas"][0]["verdict"], "true", "{group}");
+    assert_eq!(group["sync"]["max_age_ms"], 1000, "{group}");
     browser.shot("ui-groups");
+    browser.click("#tabs [data-panel=active]");
+    browser.until(
+        "a CU publishing the symbol's channel in the Active panel",
+        MINUTE,
+        "return [...document.querySelectorAll('#active-rows td')].some(td => td.textContent.includes('/dyknow/symbols/'))",
+    );
+    // At 1280×800 the table fits its panel: every column, the state among them, in sight
+    // (a symbol channel's name, `/dyknow/symbols/InsideCircle(ball)`, pushed it past the
+    // window's edge).
+    let fits = browser.js(
+        "const p = document.getElementById('panel-active'); \
+         const t = p.querySelector('table'); \
+         return [t.getBoundingClientRect().right, p.getBoundingClientRect().right, window.innerWidth]",
+    );
+    let [table, panel, window] = [0, 1, 2].map(|i| fits[i].as_f64().unwrap());
+    assert!(
+        table <= panel + 0.5 && table <= window,
+        "the Active table overflows: {fits}"
+    );
+    browser.click("#tabs [data-panel=groups]");
+    // A stopped group takes no formula: its form is gone.
+    assert_eq!(
+        browser.js("return !!document.querySelector('[data-group=watch] form.add-formula')"),
+        Value::Bool(true)
+    );
+    let stopped = agent()
+        .post(&format!("{}/groups/watch/stop", service.url))
+        .send_empty()
+        .unwrap();
+    assert_eq!(stopped.status().as_u16(), 200);
+    browser.until(
+        "the stopped group's form to go",
+        MINUTE,
+        "return !document.querySelector('[data-group=watch] form.add-formula')",
+    );
 
     // Dark, at 1920×1080: the same page, for the docs.
     browser.resize(1920, 1080);

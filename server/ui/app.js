@@ -538,7 +538,8 @@
           g.state === "running" ? h("button", { type: "button", onclick: () => groupAction("POST", `/groups/${enc(g.label)}/stop`) }, "Stop") : null,
           h("button", { type: "button", class: "danger", onclick: () => groupAction("DELETE", `/groups/${enc(g.label)}`) }, "Destroy")),
         formulas,
-        h("form", { class: "add-formula", onsubmit: (e) => addFormula(e, g.label) },
+        // A stopped group takes no formula (409): no form for it.
+        g.state === "stopped" ? null : h("form", { class: "add-formula", onsubmit: (e) => addFormula(e, g.label) },
           h("label", {}, h("input", { placeholder: "add a formula", "aria-label": "formula to add to " + g.label }), h("button", { type: "submit" }, "Add"))),
         symbols.length ? h("details", {}, h("summary", {}, `${symbols.length} symbols`), h("ul", {}, symbols)) : null);
     });
@@ -568,9 +569,11 @@
     e.preventDefault();
     const policy = $("group-policy").value;
     const period = Number($("group-period").value) || 100;
-    const max = Number($("group-max").value);
-    const sync = policy === "wait" ? { policy, period_ms: period, max_delay_ms: max }
-      : policy === "hold" ? { policy, period_ms: period, max_age_ms: max } : { policy };
+    // Left empty, the service's default; for hold the field is the max age (groups.md), for
+    // wait and event the max delay.
+    const field = $("group-max").value.trim();
+    const sync = policy === "event" ? { policy } : { policy, period_ms: period };
+    if (field !== "") sync[policy === "hold" ? "max_age_ms" : "max_delay_ms"] = Number(field);
     const body = {
       formulas: $("group-formulas").value.split("\n").map((s) => s.trim()).filter(Boolean),
       sync, start: $("group-start").checked,
@@ -746,6 +749,13 @@
     $("connect-form").addEventListener("submit", connectPort);
     $("link-form").addEventListener("submit", linkPorts);
     $("group-form").addEventListener("submit", createGroup);
+    const policyFields = () => {
+      const policy = $("group-policy").value;
+      $("group-max-name").textContent = policy === "hold" ? "Max age ms" : "Max delay ms";
+      $("group-period").disabled = policy === "event";
+    };
+    $("group-policy").addEventListener("change", policyFields);
+    policyFields();
     $("query-form").addEventListener("submit", runQuery);
     $("token-button").addEventListener("click", () => askToken());
     $("theme-button").addEventListener("click", () => applyTheme(document.documentElement.dataset.theme === "dark" ? "light" : "dark"));
