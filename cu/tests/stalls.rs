@@ -65,7 +65,7 @@ mod port;
 fn sessions() -> (zenoh::Session, zenoh::Session) {
     let port = port::free_port();
     let listen = format!("tcp/127.0.0.1:{port}");
-    let local = zenoh::open(dyknow_cu::router_config(&[listen.clone()], &[]).unwrap())
+    let local = zenoh::open(dyknow_cu::router_config(std::slice::from_ref(&listen), &[]).unwrap())
         .wait()
         .unwrap();
     let remote = zenoh::open(
