@@ -592,6 +592,13 @@ async fn bad_input_changes_nothing() {
     .expect_error(409);
     api.delete(&format!("/cus/{name}")).await.expect_error(409);
     assert_eq!(cus(&api).await.len(), 1);
+    // One CU takes no query parameter (it was ignored): 400, as on the list.
+    api.get(&format!("/cus/{name}")).await.expect(200);
+    for query in ["?statistics=true", "?foo=1"] {
+        api.get(&format!("/cus/{name}{query}"))
+            .await
+            .expect_error(400);
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

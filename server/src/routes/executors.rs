@@ -3,11 +3,11 @@
 
 use axum::Json;
 use axum::Router;
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::routing::get;
 use dyknow_engine::Cid;
 use dyknow_lifecycle::ExecutorSummary;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::app::{AppState, blocking, in_turn};
@@ -125,14 +125,23 @@ pub struct CuDetailJson {
     pub pid: Option<u32>,
 }
 
+/// `GET /cus/{name}` takes no query parameter: one is 400, as on `GET /cus` (a client asking
+/// `?statistics=true` here, where statistics always come, learns it at once).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoQuery {}
+
 /// One computation unit, with its executor, state and statistics.
 #[utoipa::path(get, path = "/cus/{name}", tag = "reconfiguration",
     params(("name" = String, Path, description = "the CU's name")),
-    responses((status = 200, body = CuDetailJson), (status = 404, body = crate::error::ErrorBody)))]
+    responses((status = 200, body = CuDetailJson), (status = 400, body = crate::error::ErrorBody),
+              (status = 404, body = crate::error::ErrorBody)))]
 pub async fn get_cu(
     State(state): State<AppState>,
     Path(name): Path<String>,
+    query: Result<Query<NoQuery>, axum::extract::rejection::QueryRejection>,
 ) -> Result<Json<CuDetailJson>, ApiError> {
+    query.map_err(|e| ApiError::bad_request(e.body_text()))?;
     let s = state.clone();
     blocking(move || {
         let env = s.lifecycle.cus()?;
