@@ -15,7 +15,8 @@ use dyknow_cu::{
     CuError, INBOX_CAPACITY, Namespace, NodeHandle, Sample, Timers, Transformation, Unit, UnitSpec,
 };
 
-/// Blocks in its first callback until the test says so; records every `t` it is given.
+/// Records every `t` it is given; with `release`, blocks in its first callback until the test
+/// says so.
 struct Stalls {
     release: Option<Receiver<()>>,
     stalled: Sender<()>,
@@ -98,19 +99,37 @@ fn linked(remote: &zenoh::Session, channel: &str, seen: &Arc<Mutex<Vec<i64>>>) {
     seen.lock().unwrap().clear();
 }
 
-/// Records every `t`.
-struct Records(Arc<Mutex<Vec<i64>>>);
+/// A [`Stalls`] CU reading `channel`: the CU, the receiver told when it stalls, and the `t`s it
+/// took.
+fn stalls(
+    session: &zenoh::Session,
+    timers: &Timers,
+    name: &str,
+    channel: &str,
+    release: Option<Receiver<()>>,
+) -> (Unit, Receiver<()>, Arc<Mutex<Vec<i64>>>) {
+    let (stalled_tx, stalled) = mpsc::channel();
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let transformation = Stalls {
+        release,
+        stalled: stalled_tx,
+        seen: seen.clone(),
+    };
+    let unit = start(session, timers, name, transformation, Some(channel), None);
+    (unit, stalled, seen)
+}
 
-impl Transformation for Records {
-    fn on_sample(
-        &mut self,
-        _: &mut NodeHandle<'_>,
-        _: &str,
-        sample: Sample,
-    ) -> Result<(), CuError> {
-        self.0.lock().unwrap().push(sample.t);
-        Ok(())
-    }
+/// A CU recording what it takes on `channel`, which the remote session reaches.
+fn recording(
+    session: &zenoh::Session,
+    remote: &zenoh::Session,
+    timers: &Timers,
+    name: &str,
+    channel: &str,
+) -> (Unit, Arc<Mutex<Vec<i64>>>) {
+    let (unit, _, seen) = stalls(session, timers, name, channel, None);
+    linked(remote, channel, &seen);
+    (unit, seen)
 }
 
 fn start(
@@ -175,41 +194,32 @@ fn until(what: &str, mut done: impl FnMut() -> bool) {
     }
 }
 
+/// A CU on channel `c` of `session` stalled in its first callback by a sample `t0` from
+/// `remote`: the CU, the sender that releases it, and the `t`s it took.
+fn stalled_cu(
+    session: &zenoh::Session,
+    remote: &zenoh::Session,
+    timers: &Timers,
+    name: &str,
+    t0: i64,
+) -> (Unit, Sender<()>, Arc<Mutex<Vec<i64>>>) {
+    let (release_tx, release) = mpsc::channel();
+    let (unit, stalled, seen) = stalls(session, timers, name, "c", Some(release));
+    until("the stalling sample is taken", || {
+        put(remote, "c", t0);
+        stalled.recv_timeout(Duration::from_millis(50)).is_ok()
+    });
+    (unit, release_tx, seen)
+}
+
 #[test]
 fn a_stalled_cu_holds_up_nothing_but_itself() {
     let (session, remote) = sessions();
     let timers = Timers::start();
-    let (release_tx, release) = mpsc::channel();
-    let (stalled_tx, stalled) = mpsc::channel();
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let echoed = Arc::new(Mutex::new(Vec::new()));
-    let echo = start(
-        &session,
-        &timers,
-        "echo",
-        Records(echoed.clone()),
-        Some("e"),
-        None,
-    );
-    linked(&remote, "e", &echoed);
-    let stall = start(
-        &session,
-        &timers,
-        "stall",
-        Stalls {
-            release: Some(release),
-            stalled: stalled_tx,
-            seen: seen.clone(),
-        },
-        Some("c"),
-        None,
-    );
+    let (echo, echoed) = recording(&session, &remote, &timers, "echo", "e");
     // Stalled by a sample from the other process: Zenoh's receiving thread goes on, and the
     // samples after it on the same link reach the other CU.
-    until("the stalling sample is taken", || {
-        put(&remote, "c", 1);
-        stalled.recv_timeout(Duration::from_millis(50)).is_ok()
-    });
+    let (stall, release_tx, seen) = stalled_cu(&session, &remote, &timers, "stall", 1);
     for t in 1..=20 {
         put(&remote, "e", t);
     }
@@ -258,25 +268,7 @@ fn a_stalled_cu_holds_up_nothing_but_itself() {
 fn a_busy_cu_keeps_the_newest_samples_in_their_order() {
     let (session, remote) = sessions();
     let timers = Timers::start();
-    let (release_tx, release) = mpsc::channel();
-    let (stalled_tx, stalled) = mpsc::channel();
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let stall = start(
-        &session,
-        &timers,
-        "busy",
-        Stalls {
-            release: Some(release),
-            stalled: stalled_tx,
-            seen: seen.clone(),
-        },
-        Some("c"),
-        None,
-    );
-    until("the stalling sample is taken", || {
-        put(&remote, "c", 0);
-        stalled.recv_timeout(Duration::from_millis(50)).is_ok()
-    });
+    let (stall, release_tx, seen) = stalled_cu(&session, &remote, &timers, "busy", 0);
     let sent = 3 * INBOX_CAPACITY as i64;
     for t in 1..=sent {
         put(&session, "c", t);
@@ -301,16 +293,7 @@ fn a_busy_cu_keeps_the_newest_samples_in_their_order() {
 fn samples_from_another_process_keep_their_order() {
     let (session, remote) = sessions();
     let timers = Timers::start();
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let unit = start(
-        &session,
-        &timers,
-        "order",
-        Records(seen.clone()),
-        Some("c"),
-        None,
-    );
-    linked(&remote, "c", &seen);
+    let (unit, seen) = recording(&session, &remote, &timers, "order", "c");
     for t in 1..=500 {
         put(&remote, "c", t);
     }

@@ -11,7 +11,8 @@ use dyknow_engine::{
     Action, ActionFailure, Cause, ChangeSet, ChangeSetStatus, Cid, CuOutcome, CuOutcomeState,
 };
 use dyknow_lifecycle::{
-    Applied, Executor, LifecycleError, Manager, ModelOnly, Perturbation, Settings, SpawnRequest,
+    Applied, Executor, FleetEvent, LifecycleError, Manager, ModelOnly, Perturbation, Settings,
+    SpawnRequest,
 };
 use dyknow_store::{InputFormat, KnowledgeBase};
 
@@ -588,7 +589,6 @@ fn an_event_about_a_cu_on_another_executor_is_ignored() {
 
 #[test]
 fn the_cus_of_a_vanished_executor_crash_together_and_one_review_names_them_all() {
-    use dyknow_lifecycle::FleetEvent;
     let manager = Manager::new(example_12(), Arc::new(ModelOnly), Settings::default()).unwrap();
     manager.review().unwrap();
     let cus: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
@@ -784,16 +784,14 @@ impl Executor for Switchable {
     }
 }
 
-/// CUs lost with the only executor cannot be repaired until one is back: the reviews that
-/// find nothing to do meanwhile keep the crashes, and the review that repairs them names
-/// them (before, it said only "review").
-#[test]
-fn crashes_no_review_could_repair_are_the_cause_of_the_review_that_does() {
-    use dyknow_lifecycle::FleetEvent;
+/// Configures the environment, then loses every CU with the only executor, whose
+/// transformations then cannot run: the review finds nothing to do. Returns the lost CUs.
+fn lose_everything(manager: &Manager, executor: &Switchable) -> Vec<Cid> {
     use std::sync::atomic::Ordering;
-    let executor = Arc::new(Switchable::default());
-    let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
-    manager.review().unwrap().expect("the first configuration");
+    assert!(
+        manager.review().unwrap().is_some(),
+        "the first configuration"
+    );
     let lost: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
     executor.down.store(true, Ordering::SeqCst);
     manager.executors_changed().unwrap();
@@ -803,15 +801,34 @@ fn crashes_no_review_could_repair_are_the_cause_of_the_review_that_does() {
     };
     assert_eq!(manager.handle(vanished).unwrap(), None);
     assert!(manager.review().unwrap().is_none(), "nothing can run");
-    assert!(manager.review().unwrap().is_none(), "still nothing");
-    executor.down.store(false, Ordering::SeqCst);
+    lost
+}
+
+/// Brings the executor back: the review that follows repairs every CU of `lost`, and its
+/// cause names each.
+fn repaired_when_back(manager: &Manager, executor: &Switchable, lost: &[Cid]) {
+    executor
+        .down
+        .store(false, std::sync::atomic::Ordering::SeqCst);
     manager.executors_changed().unwrap();
-    let repair = manager.review().unwrap().expect("the repair");
+    let repair = manager.review().unwrap().unwrap();
     let Cause::CuCrashed { cu, also } = &repair.cause else {
         panic!("{:?}", repair.cause);
     };
     let named: BTreeSet<&Cid> = std::iter::once(cu).chain(also).collect();
     assert_eq!(named, lost.iter().collect(), "{:?}", repair.cause);
+}
+
+/// CUs lost with the only executor cannot be repaired until one is back: the reviews that
+/// find nothing to do meanwhile keep the crashes, and the review that repairs them names
+/// them (before, it said only "review").
+#[test]
+fn crashes_no_review_could_repair_are_the_cause_of_the_review_that_does() {
+    let executor = Arc::new(Switchable::default());
+    let manager = Manager::new(example_12(), executor.clone(), Settings::default()).unwrap();
+    let lost = lose_everything(&manager, &executor);
+    assert!(manager.review().unwrap().is_none(), "still nothing");
+    repaired_when_back(&manager, &executor, &lost);
     // Repaired: the next review has nothing to do, and no cause left over.
     assert!(manager.review().unwrap().is_none());
 }
@@ -821,24 +838,13 @@ fn crashes_no_review_could_repair_are_the_cause_of_the_review_that_does() {
 /// after a crash it did not repair, and the repair that came later said "review").
 #[test]
 fn a_change_set_that_repairs_no_kept_crash_is_not_named_after_one() {
-    use dyknow_lifecycle::FleetEvent;
-    use std::sync::atomic::Ordering;
     let executor = Arc::new(Switchable {
         except: Some("fresh"),
         ..Switchable::default()
     });
     let kb = example_12();
     let manager = Manager::new(kb.clone(), executor.clone(), Settings::default()).unwrap();
-    manager.review().unwrap().expect("the first configuration");
-    let lost: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
-    executor.down.store(true, Ordering::SeqCst);
-    manager.executors_changed().unwrap();
-    let vanished = FleetEvent::Vanished {
-        executor: "x".into(),
-        cus: lost.clone(),
-    };
-    assert_eq!(manager.handle(vanished).unwrap(), None);
-    assert!(manager.review().unwrap().is_none(), "nothing can run");
+    let lost = lose_everything(&manager, &executor);
     // A source that can run, and a target it satisfies.
     let fresh = r#"
         @prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
@@ -867,13 +873,6 @@ fn a_change_set_that_repairs_no_kept_crash_is_not_named_after_one() {
         },
         "{added:?}"
     );
-    executor.down.store(false, Ordering::SeqCst);
-    manager.executors_changed().unwrap();
-    let repair = manager.review().unwrap().expect("the repair");
-    let Cause::CuCrashed { cu, also } = &repair.cause else {
-        panic!("{:?}", repair.cause);
-    };
-    let named: BTreeSet<&Cid> = std::iter::once(cu).chain(also).collect();
-    assert_eq!(named, lost.iter().collect(), "{:?}", repair.cause);
+    repaired_when_back(&manager, &executor, &lost);
     assert!(manager.review().unwrap().is_none());
 }
