@@ -243,11 +243,12 @@ impl Schedule {
             .cloned()
             .collect();
         for crash in &crashes {
+            // The targets of the first review that could not repair it: those it left
+            // unsatisfied (a later review's may hold others, unsatisfied for other reasons).
             if let Cause::CuCrashed { cu, .. } = crash {
                 self.kept
                     .entry(cu.clone())
-                    .or_default()
-                    .extend(unsatisfied.iter().cloned());
+                    .or_insert_with(|| unsatisfied.iter().cloned().collect());
             }
         }
         self.causes.splice(0..0, crashes);
@@ -309,6 +310,32 @@ mod tests {
             review_spacing: Duration::from_millis(100),
             history_limit: 0,
         })
+    }
+
+    #[test]
+    fn a_kept_crash_is_repaired_by_the_first_change_set_satisfying_a_target_it_left_unsatisfied() {
+        let mut s = schedule();
+        let crash = Cause::CuCrashed {
+            cu: "cu-1".into(),
+            also: Vec::new(),
+        };
+        let (qa, qb): (Qid, Qid) = ("qa".into(), "qb".into());
+        s.keep_crashes(std::slice::from_ref(&crash), std::slice::from_ref(&qa));
+        // A change set that leaves qa unsatisfied (qb too, now) is not its repair; kept
+        // again, it still waits for qa only.
+        let both = [qa.clone(), qb.clone()];
+        let unrepaired = s.unrepaired(std::slice::from_ref(&crash), &both);
+        assert_eq!(unrepaired, std::slice::from_ref(&crash));
+        s.keep_crashes(&unrepaired, &both);
+        assert_eq!(
+            s.unrepaired(std::slice::from_ref(&crash), &[qa]),
+            std::slice::from_ref(&crash)
+        );
+        // qa satisfied (qb still not): repaired, and forgotten.
+        assert!(s.unrepaired(std::slice::from_ref(&crash), &[qb]).is_empty());
+        assert!(s.kept.is_empty());
+        // A crash never kept is repaired by the change set of its own review.
+        assert!(s.unrepaired(std::slice::from_ref(&crash), &[]).is_empty());
     }
 
     #[test]
