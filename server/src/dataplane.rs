@@ -444,12 +444,18 @@ async fn run(f: impl FnOnce() -> Result<(), LifecycleError> + Send + 'static) {
 mod tests {
     use super::*;
 
+    /// `text` read as a Zenoh configuration file; the file is removed once read (the tests
+    /// left a directory of them in the temporary directory at every run).
     fn file(text: &str) -> ZenohFile {
         let dir = std::env::temp_dir().join(format!("dyknow-zenoh-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join(format!("{:x}.json5", fxhash(text)));
         std::fs::write(&path, text).unwrap();
-        ZenohFile::read(&path).unwrap()
+        let read = ZenohFile::read(&path);
+        let _ = std::fs::remove_file(&path);
+        // Only once empty: tests on other threads may be writing theirs.
+        let _ = std::fs::remove_dir(&dir);
+        read.unwrap()
     }
 
     fn fxhash(text: &str) -> u64 {
