@@ -55,27 +55,31 @@ pub struct ProcessEnv {
 /// clock ticks since boot): unlike the pid alone, it is never another process's after this one
 /// is gone. `None` without `/proc` or when no such process runs.
 pub fn process_identity(pid: u32) -> Option<String> {
+    stat(pid).map(|(_, start)| format!("{pid}:{start}"))
+}
+
+/// The state (field 3) and start time (field 22) of process `pid`, from one read of
+/// `/proc/<pid>/stat`.
+fn stat(pid: u32) -> Option<(char, String)> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     // The command (field 2) is in parentheses and may hold anything: count after the last ')'
     // (the state, field 3, comes first).
-    let start = stat.rsplit_once(')')?.1.split_whitespace().nth(19)?;
-    Some(format!("{pid}:{start}"))
+    let mut fields = stat.rsplit_once(')')?.1.split_whitespace();
+    let state = fields.next()?.chars().next()?;
+    let start = fields.nth(18)?.to_owned();
+    Some((state, start))
 }
 
 /// Whether the process `identity` ([`process_identity`]) still runs; a zombie (exited, not
 /// yet reaped) does not.
 fn still_runs(identity: &str) -> bool {
-    let Some(pid) = identity.split(':').next().and_then(|p| p.parse().ok()) else {
+    let Some((pid, start)) = identity
+        .split_once(':')
+        .and_then(|(p, s)| Some((p.parse().ok()?, s)))
+    else {
         return true;
     };
-    let zombie = std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|s| {
-            s.rsplit_once(')')
-                .map(|(_, r)| r.trim_start().starts_with('Z'))
-        })
-        .unwrap_or(false);
-    !zombie && process_identity(pid).as_deref() == Some(identity)
+    stat(pid).is_some_and(|(state, now)| state != 'Z' && now == start)
 }
 
 fn list(var: &str) -> Vec<String> {

@@ -164,10 +164,7 @@ impl ProcessCu {
             .env("DYKNOW_NAMESPACE", launch.namespace.as_str())
             .env("DYKNOW_CONNECT", launch.connect.join(","))
             .env("DYKNOW_EXECUTOR", &launch.executor)
-            .env(
-                "DYKNOW_EXECUTOR_PROCESS",
-                dyknow_cu::process_identity(std::process::id()).unwrap_or_default(),
-            )
+            .env("DYKNOW_EXECUTOR_PROCESS", executor_identity())
             .env("DYKNOW_INPUTS", spec.inputs.join(","))
             .env("DYKNOW_OUTPUTS", spec.outputs.join(","))
             .env(
@@ -463,6 +460,12 @@ fn wait(child: &mut Child) -> String {
         },
         Err(e) => format!("cannot be waited for: {e}"),
     }
+}
+
+/// This executor's process ([`dyknow_cu::process_identity`]), read once.
+fn executor_identity() -> &'static str {
+    static IDENTITY: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    IDENTITY.get_or_init(|| dyknow_cu::process_identity(std::process::id()).unwrap_or_default())
 }
 
 /// How many lines of a process CU's standard error the executor logs per second at most (a

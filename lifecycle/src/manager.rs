@@ -791,15 +791,17 @@ impl Manager {
         // Crashes kept from earlier that this change set does not repair stay kept: it is
         // not theirs (a target added meanwhile is its cause).
         let unsatisfied = &reviewed.compiled.unsatisfied_targets;
-        let unrepaired = lock(&self.schedule).unrepaired(causes, unsatisfied);
+        let unrepaired = {
+            let mut schedule = lock(&self.schedule);
+            let unrepaired = schedule.unrepaired(causes, unsatisfied);
+            schedule.keep_crashes(&unrepaired, unsatisfied);
+            unrepaired
+        };
         let causes: Vec<Cause> = causes
             .iter()
             .filter(|c| !unrepaired.contains(c))
             .cloned()
             .collect();
-        if !unrepaired.is_empty() {
-            lock(&self.schedule).keep_crashes(&unrepaired, unsatisfied);
-        }
         let cause = match causes.first().cloned().unwrap_or(Cause::Review) {
             // One review for a burst of crashes: its cause names every CU it repairs.
             Cause::CuCrashed { cu, mut also } => {
