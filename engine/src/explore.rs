@@ -391,9 +391,86 @@ impl Scratch {
 
 /// A minimum-cost assignment of rows to distinct columns, as many rows as possible first:
 /// (rows left unassigned, total cost). `rows[r]` lists the (column, cost) pairs row `r` may
-/// take. The Hungarian method (shortest augmenting paths with potentials, O(n² m)), with one
-/// dummy column per row at a cost above every real assignment.
+/// take.
+///
+/// Rows that share no column, directly or through other rows, do not compete: the problem
+/// splits into the connected components of the rows (union-find over the columns they list).
+/// A row alone in its component takes its cheapest column, or stays unassigned if it lists
+/// none; larger components go to [`hungarian`]. The optimum is the sum of the components'
+/// optima (first fewest unassigned, then least cost, both additive). Without the split, the
+/// dense method took O(n² m) time and n·m cells for n rows: a formula group's thousands of
+/// symbol targets, each with a channel of its own and no producer, made it allocate
+/// gigabytes and take seconds per bound.
 fn assignment(rows: &[Vec<(usize, f64)>], columns: usize) -> (usize, f64) {
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    // Union-find over the rows: each column joins the first row that lists it with the rest.
+    let mut parent: Vec<usize> = (0..rows.len()).collect();
+    let mut first_row = vec![usize::MAX; columns];
+    for (r, row) in rows.iter().enumerate() {
+        for &(c, _) in row {
+            if first_row[c] == usize::MAX {
+                first_row[c] = r;
+            } else {
+                let (a, b) = (find(&mut parent, first_row[c]), find(&mut parent, r));
+                if a != b {
+                    parent[a.max(b)] = a.min(b);
+                }
+            }
+        }
+    }
+    let mut members: FxHashMap<usize, Vec<usize>> = FxHashMap::default();
+    let mut order = Vec::new();
+    for r in 0..rows.len() {
+        let root = find(&mut parent, r);
+        members
+            .entry(root)
+            .or_insert_with(|| {
+                order.push(root);
+                Vec::new()
+            })
+            .push(r);
+    }
+    let mut unassigned = 0;
+    let mut cost = 0.0;
+    for root in order {
+        let component = &members[&root];
+        if let [r] = component.as_slice() {
+            match rows[*r].iter().map(|(_, c)| *c).reduce(f64::min) {
+                Some(c) => cost += c,
+                None => unassigned += 1,
+            }
+            continue;
+        }
+        // Renumber the component's columns densely.
+        let mut local: FxHashMap<usize, usize> = FxHashMap::default();
+        let sub: Vec<Vec<(usize, f64)>> = component
+            .iter()
+            .map(|r| {
+                rows[*r]
+                    .iter()
+                    .map(|&(c, w)| {
+                        let next = local.len();
+                        (*local.entry(c).or_insert(next), w)
+                    })
+                    .collect()
+            })
+            .collect();
+        let (u, c) = hungarian(&sub, local.len());
+        unassigned += u;
+        cost += c;
+    }
+    (unassigned, cost)
+}
+
+/// [`assignment`] by the Hungarian method (shortest augmenting paths with potentials,
+/// O(n² m)), with one dummy column per row at a cost above every real assignment.
+fn hungarian(rows: &[Vec<(usize, f64)>], columns: usize) -> (usize, f64) {
     let n = rows.len();
     if n == 0 {
         return (0, 0.0);
@@ -1655,15 +1732,13 @@ impl<'a> Search<'a> {
                 }
             })
             .collect();
+        // Each target's channel, as the position of the first target on it (one map, not a
+        // scan per target: thousands of targets come with a formula group's symbols).
+        let mut first_on: FxHashMap<&Channel, usize> = FxHashMap::default();
         let channel_of: Vec<usize> = targets
             .iter()
-            .map(|q| {
-                let c = &env.targets[q].channel;
-                targets
-                    .iter()
-                    .position(|o| env.targets[o].channel == *c)
-                    .unwrap_or(0)
-            })
+            .enumerate()
+            .map(|(k, q)| *first_on.entry(&env.targets[q].channel).or_insert(k))
             .collect();
         // The current wiring, tried first so that a review keeps what works at equal cost.
         let publishers = env.publishers();
@@ -1851,15 +1926,20 @@ impl<'a> Search<'a> {
         // consumer slots that may read from it.
         // Jobs wanting the same providers have the same reach: walk it once, count it for each.
         let mut groups: Vec<(Arc<[usize]>, u32)> = Vec::new();
+        // Providers are interned: the same list is the same `Arc`, found by its address.
+        let mut group_of: FxHashMap<*const usize, usize> = FxHashMap::default();
         for &job in jobs {
             let providers = self.job_arc(job);
             // A free target still counts: the assignment bound may give it another port.
             if job.node != 0 && self.free(&providers) {
                 continue;
             }
-            match groups.iter_mut().find(|(g, _)| Arc::ptr_eq(g, &providers)) {
-                Some((_, count)) => *count += 1,
-                None => groups.push((providers, 1)),
+            match group_of.entry(providers.as_ptr()) {
+                std::collections::hash_map::Entry::Occupied(g) => groups[*g.get()].1 += 1,
+                std::collections::hash_map::Entry::Vacant(g) => {
+                    g.insert(groups.len());
+                    groups.push((providers, 1));
+                }
             }
         }
         let mut stack: Vec<usize> = Vec::new();
@@ -1973,14 +2053,21 @@ impl<'a> Search<'a> {
             };
         }
         let mut columns: Vec<(usize, usize)> = Vec::new();
+        // Each column's index, and each open channel's candidate ports: built in one pass
+        // (a scan of the jobs per channel was quadratic in the targets: thousands of them
+        // come with a formula group's symbols).
+        let mut column_of: FxHashMap<(usize, usize), usize> = FxHashMap::default();
+        let mut ports_of: FxHashMap<usize, Vec<(usize, usize)>> = FxHashMap::default();
+        for j in jobs.iter().filter(|j| j.node == 0) {
+            ports_of
+                .entry(self.channel_of[j.input])
+                .or_default()
+                .extend(self.ports_target[j.input].iter().copied());
+        }
         let mut rows: Vec<Vec<(usize, f64)>> = Vec::with_capacity(channels.len());
         let mut private: Vec<f64> = Vec::with_capacity(channels.len());
         for c in &channels {
-            let mut ports: Vec<(usize, usize)> = jobs
-                .iter()
-                .filter(|j| j.node == 0 && self.channel_of[j.input] == *c)
-                .flat_map(|j| self.ports_target[j.input].iter().copied())
-                .collect();
+            let mut ports = ports_of.remove(c).unwrap_or_default();
             ports.sort_unstable();
             ports.dedup();
             let mut row = Vec::with_capacity(ports.len() + 1);
@@ -2009,7 +2096,7 @@ impl<'a> Search<'a> {
                 }
                 let share = |cost: f64| cost / self.out_counts[t].max(1) as f64;
                 further = further.min(share(self.further_cost[t]) + below);
-                if taken.contains(&(t, port)) {
+                if taken.binary_search(&(t, port)).is_ok() {
                     continue;
                 }
                 let weight = if self.in_plan[t] {
@@ -2017,13 +2104,10 @@ impl<'a> Search<'a> {
                 } else {
                     share(self.own[t]) + below
                 };
-                let col = match columns.iter().position(|k| *k == (t, port)) {
-                    Some(k) => k,
-                    None => {
-                        columns.push((t, port));
-                        columns.len() - 1
-                    }
-                };
+                let col = *column_of.entry((t, port)).or_insert_with(|| {
+                    columns.push((t, port));
+                    columns.len() - 1
+                });
                 row.push((col, weight));
             }
             rows.push(row);
@@ -2054,25 +2138,32 @@ impl<'a> Search<'a> {
             .enumerate()
             .filter_map(|(q, l)| l.map(|l| (q, l)))
             .collect();
+        // Sets, not scans of `fed` per job: linear in the targets, however many there are.
+        let fed_channels: rustc_hash::FxHashSet<usize> =
+            fed.iter().map(|(q, _)| self.channel_of[*q]).collect();
+        let fed_ports: rustc_hash::FxHashSet<(usize, usize)> =
+            fed.iter().map(|(_, l)| (l.node, l.port)).collect();
         let mut channels: Vec<usize> = jobs
             .iter()
             .filter(|j| j.node == 0)
             .map(|j| self.channel_of[j.input])
-            .filter(|c| !fed.iter().any(|(q, _)| self.channel_of[*q] == *c))
+            .filter(|c| !fed_channels.contains(c))
             .collect();
         channels.sort_unstable();
         channels.dedup();
         // An out port of a transformation is taken when every node of it publishes it for a
         // target already.
-        let taken = fed
+        let mut taken: Vec<(usize, usize)> = fed
             .iter()
             .map(|(_, l)| (self.node_tids[l.node], l.port))
             .filter(|(t, port)| {
                 self.registry[*t]
                     .iter()
-                    .all(|&node| fed.iter().any(|(_, l)| l.node == node && l.port == *port))
+                    .all(|&node| fed_ports.contains(&(node, *port)))
             })
             .collect();
+        taken.sort_unstable();
+        taken.dedup();
         (channels, taken)
     }
 
@@ -2435,7 +2526,9 @@ impl<'a> Search<'a> {
 
 #[cfg(test)]
 mod tests {
-    use super::{Best, Cost, Guide, Link, NodeKind, PlanNode, Shared, assignment, matching};
+    use super::{
+        Best, Cost, Guide, Link, NodeKind, PlanNode, Shared, assignment, hungarian, matching,
+    };
 
     /// The search's universe: what can feed a target, or an input of a CU, backwards through
     /// the candidate table, and the CUs' transformations; keyed by library position.
@@ -2749,13 +2842,16 @@ mod tests {
         (best_n, best_c)
     }
 
+    /// Rows over up to 8 columns, each listing at most 3 of them (so that rows often fall
+    /// into several components) or, with `dense`, any number.
     fn rows() -> impl Strategy<Value = (Vec<Vec<(usize, f64)>>, usize)> {
-        (1usize..6).prop_flat_map(|columns| {
+        (1usize..9, any::<bool>()).prop_flat_map(|(columns, dense)| {
+            let per_row = if dense { columns } else { columns.min(3) };
             (
                 prop::collection::vec(
-                    prop::collection::btree_map(0..columns, 0u8..20, 0..=columns)
+                    prop::collection::btree_map(0..columns, 0u8..20, 0..=per_row)
                         .prop_map(|m| m.into_iter().map(|(c, w)| (c, f64::from(w))).collect()),
-                    0..6,
+                    0..7,
                 ),
                 Just(columns),
             )
@@ -2768,7 +2864,11 @@ mod tests {
             let (unassigned, cost) = assignment(&rows, columns);
             let (assigned, best) = brute(&rows, &mut vec![false; columns], 0);
             prop_assert_eq!(rows.len() - unassigned, assigned);
-            prop_assert!((cost - best).abs() < 1e-9, "hungarian {} brute force {}", cost, best);
+            prop_assert!((cost - best).abs() < 1e-9, "split {} brute force {}", cost, best);
+            // The split into components agrees with the dense method on the whole.
+            let (whole_unassigned, whole_cost) = hungarian(&rows, columns);
+            prop_assert_eq!(unassigned, whole_unassigned);
+            prop_assert!((cost - whole_cost).abs() < 1e-9, "split {} whole {}", cost, whole_cost);
             let edges: Vec<Vec<usize>> =
                 rows.iter().map(|r| r.iter().map(|(c, _)| *c).collect()).collect();
             prop_assert_eq!(matching(&edges, columns), assigned);

@@ -7,6 +7,7 @@
 //! replayed through `dyknow check` with the same formulas, against real time.
 //!
 //! `cargo bench -p dyknow-server --bench groups -- [--seconds S] [--symbols N] [--hz H]`
+//! (or `-- --create 5,10,15,21`: the time `POST /groups` takes for large groups, see `create`)
 //! (`./dev bench groups` runs it for 180 s: about 100,000 states); `--baseline 1` runs the same
 //! sources and CUs with the group never started.
 
@@ -141,7 +142,83 @@ fn formulas(symbols: usize, hz: u64) -> Vec<String> {
     out
 }
 
+/// `--create N,N,..`: how long `POST /groups` takes to answer for a group of one formula whose
+/// three nested `forall` over a domain of `N` constants ground `N`³ symbols, each a target
+/// (the groups' limit is 10,000 ground atoms: 21³ = 9,261 is the largest cube under it). On
+/// disk with the embedded executor, as `./dev serve` runs; each group is deleted before the
+/// next (its targets released), and each uses a predicate of its own.
+fn create(sizes: &str) {
+    let zenoh_ep = format!("tcp/127.0.0.1:{}", free_port());
+    let data = std::env::temp_dir().join(format!("dyknow-groups-create-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&data);
+    // `DYKNOW_BIN`: another build of `dyknow` to measure (an earlier commit's, to compare).
+    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
+    let mut child = Command::new(bin)
+        .arg("serve")
+        .arg("--data")
+        .arg(&data)
+        .args(["--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh_ep])
+        .env("RUST_LOG", "warn,dyknow_server=info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let url = loop {
+        let line = lines.next().expect("the service exited").unwrap();
+        if let Some(rest) = line.split("listening on ").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_owned();
+        }
+    };
+    std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
+    let service = Proc(child);
+    println!("| domain | symbols (targets) | POST /groups answered in | DELETE answered in |");
+    println!("| ---: | ---: | ---: | ---: |");
+    for (k, n) in sizes
+        .split(',')
+        .filter_map(|n| n.trim().parse::<usize>().ok())
+        .enumerate()
+    {
+        let domain: Vec<String> = (0..n).map(|i| format!("c{i}")).collect();
+        let body = json!({
+            "label": format!("create{k}"),
+            "domains": {"D": domain},
+            "formulas": [format!("forall x in D: forall y in D: forall z in D: always[0,1s] P{k}(x,y,z)")],
+            "start": true,
+        });
+        let started = Instant::now();
+        let group = post(&url, "/groups", "application/json", &body.to_string());
+        let took = started.elapsed();
+        assert_eq!(group["symbols"].as_array().map_or(0, Vec::len), n * n * n);
+        let started = Instant::now();
+        let status = agent()
+            .delete(&format!("{url}/groups/create{k}"))
+            .call()
+            .unwrap()
+            .status()
+            .as_u16();
+        assert_eq!(status, 204);
+        println!(
+            "| {n} | {} | {:.2} s | {:.2} s |",
+            n * n * n,
+            took.as_secs_f64(),
+            started.elapsed().as_secs_f64()
+        );
+    }
+    drop(service);
+    let _ = std::fs::remove_dir_all(&data);
+}
+
 fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(sizes) = args
+        .iter()
+        .position(|a| a == "--create")
+        .and_then(|i| args.get(i + 1))
+    {
+        create(sizes);
+        return;
+    }
     let seconds = arg("--seconds", 25);
     let symbols = arg("--symbols", 100) as usize;
     let hz = arg("--hz", 100);

@@ -146,13 +146,23 @@ enum Input {
     Stop,
 }
 
-/// A running group's thread and subscriptions.
+/// A running group's thread and subscription.
 struct Runner {
     tx: mpsc::Sender<Input>,
     thread: Option<std::thread::JoinHandle<()>>,
-    /// By stream index; `None` for inactive streams (or without a data plane).
-    subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
+    /// One subscriber to every symbol channel (`/dyknow/symbols/**`; `None` without a data
+    /// plane), and the active streams by the key expression of their channel. One per stream
+    /// cost Zenoh a match against every key it knew at each declaration: starting a group of
+    /// 9,261 symbols took 6–7 s in declarations alone.
+    subscriber: Option<zenoh::pubsub::Subscriber<()>>,
+    routes: Arc<std::sync::RwLock<Routes>>,
 }
+
+/// The prefix of every symbol channel ([`dyknow_group::TargetTag::channel`]).
+const SYMBOL_CHANNELS: &str = "/dyknow/symbols";
+
+/// The streams a symbol channel's samples go to, by key expression.
+type Routes = std::collections::HashMap<String, Vec<usize>>;
 
 /// A group's live state.
 struct Core {
@@ -520,18 +530,15 @@ impl Groups {
         if runner.is_some() {
             return Ok(());
         }
-        let mut subscribers = Vec::new();
+        let routes: Arc<std::sync::RwLock<Routes>> = Arc::default();
         {
             let mut core = g.core();
             core.sync.start(now_ms());
-            for (i, s) in core.streams.iter().enumerate() {
-                subscribers.push(if s.active {
-                    self.subscribe(i, &s.tag, &tx)?
-                } else {
-                    None
-                });
-            }
+            *routes
+                .write()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = self.routes(&core)?;
         }
+        let subscriber = self.subscribe(&routes, &tx)?;
         let this = Arc::downgrade(self);
         let group = g.clone();
         let thread = std::thread::Builder::new()
@@ -541,42 +548,73 @@ impl Groups {
         *runner = Some(Runner {
             tx,
             thread: Some(thread),
-            subscribers,
+            subscriber,
+            routes,
         });
         Ok(())
     }
 
+    /// The active streams of `core` by the key expression of their channel (empty without a
+    /// data plane: nothing arrives, every symbol is unknown).
+    fn routes(&self, core: &Core) -> Result<Routes, GroupError> {
+        let mut routes = Routes::new();
+        let Some(plane) = &self.plane else {
+            return Ok(routes);
+        };
+        for (i, s) in core.streams.iter().enumerate().filter(|(_, s)| s.active) {
+            let key = plane
+                .namespace
+                .channel(&s.tag.channel())
+                .map_err(|e| GroupError::Internal(e.to_string()))?;
+            routes.entry(key).or_default().push(i);
+        }
+        Ok(routes)
+    }
+
+    /// The group's subscriber to every symbol channel, sending each sample to the streams
+    /// `routes` names for its key.
     fn subscribe(
         &self,
-        stream: usize,
-        tag: &TargetTag,
+        routes: &Arc<std::sync::RwLock<Routes>>,
         tx: &mpsc::Sender<Input>,
     ) -> Result<Option<zenoh::pubsub::Subscriber<()>>, GroupError> {
         // Without a data plane (model-only mode) nothing arrives: every symbol is unknown.
         let Some(plane) = &self.plane else {
             return Ok(None);
         };
-        let key = plane
-            .namespace
-            .channel(&tag.channel())
-            .map_err(|e| GroupError::Internal(e.to_string()))?;
-        let tx = tx.clone();
+        // Every symbol channel: `<namespace>/channel/dyknow/symbols/**`.
+        let key = format!(
+            "{}/**",
+            plane
+                .namespace
+                .channel(SYMBOL_CHANNELS)
+                .map_err(|e| GroupError::Internal(e.to_string()))?
+        );
+        let (tx, routes) = (tx.clone(), routes.clone());
         plane
             .session
             .declare_subscriber(key)
             .callback(move |sample| {
+                let streams = routes
+                    .read()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .get(sample.key_expr().as_str())
+                    .cloned();
+                let Some(streams) = streams else { return };
                 let payload = sample.payload().to_bytes();
                 match dyknow_cu::Sample::from_slice(&payload) {
                     Ok(s) => {
                         if let Ok(t) = u64::try_from(s.t) {
-                            let _ = tx.send(Input::Sample {
-                                stream,
-                                t,
-                                value: s.value,
-                            });
+                            for stream in streams {
+                                let _ = tx.send(Input::Sample {
+                                    stream,
+                                    t,
+                                    value: s.value.clone(),
+                                });
+                            }
                         }
                     }
-                    Err(e) => tracing::debug!("group stream {stream}: not a sample: {e}"),
+                    Err(e) => tracing::debug!("group streams {streams:?}: not a sample: {e}"),
                 }
             })
             .wait()
@@ -591,7 +629,7 @@ impl Groups {
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .take();
         if let Some(mut r) = runner {
-            drop(std::mem::take(&mut r.subscribers));
+            drop(r.subscriber.take());
             let _ = r.tx.send(Input::Stop);
             if let Some(t) = r.thread.take() {
                 let _ = t.join();
@@ -710,17 +748,10 @@ impl Groups {
         let Some(r) = runner.as_mut() else {
             return Ok(());
         };
-        let core = g.core();
-        for (i, s) in core.streams.iter().enumerate() {
-            if r.subscribers.len() <= i {
-                r.subscribers.push(None);
-            }
-            match (s.active, r.subscribers[i].is_some()) {
-                (true, false) => r.subscribers[i] = self.subscribe(i, &s.tag, &r.tx)?,
-                (false, true) => r.subscribers[i] = None,
-                _ => {}
-            }
-        }
+        let routes = self.routes(&g.core())?;
+        *r.routes
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = routes;
         Ok(())
     }
 
