@@ -21,7 +21,8 @@
 
 use std::collections::BTreeMap;
 use std::process::ExitCode;
-use std::sync::{Arc, OnceLock, mpsc};
+use std::sync::{Arc, Condvar, Mutex, PoisonError, mpsc};
+use std::time::Duration;
 
 use zenoh::Wait;
 
@@ -72,6 +73,42 @@ fn stat(pid: u32) -> Option<(char, String)> {
 
 /// Whether the process `identity` ([`process_identity`]) still runs; a zombie (exited, not
 /// yet reaped) does not.
+/// How long a control request that arrives while the CU is starting waits for it.
+const START_WAIT: Duration = Duration::from_secs(5);
+
+/// The running unit, once [`Unit::start`] has returned it, for the control service (which is
+/// declared before it).
+struct StartSlot<U = Unit> {
+    unit: Mutex<Option<U>>,
+    set: Condvar,
+}
+
+impl<U> Default for StartSlot<U> {
+    fn default() -> Self {
+        Self {
+            unit: Mutex::new(None),
+            set: Condvar::new(),
+        }
+    }
+}
+
+impl<U: Clone> StartSlot<U> {
+    fn set(&self, unit: U) {
+        *self.unit.lock().unwrap_or_else(PoisonError::into_inner) = Some(unit);
+        self.set.notify_all();
+    }
+
+    /// The unit, waiting at most `limit` for it.
+    fn wait(&self, limit: Duration) -> Option<U> {
+        let guard = self.unit.lock().unwrap_or_else(PoisonError::into_inner);
+        let (guard, _) = self
+            .set
+            .wait_timeout_while(guard, limit, |u| u.is_none())
+            .unwrap_or_else(PoisonError::into_inner);
+        guard.clone()
+    }
+}
+
 fn still_runs(identity: &str) -> bool {
     let Some((pid, start)) = identity
         .split_once(':')
@@ -237,8 +274,12 @@ fn serve<T: Transformation>(
     // One CU: its callbacks run one at a time anyway, so the queue's thread fires them.
     let timers = Timers::with_workers(0);
     // The control service first, then the CU (whose liveliness token tells the executor it
-    // may send requests): a request never finds the service missing.
-    let slot: Arc<OnceLock<Unit>> = Arc::default();
+    // may send requests): a request never finds the service missing. The token is declared
+    // inside `Unit::start`, a moment before the unit is in the slot; a request arriving in
+    // that moment (the executor binds ports as soon as it sees the token) waits for the slot
+    // rather than being refused: refused, the executor took the CU for failed and a spawn
+    // or a restart's respawn failed now and then.
+    let slot: Arc<StartSlot> = Arc::default();
     let control_slot = slot.clone();
     let stop_tx = exit_tx.clone();
     let _queryable = session
@@ -248,7 +289,7 @@ fn serve<T: Transformation>(
                 .payload()
                 .map(|p| serde_json::from_slice(&p.to_bytes()))
                 .unwrap_or_else(|| serde_json::from_slice(b"null"));
-            let reply = match (request, control_slot.get()) {
+            let reply = match (request, control_slot.wait(START_WAIT)) {
                 (Err(e), _) => ControlReply {
                     ok: false,
                     error: Some(format!("not a control request: {e}")),
@@ -259,7 +300,7 @@ fn serve<T: Transformation>(
                     error: Some("still starting".into()),
                     statistics: None,
                 },
-                (Ok(request), Some(unit)) => control(unit, request, &stop_tx),
+                (Ok(request), Some(unit)) => control(&unit, request, &stop_tx),
             };
             let payload = serde_json::to_vec(&reply).unwrap_or_default();
             if let Err(e) = query.reply(query.key_expr().clone(), payload).wait() {
@@ -280,7 +321,7 @@ fn serve<T: Transformation>(
         }),
     )?;
     let unit = started.unit;
-    let _ = slot.set(unit.clone());
+    slot.set(unit.clone());
     // Orphaned when the executor is gone: its process is our parent, so a new parent (init or
     // a subreaper) means it died; and when the executor said which process it is, that
     // process being gone (a wrapper between it and us, a shell that did not `exec`, outlives
@@ -336,5 +377,30 @@ fn control(unit: &Unit, request: ControlRequest, stop: &mpsc::Sender<Exit>) -> C
             error: Some(e.to_string()),
             statistics: None,
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::time::{Duration, Instant};
+
+    use super::StartSlot;
+
+    #[test]
+    fn a_request_waits_for_the_unit_and_gives_up_after_its_limit() {
+        let slot: Arc<StartSlot<u32>> = Arc::default();
+        let started = Instant::now();
+        assert_eq!(slot.wait(Duration::from_millis(50)), None);
+        assert!(started.elapsed() >= Duration::from_millis(50));
+        let setter = slot.clone();
+        let set = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(100));
+            setter.set(7);
+        });
+        // Asked before it is set, answered once it is (well before the limit).
+        assert_eq!(slot.wait(Duration::from_secs(30)), Some(7));
+        set.join().unwrap();
+        assert_eq!(slot.wait(Duration::ZERO), Some(7));
     }
 }

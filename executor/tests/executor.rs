@@ -754,3 +754,65 @@ fn a_process_cu_exits_when_its_executor_process_is_gone_whatever_its_parent() {
     };
     assert_eq!(status.code(), Some(2));
 }
+
+/// A control request that reaches a process CU the moment its liveliness token appears (as
+/// the executor's first bind does) is answered, not refused as "still starting": the token is
+/// declared a moment before the CU is ready, and a refused bind failed the spawn (a user
+/// audit saw 3 spawns in 30 fail so).
+#[test]
+fn a_process_cu_answers_a_request_sent_as_soon_as_its_token_appears() {
+    use dyknow_cu::protocol::{ControlReply, ControlRequest};
+    let (session, endpoint) = session();
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    let namespace = Namespace::default();
+    for round in 0..20 {
+        let name = format!("early-{round}");
+        let (tx, rx) = mpsc::channel::<Result<ControlReply, String>>();
+        let asking = session.clone();
+        let control = namespace.cu_control(&name);
+        let _watch = session
+            .liveliness()
+            .declare_subscriber(namespace.cu_token(&name))
+            .callback(move |token| {
+                if token.kind() != zenoh::sample::SampleKind::Put {
+                    return;
+                }
+                let answer = tx.clone();
+                let request = serde_json::to_vec(&ControlRequest::Statistics).unwrap_or_default();
+                let sent = asking
+                    .get(control.clone())
+                    .payload(request)
+                    .timeout(Duration::from_secs(10))
+                    .callback(move |reply| {
+                        let _ = answer.send(match reply.result() {
+                            Ok(s) => serde_json::from_slice(&s.payload().to_bytes())
+                                .map_err(|e| e.to_string()),
+                            Err(e) => {
+                                Err(String::from_utf8_lossy(&e.payload().to_bytes()).into_owned())
+                            }
+                        });
+                    })
+                    .wait();
+                if let Err(e) = sent {
+                    let _ = tx.send(Err(e.to_string()));
+                }
+            })
+            .wait()
+            .expect("a liveliness subscriber");
+        let mut cu = std::process::Command::new(program)
+            .arg("dyknow/relay")
+            .env("DYKNOW_CU", &name)
+            .env("DYKNOW_CONNECT", &endpoint)
+            .env("DYKNOW_INPUTS", "i")
+            .env("DYKNOW_OUTPUTS", "o")
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("dyknow-cu starts");
+        let reply = rx.recv_timeout(Duration::from_secs(20));
+        let _ = cu.kill();
+        let _ = cu.wait();
+        let reply = reply.expect("an answer to the first request");
+        let reply = reply.expect("a control reply");
+        assert!(reply.ok, "round {round}: refused: {:?}", reply.error);
+    }
+}
