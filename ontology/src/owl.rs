@@ -176,9 +176,15 @@ pub fn rdf_to_owl(
     let (ontology, unparsed_triples) = parse_rdf(rdf, format)?;
     let mapping = prefix_mapping();
     let out = match syntax {
-        OwlSyntax::OwlXml => {
-            horned_owl::io::owx::writer::write(Vec::new(), &ontology, Some(&mapping))
-        }
+        // Full IRIs: horned-owl's OWL/XML writer puts the prefixed names a mapping gives into
+        // `IRI` attributes (`IRI="dyknow:ChangeSet"`), where OWL/XML wants an IRI (prefixed
+        // names go in `abbreviatedIRI`); conforming readers took them for IRIs of scheme
+        // `dyknow`, and owlready2 refused the document.
+        OwlSyntax::OwlXml => horned_owl::io::owx::writer::write(
+            Vec::new(),
+            &ontology,
+            Some(&PrefixMapping::default()),
+        ),
         OwlSyntax::Functional => {
             horned_owl::io::ofn::writer::write(Vec::new(), &ontology, Some(&mapping))
         }

@@ -146,3 +146,26 @@ fn the_ontologies_use_only_declared_vocabulary() {
         }
     }
 }
+
+/// OWL/XML keeps prefixed names out of `IRI` attributes (they belong in `abbreviatedIRI`): a
+/// conforming reader takes `IRI="dyknow:ChangeSet"` for an IRI of scheme `dyknow`.
+#[test]
+fn owl_xml_iri_attributes_hold_full_iris() {
+    for (iri, ttl) in BUILTIN_ONTOLOGIES {
+        let text = rdf_to_owl(ttl.as_bytes(), RdfFormat::Turtle, OwlSyntax::OwlXml)
+            .unwrap()
+            .text;
+        let values: Vec<&str> = text
+            .split(" IRI=\"")
+            .skip(1)
+            .filter_map(|rest| rest.split('"').next())
+            .collect();
+        assert!(values.len() > 50, "{iri}: only {} IRIs", values.len());
+        for value in values {
+            assert!(
+                value.starts_with("http://") || value.starts_with("https://"),
+                "{iri}: IRI={value:?} is not a full IRI"
+            );
+        }
+    }
+}
