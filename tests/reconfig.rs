@@ -802,3 +802,150 @@ async fn set_config_refuses_two_out_ports_of_one_cu_on_one_channel() {
         .await
         .expect(200);
 }
+
+/// Waits until no review runs or is pending.
+async fn quiet(api: &Api) {
+    let reviews = reviews(api).await;
+    settle(api, reviews).await;
+}
+
+/// `dependsOn` as the CUs' bindings say it (`GET /cus`): `a` depends on `b` when `a` reads a
+/// channel `b` publishes on, directly or through other CUs.
+async fn depends_on_by_bindings(api: &Api) -> BTreeSet<(String, String)> {
+    let cus = cus(api).await;
+    let bound = |cu: &Value, ports: &str| -> Vec<String> {
+        cu[ports]
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter_map(|(_, c)| c.as_str().map(str::to_owned))
+            .collect()
+    };
+    let mut pairs = BTreeSet::new();
+    for a in &cus {
+        for b in &cus {
+            let reads = bound(a, "inputs");
+            if bound(b, "outputs").iter().any(|c| reads.contains(c)) {
+                pairs.insert((
+                    a["name"].as_str().unwrap_or("").to_owned(),
+                    b["name"].as_str().unwrap_or("").to_owned(),
+                ));
+            }
+        }
+    }
+    loop {
+        let more: Vec<(String, String)> = pairs
+            .iter()
+            .flat_map(|(a, b)| {
+                pairs
+                    .iter()
+                    .filter(move |(c, _)| c == b)
+                    .map(move |(_, d)| (a.clone(), d.clone()))
+            })
+            .filter(|p| !pairs.contains(p))
+            .collect();
+        if more.is_empty() {
+            return pairs;
+        }
+        pairs.extend(more);
+    }
+}
+
+/// A spec posted again with its ports renamed leaves no subscription of the old ports behind:
+/// after every step the store's `dependsOn` is what the bindings of `GET /cus` say, and no
+/// subscription names a port that is gone (a user audit found the old subscription kept with
+/// its `fromCU`, so `mid dependsOn src` stayed derived, and came back with the old port).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_spec_posted_again_with_a_port_renamed_leaves_no_stale_subscription() {
+    use axum::http::Method;
+    let api = api();
+    // Tags no port produces: no review binds anything, only SetConfig does.
+    let spec = |label: &str, port: &str, direction: &str| {
+        format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+             [] a dyknow:Transformation ; rdfs:label \"{label}\" ;
+                dyknow:{direction} [ dyknow:hasName \"{port}\" ;
+                                     dyknow:hasTag [ dyknow:hasValue \"{label}-{port}\" ] ] ."
+        )
+    };
+    api.post_turtle("/transformations", spec("src", "out", "hasOutPort"))
+        .await
+        .expect(201);
+    api.post_turtle("/transformations", spec("mid", "in", "hasInPort"))
+        .await
+        .expect(201);
+    for (transformation, name) in [("src", "src"), ("mid", "mid")] {
+        api.post(
+            "/cus",
+            "application/json",
+            json!({"transformation": transformation, "name": name, "protected": true}).to_string(),
+        )
+        .await
+        .expect(201);
+    }
+    let put = |cu: &str, body: Value| {
+        let api = &api;
+        let uri = format!("/cus/{cu}/config");
+        async move {
+            api.send(dyknow_acceptance::request(
+                Method::PUT,
+                &uri,
+                &[("content-type", "application/json")],
+                body.to_string().into(),
+            ))
+            .await
+            .expect(200);
+        }
+    };
+    let dangling = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> \
+                    ASK { ?s dyknow:toPort|dyknow:fromPort ?port \
+                          FILTER NOT EXISTS { ?port dyknow:hasName ?name } }";
+    let check = |step: &'static str| {
+        let api = &api;
+        async move {
+            quiet(api).await;
+            let by_bindings = depends_on_by_bindings(api).await;
+            assert_eq!(
+                depends_on(api).await,
+                by_bindings,
+                "{step}: {:?}",
+                cus(api).await
+            );
+            let answer = api
+                .post("/sparql", "application/sparql-query", dangling.to_owned())
+                .await
+                .expect(200)
+                .json();
+            assert_eq!(
+                answer["boolean"], false,
+                "{step}: a binding names a port that is gone"
+            );
+            by_bindings
+        }
+    };
+    let pair = BTreeSet::from([("mid".to_owned(), "src".to_owned())]);
+    put("src", json!({"outputs": {"out": "c1"}})).await;
+    put("mid", json!({"inputs": {"in": "c1"}})).await;
+    assert_eq!(check("bound").await, pair);
+    api.post_turtle("/transformations", spec("mid", "in2", "hasInPort"))
+        .await
+        .expect(201);
+    assert_eq!(check("in port renamed").await, BTreeSet::new());
+    put("src", json!({"outputs": {"out": "c2"}})).await;
+    check("producer moved").await;
+    api.post_turtle("/transformations", spec("mid", "in", "hasInPort"))
+        .await
+        .expect(201);
+    check("old in port back").await;
+    put("mid", json!({"inputs": {"in": "c2"}})).await;
+    assert_eq!(check("bound again").await, pair);
+    api.post_turtle("/transformations", spec("src", "out2", "hasOutPort"))
+        .await
+        .expect(201);
+    assert_eq!(check("out port renamed").await, BTreeSet::new());
+    api.post_turtle("/transformations", spec("src", "out", "hasOutPort"))
+        .await
+        .expect(201);
+    check("old out port back").await;
+}

@@ -257,7 +257,7 @@ impl Manager {
             );
         }
         let (events, _) = broadcast::channel(256);
-        Ok(Self {
+        let manager = Self {
             executor,
             settings,
             specs,
@@ -271,7 +271,11 @@ impl Manager {
             starting: std::sync::atomic::AtomicBool::new(false),
             started: Notify::new(),
             kb,
-        })
+        };
+        // A store written before CU graphs were kept in step with spec writes may hold
+        // subscriptions to ports that are gone: repaired once, here.
+        manager.resync(None)?;
+        Ok(manager)
     }
 
     /// The knowledge base.
@@ -474,6 +478,13 @@ impl Manager {
     /// client saw what its executor did not); a short-term negative perturbation starts a
     /// review at once.
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
+        match &perturbation {
+            Perturbation::Registered { transformations } => self.resync(Some(transformations))?,
+            Perturbation::Deregistered { transformation } => {
+                self.resync(Some(std::slice::from_ref(transformation)))?;
+            }
+            _ => {}
+        }
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
             self.executor.abandon(std::slice::from_ref(cu));
@@ -493,6 +504,26 @@ impl Manager {
     fn remove_crashed(&self, cid: &Cid) -> Result<(), LifecycleError> {
         if self.remove_all_crashed(std::slice::from_ref(cid))? == 0 {
             return Err(LifecycleError::UnknownCu(cid.clone()));
+        }
+        Ok(())
+    }
+
+    /// Rewrites the CU graphs that no longer say what the model says of their CU
+    /// ([`model::resync`]): after the specs of `changed` were written or removed (a port
+    /// renamed or dropped), or, with `None`, every CU's (at start-up). Not a change set: no CU
+    /// changed, only what the store said of them.
+    fn resync(&self, changed: Option<&[Tid]>) -> Result<(), LifecycleError> {
+        let _configuration = lock(&self.configuration);
+        // The whole library (not only what the executors run now): a CU graph writes its
+        // transformation's upkeep whatever runs it.
+        let loaded = self.specs.load(&self.kb, Some(&self.learned()))?;
+        let parts = model::resync(&self.kb, &loaded.env, &loaded.iris, changed)?;
+        if !parts.is_empty() {
+            tracing::info!(
+                "rewrote {} CU graph(s) that no longer matched the specs",
+                parts.len()
+            );
+            self.set_environment(&parts)?;
         }
         Ok(())
     }

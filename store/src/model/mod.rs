@@ -15,6 +15,6 @@ pub use read::{
     change_sets, cus_by_query, learned, load, reserved_names,
 };
 pub use triples::{
-    Delta, HISTORY_RESOURCE, change_set_triples, cu_triples, delta, history_triples,
+    Delta, HISTORY_RESOURCE, change_set_triples, cu_triples, delta, history_triples, resync,
     split_environment, statistics_triples,
 };

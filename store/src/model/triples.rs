@@ -229,6 +229,95 @@ pub fn delta(before: &Environment, after: &Environment, iris: &Iris) -> Delta {
     out
 }
 
+/// The CU graphs of the knowledge base that no longer say what `env` says of their CU, with
+/// what they should hold: the graphs to write so that every CU graph is [`cu_triples`] of its
+/// CU again.
+///
+/// [`delta`] writes what changed between two models, so it relies on each stored graph being
+/// the triples of the model it was read as. A spec write breaks that: a port renamed or
+/// dropped leaves a CU's subscription in its graph, naming a port that is gone (the model reads
+/// the port as unbound) and the channel's publisher (so `dependsOn` stays derived), and when
+/// the port comes back the old subscription is read again with a `fromCU` nobody updates.
+///
+/// `changed`: the transformations whose specs were written or removed; only their CUs, the
+/// CUs reading a channel one of them publishes on, and the CUs whose stored subscriptions name
+/// one of them are compared. `None` compares every CU (at start-up, to repair a store written
+/// before this existed).
+pub fn resync(
+    kb: &KnowledgeBase,
+    env: &Environment,
+    iris: &Iris,
+    changed: Option<&[Tid]>,
+) -> Result<Vec<(EnvironmentPart, Vec<Triple>)>, ModelReadError> {
+    let publishers = env.publishers();
+    let names: BTreeSet<&dyknow_engine::Cid> = match changed {
+        None => env.cus.keys().collect(),
+        Some(tids) => {
+            let of_changed: BTreeSet<&dyknow_engine::Cid> = env
+                .cus
+                .values()
+                .filter(|cu| tids.contains(&cu.tid))
+                .map(|cu| &cu.cid)
+                .collect();
+            // Every CU of the model graph-named; those whose stored subscriptions come from
+            // a CU of a changed transformation.
+            let graphs: BTreeMap<String, &dyknow_engine::Cid> = env
+                .cus
+                .keys()
+                .map(|cid| (EnvironmentPart::Cu(cid.clone()).graph().into_string(), cid))
+                .collect();
+            let mut names = of_changed.clone();
+            for cid in &of_changed {
+                let from = cu_resource(cid);
+                for quad in kb.store().quads_for_pattern(
+                    None,
+                    Some(dyknow::FROM_CU),
+                    Some(from.as_ref().into()),
+                    None,
+                ) {
+                    if let oxigraph::model::GraphName::NamedNode(g) = quad?.graph_name
+                        && let Some(cid) = graphs.get(g.as_str())
+                    {
+                        names.insert(cid);
+                    }
+                }
+            }
+            // Those reading a channel a CU of a changed transformation publishes on now.
+            let channels: BTreeSet<&str> = of_changed
+                .iter()
+                .filter_map(|cid| env.cus.get(*cid))
+                .flat_map(|cu| cu.outputs.values().flatten().map(|c| c.as_str()))
+                .collect();
+            names.extend(
+                env.cus
+                    .values()
+                    .filter(|cu| {
+                        cu.inputs
+                            .values()
+                            .flatten()
+                            .any(|c| channels.contains(c.as_str()))
+                    })
+                    .map(|cu| &cu.cid),
+            );
+            names
+        }
+    };
+    let mut parts = Vec::new();
+    for cid in names {
+        let Some(cu) = env.cus.get(cid) else { continue };
+        let part = EnvironmentPart::Cu(cid.clone());
+        let stored: HashSet<Triple> = kb
+            .graph_triples(part.graph().as_ref())?
+            .into_iter()
+            .collect();
+        let should = cu_triples_with(cu, env, &publishers, iris);
+        if should.len() != stored.len() || !should.iter().all(|t| stored.contains(t)) {
+            parts.push((part, should));
+        }
+    }
+    Ok(parts)
+}
+
 /// The CU that a subscription to `channel` is written as coming from (the first publisher),
 /// with its out port.
 fn first_publisher<'a>(
