@@ -424,12 +424,22 @@ pub fn parse_domain(arg: &str) -> Result<(String, Vec<String>), String> {
     if name.trim().is_empty() {
         return Err(format!("--domain {arg}: the domain needs a name"));
     }
+    // `NAME=` is the empty domain; otherwise no constant is empty (`E=a,,b`, `E=,a` name a
+    // constant "", which the header refuses too: `mstl.md`).
+    if constants.trim().is_empty() {
+        return Ok((name.trim().to_owned(), Vec::new()));
+    }
     let constants: Vec<String> = constants
         .split(',')
         .map(str::trim)
-        .filter(|c| !c.is_empty())
         .map(str::to_owned)
         .collect();
+    if let Some(k) = constants.iter().position(String::is_empty) {
+        return Err(format!(
+            "--domain {arg}: constant {} is empty (a constant is not empty)",
+            k + 1
+        ));
+    }
     Ok((name.trim().to_owned(), constants))
 }
 
@@ -439,4 +449,24 @@ pub fn by_formula(verdicts: &[Verdict]) -> BTreeMap<usize, (Truth, u64)> {
         .iter()
         .map(|v| (v.formula, (v.truth, v.t)))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_domain;
+
+    #[test]
+    fn a_domain_argument_names_no_empty_constant() {
+        assert_eq!(
+            parse_domain("UAV=uav1, uav2"),
+            Ok(("UAV".to_owned(), vec!["uav1".to_owned(), "uav2".to_owned()]))
+        );
+        assert_eq!(parse_domain("E="), Ok(("E".to_owned(), Vec::new())));
+        for arg in ["E=,", "E=a,,b", "E=,a", "E=a,"] {
+            let error = parse_domain(arg).unwrap_err();
+            assert!(error.contains("is empty"), "{arg}: {error}");
+        }
+        assert!(parse_domain("=a").is_err());
+        assert!(parse_domain("E").is_err());
+    }
 }

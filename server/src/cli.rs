@@ -354,6 +354,16 @@ pub struct ExecutorArgs {
 /// A failure of a subcommand: the one-line message and the exit status.
 struct Failure(u8, String);
 
+/// Writes `text` to standard output: a closed pipe (`dyknow rcc8 f | head -1`) is an error
+/// to report, exit 2, not a panic as `print!` makes it.
+fn write_stdout(text: &str) -> Result<(), Failure> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())
+        .and_then(|()| out.flush())
+        .map_err(|e| Failure(2, format!("writing the output: {e}")))
+}
+
 impl<E: std::fmt::Display> From<E> for Failure {
     fn from(e: E) -> Self {
         Self(2, e.to_string())
@@ -702,7 +712,7 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
         reviewed.compiled,
         delta.ntriples(),
     );
-    println!("{}", serde_json::to_string_pretty(&change_set)?);
+    write_stdout(&format!("{}\n", serde_json::to_string_pretty(&change_set)?))?;
     if change_set.unsatisfied_targets.is_empty() {
         Ok(())
     } else {
@@ -811,7 +821,7 @@ fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
             inconsistent += 1;
         }
     }
-    print!("{out}");
+    write_stdout(&out)?;
     if inconsistent > 0 {
         return Err(Failure(
             1,
@@ -838,7 +848,7 @@ fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
     }
     let kb = open_store(data)?;
     for file in files {
-        println!("{}", load_file(&kb, &file)?);
+        write_stdout(&format!("{}\n", load_file(&kb, &file)?))?;
     }
     kb.flush()?;
     Ok(())

@@ -128,6 +128,15 @@ pub enum GroupCommand {
 /// A failure: exit status and message.
 pub struct Failure(pub u8, pub String);
 
+/// Writes `text` to standard output: a closed pipe is an error to report (exit 2), not a
+/// panic as `print!` makes it.
+fn write_stdout(text: &str) -> Result<(), Failure> {
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())
+        .and_then(|()| out.flush())
+        .map_err(|e| Failure(2, format!("writing the output: {e}")))
+}
+
 fn agent(timeout: Option<Duration>) -> ureq::Agent {
     ureq::Agent::config_builder()
         .http_status_as_error(false)
@@ -352,7 +361,7 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
                 &format!("/groups/{}/formulas", enc(&label)),
                 Some(json!({"formula": formula})),
             )?;
-            println!("{}", v["index"]);
+            write_stdout(&format!("{}\n", v["index"]))?;
             Ok(())
         }
         GroupCommand::Remove { label, index } => {
@@ -385,7 +394,7 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
             if r.status().as_u16() >= 400 {
                 return Err(http_failure(r.status().as_u16(), &text));
             }
-            print!("{text}");
+            write_stdout(&text)?;
             Ok(())
         }
         GroupCommand::Watch {

@@ -94,3 +94,34 @@ fn bytes_that_are_not_utf8_are_located() {
         "{stderr}"
     );
 }
+
+/// Output to a pipe that was closed (`dyknow rcc8 f | head -1`) is an error (exit 2), not a
+/// panic (it was exit 101, "failed printing to stdout").
+#[test]
+fn a_closed_output_pipe_is_an_error_not_a_panic() {
+    let mut input = String::from("1999\n");
+    for i in 0..1999 {
+        input.push_str(&format!("{i} {} ( NTPP )\n", i + 1));
+    }
+    input.push_str(".\n");
+    let mut child = Command::new(BIN)
+        .args(["rcc8", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before anything is written.
+    drop(child.stdout.take());
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(stderr.contains("writing the output"), "{stderr}");
+}
