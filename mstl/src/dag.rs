@@ -125,11 +125,13 @@ type Members = SmallVec<[NodeId; 8]>;
 enum Kind {
     Always,
     Eventually,
+    Until,
 }
 
-/// A member window: kind, anchored, body, the interval it still covers, and its node (`None`
-/// once merged into a new one).
-type Member = (Kind, bool, NodeId, Interval, Option<NodeId>);
+/// A member window: kind, anchored, body (for `until`, its left operand, with its right
+/// operand next; for the others the body twice), the interval it still covers, and its node
+/// (`None` once merged into a new one).
+type Member = (Kind, bool, NodeId, NodeId, Interval, Option<NodeId>);
 
 impl Dag {
     pub(crate) fn node(&self, id: NodeId) -> &Node {
@@ -324,22 +326,29 @@ impl Dag {
     /// Interval subsumption among the members over the same body. In a conjunction,
     /// `F[I] φ ∧ F[J] φ = F[I] φ` when `I ⊆ J`, and `G[I] φ ∧ G[J] φ = G[I ∪ J] φ` when the
     /// intervals overlap or touch (timestamps are integers); in a disjunction the duals.
+    /// `until` is `eventually` with a condition on the states before its witness, the same
+    /// for both windows, so it merges as `eventually` does: `ψ U[I] φ ∧ ψ U[J] φ = ψ U[I] φ`
+    /// when `I ⊆ J` (a witness in `I` is one in `J`), and `ψ U[I] φ ∨ ψ U[J] φ = ψ U[I ∪ J]
+    /// φ`. Without it, `always (p -> (q U r))` kept one obligation per state until `r`: time
+    /// and memory grew with the square of the wait.
     /// Anchored windows are compared on what they still cover, from the state after `now`
     /// (a progressed formula holds from there on); a member kept whole keeps its node.
     fn merge_windows(&mut self, items: &mut Members, conj: bool) {
         let after = self.now.map_or(0, |t| t.saturating_add(1));
         let member = |n: &Node, id: NodeId| -> Option<Member> {
-            let (kind, w, body) = match n {
-                Node::Always(w, b) => (Kind::Always, *w, *b),
-                Node::Eventually(w, b) => (Kind::Eventually, *w, *b),
+            let (kind, w, a, b) = match n {
+                Node::Always(w, a) => (Kind::Always, *w, *a, *a),
+                Node::Eventually(w, a) => (Kind::Eventually, *w, *a, *a),
+                Node::Until(w, a, b) => (Kind::Until, *w, *a, *b),
                 _ => return None,
             };
             Some(match w {
-                Window::Rel(iv) => (kind, false, body, iv, Some(id)),
+                Window::Rel(iv) => (kind, false, a, b, iv, Some(id)),
                 Window::Abs { lo, hi } => (
                     kind,
                     true,
-                    body,
+                    a,
+                    b,
                     Interval {
                         lo: lo.max(after),
                         hi,
@@ -355,49 +364,81 @@ impl Dag {
         if windows.len() < 2 {
             return;
         }
-        windows.sort_unstable_by_key(|(k, a, b, iv, _)| {
-            (*k, *a, *b, iv.lo, iv.hi.map_or(u64::MAX, |h| h))
+        let group = |m: &Member| (m.0, m.1, m.2, m.3);
+        windows.sort_unstable_by_key(|m| (group(m), m.4.lo, m.4.hi.map_or(u64::MAX, |h| h)));
+        let same_group = windows.windows(2).any(|p| group(&p[0]) == group(&p[1]));
+        let across = windows.iter().any(|u| {
+            u.0 == Kind::Until
+                && windows
+                    .iter()
+                    .any(|f| f.0 == Kind::Eventually && f.1 == u.1 && f.2 == u.3)
         });
-        if !windows
-            .windows(2)
-            .any(|p| (p[0].0, p[0].1, p[0].2) == (p[1].0, p[1].1, p[1].2))
-        {
+        if !same_group && !across {
             return;
         }
         let mut out: SmallVec<[Member; 4]> = SmallVec::new();
         for w in windows {
             if let Some(last) = out.last_mut()
-                && (last.0, last.1, last.2) == (w.0, w.1, w.2)
+                && group(last) == group(&w)
             {
-                // `union` merges (G in ∧, F in ∨); otherwise keep the narrower when nested.
+                // `union` merges (G in ∧, F and U in ∨); otherwise keep the narrower when
+                // nested.
                 let union = (w.0 == Kind::Always) == conj;
                 if union {
-                    if contains(last.3, w.3) {
+                    if contains(last.4, w.4) {
                         continue;
                     }
-                    if contains(w.3, last.3) {
+                    if contains(w.4, last.4) {
                         *last = w;
                         continue;
                     }
-                    if touches(last.3, w.3) {
-                        last.3 = Interval {
-                            lo: last.3.lo,
-                            hi: max_hi(last.3.hi, w.3.hi),
+                    if touches(last.4, w.4) {
+                        last.4 = Interval {
+                            lo: last.4.lo,
+                            hi: max_hi(last.4.hi, w.4.hi),
                         };
-                        last.4 = None;
+                        last.5 = None;
                         continue;
                     }
-                } else if contains(w.3, last.3) {
+                } else if contains(w.4, last.4) {
                     continue;
-                } else if contains(last.3, w.3) {
+                } else if contains(last.4, w.4) {
                     *last = w;
                     continue;
                 }
             }
             out.push(w);
         }
-        items.retain(|i| !matches!(self.node(*i), Node::Always(..) | Node::Eventually(..)));
-        for (kind, anchored, body, iv, id) in out {
+        // Across kinds: `ψ U[I] φ` implies `F[J] φ` when `I ⊆ J` (same anchoring), so a
+        // conjunction keeps the `until` and a disjunction the `eventually`.
+        let implies = |u: &Member, f: &Member| {
+            u.0 == Kind::Until
+                && f.0 == Kind::Eventually
+                && u.1 == f.1
+                && u.3 == f.2
+                && contains(f.4, u.4)
+        };
+        let dropped: SmallVec<[usize; 4]> = (0..out.len())
+            .filter(|&k| {
+                out.iter().any(|o| {
+                    if conj {
+                        implies(o, &out[k])
+                    } else {
+                        implies(&out[k], o)
+                    }
+                })
+            })
+            .collect();
+        for k in dropped.into_iter().rev() {
+            out.remove(k);
+        }
+        items.retain(|i| {
+            !matches!(
+                self.node(*i),
+                Node::Always(..) | Node::Eventually(..) | Node::Until(..)
+            )
+        });
+        for (kind, anchored, a, b, iv, id) in out {
             let id = id.unwrap_or_else(|| {
                 let w = if anchored {
                     Window::Abs {
@@ -408,8 +449,9 @@ impl Dag {
                     Window::Rel(iv)
                 };
                 match kind {
-                    Kind::Always => self.intern(Node::Always(w, body)),
-                    Kind::Eventually => self.intern(Node::Eventually(w, body)),
+                    Kind::Always => self.intern(Node::Always(w, a)),
+                    Kind::Eventually => self.intern(Node::Eventually(w, a)),
+                    Kind::Until => self.intern(Node::Until(w, a, b)),
                 }
             });
             items.push(id);
