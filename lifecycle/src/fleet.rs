@@ -110,6 +110,8 @@ struct Inner {
     /// after `tokens` when both are.
     instances: Mutex<BTreeMap<String, BTreeSet<InstanceId>>>,
     events: mpsc::UnboundedSender<FleetEvent>,
+    /// Whether the manager itself ran of late ([`membership::Pulse`]).
+    pulse: membership::Pulse,
 }
 
 /// The executors as the manager sees them.
@@ -175,7 +177,9 @@ impl Fleet {
             tokens: Mutex::default(),
             instances: Mutex::default(),
             events: tx,
+            pulse: membership::Pulse::default(),
         });
+        membership::Pulse::start(&inner);
         let [instances, tokens] = membership::watch(&inner, session, &namespace)?;
         let reporter = inner.clone();
         let events = session

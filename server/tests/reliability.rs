@@ -794,3 +794,81 @@ fn executors_that_scout_find_each_other_and_keep_streams_without_the_manager() {
         );
     }
 }
+
+/// A manager that does not run for longer than the lease (`kill -STOP`, a paused machine)
+/// replaces nothing: its executors kept their CUs running, its links lapsed, not theirs. It
+/// takes their vanishing for its own stall and waits for them to come back (a user audit saw
+/// every CU replaced, and the originals destroyed when their executors came back). An
+/// executor killed afterwards is still replanned.
+#[test]
+fn a_manager_that_stalls_past_the_lease_replaces_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("store");
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let lease = ["--zenoh-lease-ms", "2000"];
+    let service = Service::start_with(
+        &["--data", data.to_str().unwrap()],
+        &zenoh,
+        &["--no-executor", lease[0], lease[1]],
+    );
+    let mut a = executor_with(&zenoh, "a", &lease);
+    let _b = executor_with(&zenoh, "b", &lease);
+    eventually("both executors", Duration::from_secs(30), || {
+        let present = service.get("/executors").as_array()?.len();
+        (present == 2).then_some(())
+    });
+    service.post("/transformations", &spec("live-pipeline.ttl"));
+    service.post("/targets", &spec("live-target.ttl"));
+    let before = settled(&service, 2);
+    let sets = service.change_sets().len();
+    let pid = service.child.id().to_string();
+    let signal = |s: &str| {
+        let status = Command::new("kill").args([s, &pid]).status().unwrap();
+        assert!(status.success());
+    };
+    signal("-STOP");
+    std::thread::sleep(Duration::from_secs(5));
+    signal("-CONT");
+    // Both executors come back, the same instances, within the grace (or, as before, the
+    // manager replans).
+    eventually("the executors back", Duration::from_secs(30), || {
+        let back = {
+            let tail = service.tail.lock().unwrap();
+            tail.iter()
+                .filter(|l| l.contains("is back, the same instance"))
+                .count()
+        };
+        (back == 2 || service.change_sets().len() > sets).then_some(())
+    });
+    let after = settled(&service, 2);
+    assert_eq!(
+        after.keys().collect::<Vec<_>>(),
+        before.keys().collect::<Vec<_>>(),
+        "change sets: {:?}",
+        service.change_sets()
+    );
+    assert_eq!(
+        service.change_sets().len(),
+        sets,
+        "change sets: {:?}",
+        service.change_sets()
+    );
+    // A real loss is still a loss: executor a killed, its CUs are replanned on b.
+    let on_a = after.values().filter(|c| c["executor"] == "a").count();
+    a.0.kill().unwrap();
+    a.0.wait().unwrap();
+    if on_a > 0 {
+        eventually("a crash repaired", Duration::from_secs(30), || {
+            service
+                .change_sets()
+                .iter()
+                .any(|c| c["cause"]["kind"] == "cu-crashed")
+                .then_some(())
+        });
+    }
+    let repaired = settled(&service, 2);
+    assert!(
+        repaired.values().all(|c| c["executor"] == "b"),
+        "{repaired:?}"
+    );
+}

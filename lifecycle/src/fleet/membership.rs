@@ -76,7 +76,7 @@ pub(super) fn watch(
             } else {
                 // Taken here, in the order Zenoh tells it: a vanishing handled on a
                 // thread could otherwise land after the executor's next appearance.
-                watcher.vanished(&name);
+                Inner::token_down(&watcher, &name);
             }
         })
         .wait()?;
@@ -182,7 +182,7 @@ impl Inner {
     /// tells.) Only the answer of the instance holding the name counts: another one is
     /// stepping down, and its CUs are about to stop. One thread asks per executor. An answer
     /// counts only if the token did not change while it was asked for (its epoch, checked
-    /// under the token lock that [`Inner::vanished`] holds too, as does the callback that
+    /// under the token lock that [`Inner::token_down`] holds too, as does the callback that
     /// starts this thread unless one is asking already): an executor that went down and up
     /// meanwhile (a flapping link, a restart under the same name) is asked again, so a stale
     /// list of CUs is never reconciled, and no answer is recorded after the token went down.
@@ -240,16 +240,72 @@ impl Inner {
         }
     }
 
-    /// Executor `name`'s token went down: it is absent, and the CUs placed on it crashed.
-    fn vanished(&self, name: &str) {
-        self.vanished_locked(&mut lock(&self.tokens), name);
+    /// Executor `name`'s token went down: it vanished ([`Inner::vanished_locked`]), unless
+    /// the manager itself has just not run for a while ([`Pulse::stalled_recently`]). Then
+    /// it is the manager whose links lapsed (a stopped process, a paused machine, a starved
+    /// host), not the executor: the executors kept their CUs running and reconnect within a
+    /// moment. Its CUs count as crashed only if it is not back, the same instance, within
+    /// [`STALL_GRACE`]; before, every CU was replaced at once, and the originals destroyed
+    /// when their executors came back (a user audit, `kill -STOP` of the manager for 5 s
+    /// with a 2 s lease).
+    fn token_down(inner: &Arc<Self>, name: &str) {
+        let mut tokens = lock(&inner.tokens);
+        let before = tokens.get(name).and_then(|t| t.instance.clone());
+        let Some(before) = before.filter(|_| inner.pulse.stalled_recently()) else {
+            inner.vanished_locked(&mut tokens, name);
+            return;
+        };
+        tokens.entry(name.to_owned()).or_default().set(false);
+        drop(tokens);
+        tracing::warn!(
+            "executor {name} vanished right after the manager itself did not run for a while: \
+             waiting up to {} s for it to come back before its CUs count as crashed",
+            STALL_GRACE.as_secs()
+        );
+        let inner = inner.clone();
+        let name = name.to_owned();
+        let _ = std::thread::Builder::new()
+            .name("fleet-stall-grace".into())
+            .spawn(move || {
+                let started = std::time::Instant::now();
+                std::thread::sleep(STALL_GRACE);
+                loop {
+                    let mut tokens = lock(&inner.tokens);
+                    let token = tokens.get(&name).cloned().unwrap_or_default();
+                    if token.up && token.instance.as_ref() == Some(&before) {
+                        tracing::info!(
+                            "executor {name} is back, the same instance: none of its CUs crashed"
+                        );
+                        return;
+                    }
+                    // Up and still being asked who it is: a moment more.
+                    if token.up
+                        && token.probing
+                        && started.elapsed() < STALL_GRACE + Duration::from_secs(2)
+                    {
+                        drop(tokens);
+                        std::thread::sleep(Duration::from_millis(100));
+                        continue;
+                    }
+                    inner.lost(&mut tokens, &name);
+                    return;
+                }
+            });
     }
 
-    /// [`Inner::vanished`], the token lock held.
+    /// Executor `name` vanished: its token is down, and [`Inner::lost`]. The token lock held.
     fn vanished_locked(&self, tokens: &mut BTreeMap<String, Token>, name: &str) {
         tokens.entry(name.to_owned()).or_default().set(false);
+        self.lost(tokens, name);
+    }
+
+    /// Executor `name` is gone (its token went down, or another instance holds its name):
+    /// absent while its token is down, and the CUs placed on it crashed. The token lock held.
+    fn lost(&self, tokens: &mut BTreeMap<String, Token>, name: &str) {
         tracing::warn!("executor {name} vanished");
-        if let Some(known) = lock(&self.executors).get_mut(name) {
+        if !tokens.get(name).is_some_and(|t| t.up)
+            && let Some(known) = lock(&self.executors).get_mut(name)
+        {
             known.present = false;
         }
         let lost: Vec<Cid> = {
@@ -273,5 +329,76 @@ impl Inner {
             });
         }
         let _ = self.events.send(FleetEvent::ExecutorsChanged);
+    }
+}
+
+/// How long an executor that vanished right after the manager stalled has to come back.
+pub(super) const STALL_GRACE: Duration = Duration::from_secs(3);
+
+/// The manager's own pulse: a thread ticks every [`Pulse::TICK`]; a gap of more than
+/// [`Pulse::STALL`] between ticks means the manager did not run (stopped, paused, starved).
+#[derive(Debug)]
+pub(super) struct Pulse {
+    origin: std::time::Instant,
+    /// Milliseconds since `origin` at the last tick.
+    last_tick: std::sync::atomic::AtomicU64,
+    /// Milliseconds since `origin` when the last stall was seen to end (0: none).
+    stall_end: std::sync::atomic::AtomicU64,
+}
+
+impl Default for Pulse {
+    fn default() -> Self {
+        Self {
+            origin: std::time::Instant::now(),
+            last_tick: std::sync::atomic::AtomicU64::new(0),
+            stall_end: std::sync::atomic::AtomicU64::new(0),
+        }
+    }
+}
+
+impl Pulse {
+    const TICK: Duration = Duration::from_millis(100);
+    const STALL: u64 = 1_000;
+    /// How long after a stall an executor's vanishing is put down to it.
+    const AFTER: u64 = 3_000;
+
+    fn now(&self) -> u64 {
+        u64::try_from(self.origin.elapsed().as_millis()).unwrap_or(u64::MAX)
+    }
+
+    /// Starts the ticking thread; it ends with the fleet.
+    pub(super) fn start(inner: &Arc<Inner>) {
+        let weak = Arc::downgrade(inner);
+        let _ = std::thread::Builder::new()
+            .name("fleet-pulse".into())
+            .spawn(move || {
+                use std::sync::atomic::Ordering;
+                loop {
+                    std::thread::sleep(Self::TICK);
+                    let Some(inner) = weak.upgrade() else { return };
+                    let pulse = &inner.pulse;
+                    let now = pulse.now();
+                    let before = pulse.last_tick.swap(now, Ordering::SeqCst);
+                    if now.saturating_sub(before) > Self::STALL {
+                        pulse.stall_end.store(now, Ordering::SeqCst);
+                        tracing::warn!(
+                            "the manager did not run for {} ms (stopped, paused or starved)",
+                            now - before
+                        );
+                    }
+                }
+            });
+    }
+
+    /// Whether the manager is in a stall its pulse has not seen the end of yet, or saw one
+    /// end less than [`Pulse::AFTER`] ago.
+    pub(super) fn stalled_recently(&self) -> bool {
+        use std::sync::atomic::Ordering;
+        let now = self.now();
+        let last = self.last_tick.load(Ordering::SeqCst);
+        let end = self.stall_end.load(Ordering::SeqCst);
+        // Before the first tick `last` is 0: not a stall.
+        (last > 0 && now.saturating_sub(last) > Self::STALL)
+            || (end > 0 && now.saturating_sub(end) < Self::AFTER)
     }
 }
