@@ -262,7 +262,8 @@ pub fn build_state(kinds: &[StreamKind], s: &SyncState<Json>) -> (State, Option<
 pub fn state_value(v: &Json) -> Option<StateValue> {
     match v {
         Json::Bool(b) => Some(StateValue::Bool(*b)),
-        Json::Number(n) => n.as_f64().map(StateValue::Number),
+        // An integer no double holds exactly is unknown: compared, it would decide wrongly.
+        Json::Number(n) => dyknow_mstl::trace::exact_number(n).map(StateValue::Number),
         Json::String(s) => Some(StateValue::Text(s.clone())),
         _ => None,
     }

@@ -205,6 +205,21 @@ fn lex(input: &str) -> Result<Vec<(Tok, usize)>, ParseError> {
                 if !n.is_finite() {
                     return Err(err(col, format!("number {text} is out of range")));
                 }
+                // Numbers compare as doubles: an integer literal no double holds exactly
+                // (beyond 2^53) would compare as another number, and decide atoms wrongly.
+                if text.bytes().all(|b| b.is_ascii_digit())
+                    && text
+                        .parse::<u128>()
+                        .map_or(true, |exact| n as u128 != exact)
+                {
+                    return Err(err(
+                        col,
+                        format!(
+                            "the integer {text} is beyond what a double holds exactly (2^53 = \
+                             9007199254740992): numbers compare as doubles"
+                        ),
+                    ));
+                }
                 (Tok::Number(n), j - i)
             }
             a if a.is_alphabetic() || a == '_' => {

@@ -209,7 +209,18 @@ fn state(line: usize, map: serde_json::Map<String, Json>) -> Result<State, Check
                 for (key, value) in items {
                     let value = match value {
                         Json::Bool(b) => StateValue::Bool(b),
-                        Json::Number(n) => StateValue::Number(n.as_f64().unwrap_or(f64::NAN)),
+                        Json::Number(n) => {
+                            StateValue::Number(exact_number(&n).ok_or_else(|| {
+                                trace_error(
+                                    line,
+                                    format!(
+                                        "the value of '{key}', {n}, is an integer no double holds \
+                                     exactly (beyond 2^53): numbers compare as doubles; give it \
+                                     as a string"
+                                    ),
+                                )
+                            })?)
+                        }
                         Json::String(s) => StateValue::Text(s),
                         // Null: unknown, as if absent.
                         Json::Null => continue,
@@ -416,6 +427,20 @@ fn write_verdict<W: Write>(out: &mut W, v: &Verdict) -> std::io::Result<()> {
     )
 }
 
+/// A JSON number as the double it is compared as; `None` for an integer no double holds
+/// exactly (beyond 2^53), which would compare as another number.
+pub fn exact_number(n: &serde_json::Number) -> Option<f64> {
+    if let Some(u) = n.as_u64() {
+        let f = u as f64;
+        return (f as u128 == u128::from(u)).then_some(f);
+    }
+    if let Some(i) = n.as_i64() {
+        let f = i as f64;
+        return (f as i128 == i128::from(i)).then_some(f);
+    }
+    n.as_f64()
+}
+
 /// Parses `NAME=a,b` (the command line's `--domain`).
 pub fn parse_domain(arg: &str) -> Result<(String, Vec<String>), String> {
     let (name, constants) = arg
@@ -454,6 +479,26 @@ pub fn by_formula(verdicts: &[Verdict]) -> BTreeMap<usize, (Truth, u64)> {
 #[cfg(test)]
 mod tests {
     use super::parse_domain;
+
+    #[test]
+    fn integers_beyond_what_a_double_holds_are_not_numbers() {
+        use super::exact_number;
+        let n = |text: &str| -> serde_json::Number { serde_json::from_str(text).unwrap() };
+        assert_eq!(
+            exact_number(&n("9007199254740992")),
+            Some(9_007_199_254_740_992.0)
+        );
+        assert_eq!(exact_number(&n("1152921504606846976")), Some(2f64.powi(60)));
+        assert_eq!(exact_number(&n("-42")), Some(-42.0));
+        assert_eq!(exact_number(&n("0.5")), Some(0.5));
+        for text in [
+            "9007199254740993",
+            "18446744073709551615",
+            "-9007199254740993",
+        ] {
+            assert_eq!(exact_number(&n(text)), None, "{text}");
+        }
+    }
 
     #[test]
     fn a_domain_argument_names_no_empty_constant() {
