@@ -681,6 +681,21 @@ async fn sparql_protocol_dataset_parameters_set_the_dataset() {
     ))
     .await
     .expect_error(400);
+    // One query a request: a second `query` (which silently won) is 400, in the URL or a form.
+    api.get(&format!(
+        "/sparql?query={}&query={}",
+        encode(all),
+        encode(named)
+    ))
+    .await
+    .expect_error(400);
+    api.post(
+        "/sparql",
+        "application/x-www-form-urlencoded",
+        format!("query={}&query={}", encode(all), encode(all)),
+    )
+    .await
+    .expect_error(400);
 }
 
 #[tokio::test]

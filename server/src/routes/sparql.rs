@@ -65,9 +65,19 @@ impl SparqlParams {
         for pair in text.split('&').filter(|p| !p.is_empty()) {
             let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
             let (key, value) = (decode(key)?, decode(value)?);
+            // The protocol allows one query (or update) per request: a second would silently
+            // win over the first.
+            let once = |slot: &mut Option<String>, value: String| {
+                if slot.replace(value).is_some() {
+                    return Err(ApiError::bad_request(format!(
+                        "more than one {key:?} parameter: a request carries one"
+                    )));
+                }
+                Ok(())
+            };
             match key.as_str() {
-                "query" => params.query = Some(value),
-                "update" => params.update = Some(value),
+                "query" => once(&mut params.query, value)?,
+                "update" => once(&mut params.update, value)?,
                 "default-graph-uri" => params.default_graph_uri.push(value),
                 "named-graph-uri" => params.named_graph_uri.push(value),
                 _ => {}
