@@ -513,6 +513,18 @@ impl Manager {
     /// renamed or dropped), or, with `None`, every CU's (at start-up). Not a change set: no CU
     /// changed, only what the store said of them.
     fn resync(&self, changed: Option<&[Tid]>) -> Result<(), LifecycleError> {
+        // No CU of a changed transformation, no graph to look at (and no stored subscription
+        // can name one): a new spec, the common case, costs no read of the model and does not
+        // wait for the configuration lock (a review may hold it: single spec POSTs went from
+        // about 960/s to 690/s waiting for it). The CUs are those of the last publication,
+        // which every CU write makes before it answers. A Spawn of the transformation under
+        // way (it read the spec before this write) is not seen; the start-up pass repairs
+        // what it writes.
+        if let (Some(tids), Some(last)) = (changed, self.specs.last_published())
+            && !last.cus.values().any(|cu| tids.contains(&cu.tid))
+        {
+            return Ok(());
+        }
         let _configuration = lock(&self.configuration);
         // The whole library (not only what the executors run now): a CU graph writes its
         // transformation's upkeep whatever runs it.
@@ -524,6 +536,9 @@ impl Manager {
                 parts.len()
             );
             self.set_environment(&parts)?;
+        } else if changed.is_none() {
+            // At start-up: published, so that a spec write finds the CUs without a read.
+            self.specs.publish(&self.kb)?;
         }
         Ok(())
     }

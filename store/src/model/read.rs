@@ -269,6 +269,16 @@ impl SpecCache {
             .cloned()
     }
 
+    /// The last published snapshot, however old: its CUs are those of the last CU write
+    /// (every writer publishes before it answers), though a spec written since may have
+    /// changed their ports. `None` before the first publication.
+    pub fn last_published(&self) -> Option<Arc<CuSnapshot>> {
+        self.published
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
     /// Brings the cache up to date and publishes the CUs for [`SpecCache::cus_now`]: what a
     /// writer that changed CUs or specs calls before it answers.
     pub fn publish(&self, kb: &KnowledgeBase) -> Result<Arc<CuSnapshot>, ModelReadError> {
