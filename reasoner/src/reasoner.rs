@@ -721,7 +721,13 @@ impl Reasoner {
                 .copied()
                 .filter(|v| self.dict.is_literal(*v))
                 .collect();
-            if values.len() > 1 {
+            // Two literals of one value (`"1"^^xsd:integer` and `"1.0"^^xsd:decimal`) are
+            // one value: only distinct values violate (a user audit got a violation for those).
+            let distinct: FxHashSet<String> = values
+                .iter()
+                .map(|v| literal_value(self.dict.decode(*v)))
+                .collect();
+            if distinct.len() > 1 {
                 values.sort_unstable();
                 let mut nodes = vec![s];
                 nodes.extend(values);
@@ -729,6 +735,90 @@ impl Reasoner {
             }
         }
     }
+}
+
+/// A literal's value, as a key equal for literals of one value in OWL 2's datatype map:
+/// `xsd:decimal`, `xsd:integer` and its derived types share one value space (`owl:real`:
+/// `"1"`, `"01"`, `"1.0"` are one value), as `xsd:boolean`'s `"1"` and `"true"` do, and
+/// `xsd:double`'s (and `xsd:float`'s) `"1E0"` and `"1.0"`; a plain literal is an `xsd:string`.
+/// Other literals are their lexical form and datatype. Value spaces stay apart: `"1"^^xsd:integer`
+/// and `"1"^^xsd:double` are distinct values in OWL 2.
+fn literal_value(term: &Term) -> String {
+    let Term::Literal(l) = term else {
+        return term.to_string();
+    };
+    const XSD: &str = "http://www.w3.org/2001/XMLSchema#";
+    let datatype = l.datatype().as_str();
+    let local = datatype.strip_prefix(XSD).unwrap_or("");
+    let lexical = l.value().trim();
+    let real = matches!(
+        local,
+        "decimal"
+            | "integer"
+            | "nonPositiveInteger"
+            | "negativeInteger"
+            | "long"
+            | "int"
+            | "short"
+            | "byte"
+            | "nonNegativeInteger"
+            | "unsignedLong"
+            | "unsignedInt"
+            | "unsignedShort"
+            | "unsignedByte"
+            | "positiveInteger"
+    );
+    if real && let Some(key) = decimal_key(lexical) {
+        return format!("real:{key}");
+    }
+    if local == "boolean" {
+        match lexical {
+            "1" | "true" => return "boolean:true".to_owned(),
+            "0" | "false" => return "boolean:false".to_owned(),
+            _ => {}
+        }
+    }
+    if matches!(local, "double" | "float")
+        && let Ok(v) = lexical.parse::<f64>()
+        && !v.is_nan()
+    {
+        // `-0` and `0` are equal; the two types share no values with each other either.
+        let v = if v == 0.0 { 0.0 } else { v };
+        return format!("{local}:{:?}", v);
+    }
+    if local == "string" && l.language().is_none() {
+        return format!("string:{}", l.value());
+    }
+    term.to_string()
+}
+
+/// A decimal numeral in a canonical form (no sign for zero, no leading zeros, no trailing
+/// fractional zeros), or `None` if it is not one.
+fn decimal_key(text: &str) -> Option<String> {
+    let (negative, digits) = match text.as_bytes().first()? {
+        b'-' => (true, &text[1..]),
+        b'+' => (false, &text[1..]),
+        _ => (false, text),
+    };
+    let (whole, fraction) = digits.split_once('.').unwrap_or((digits, ""));
+    if whole.is_empty() && fraction.is_empty()
+        || !whole
+            .bytes()
+            .chain(fraction.bytes())
+            .all(|b| b.is_ascii_digit())
+    {
+        return None;
+    }
+    let whole = whole.trim_start_matches('0');
+    let fraction = fraction.trim_end_matches('0');
+    let zero = whole.is_empty() && fraction.is_empty();
+    let sign = if negative && !zero { "-" } else { "" };
+    let whole = if whole.is_empty() { "0" } else { whole };
+    Some(if fraction.is_empty() {
+        format!("{sign}{whole}")
+    } else {
+        format!("{sign}{whole}.{fraction}")
+    })
 }
 
 fn max_zero_name(filler: Option<Id>) -> &'static str {

@@ -117,3 +117,53 @@ fn every_cu_depends_on_exactly_its_upstream_cus() {
             .all(|t| t.predicate.as_str() != DEPENDS_ON)
     );
 }
+
+/// prp-fp on a functional data property: two literals of one value are one value, not a
+/// violation (a user audit got one for `"1"^^xsd:integer` and `"1.0"^^xsd:decimal`); two
+/// values are.
+#[test]
+fn a_functional_data_property_is_violated_by_two_values_not_two_spellings() {
+    let turtle = |body: &str| -> Vec<Triple> {
+        let text = format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+             @prefix xsd: <http://www.w3.org/2001/XMLSchema#> .
+             @prefix ex: <http://example.org/> .
+             {body}"
+        );
+        oxttl::TurtleParser::new()
+            .for_slice(text.as_bytes())
+            .map(|t| t.expect("valid Turtle"))
+            .collect()
+    };
+    let violations = |body: &str| {
+        let mut reasoner =
+            Reasoner::new(TBox::from_triples(&builtin_ontology_triples()).expect("the TBox"));
+        reasoner.update(&[], &turtle(body)).violations
+    };
+    for same in [
+        r#"ex:w dyknow:hasValue "1"^^xsd:integer, "1.0"^^xsd:decimal ."#,
+        r#"ex:w dyknow:hasValue "1"^^xsd:integer, "01"^^xsd:integer ."#,
+        r#"ex:w dyknow:hasValue "-0.50"^^xsd:decimal, "-.5"^^xsd:decimal ."#,
+        r#"ex:w dyknow:hasValue "1E0"^^xsd:double, "1.0"^^xsd:double ."#,
+        r#"ex:w dyknow:hasValue "a", "a"^^xsd:string ."#,
+        r#"ex:w dyknow:hasValue "true"^^xsd:boolean, "1"^^xsd:boolean ."#,
+    ] {
+        assert!(
+            violations(same).is_empty(),
+            "{same}: {:?}",
+            violations(same)
+        );
+    }
+    for different in [
+        r#"ex:w dyknow:hasValue "1"^^xsd:integer, "2"^^xsd:integer ."#,
+        r#"ex:w dyknow:hasValue "1"^^xsd:integer, "1"^^xsd:double ."#,
+        r#"ex:w dyknow:hasValue "a", "b" ."#,
+        r#"ex:w dyknow:hasValue "0"^^xsd:decimal, "0.01"^^xsd:decimal ."#,
+    ] {
+        let found = violations(different);
+        assert!(
+            found.iter().any(|v| v.rule == "prp-fp"),
+            "{different}: {found:?}"
+        );
+    }
+}
