@@ -210,7 +210,8 @@ fn lex(input: &str) -> Result<Vec<(Tok, usize)>, ParseError> {
                 if text.bytes().all(|b| b.is_ascii_digit())
                     && text
                         .parse::<u128>()
-                        .map_or(true, |exact| n as u128 != exact)
+                        .ok()
+                        .is_none_or(|exact| n as u128 != exact)
                 {
                     return Err(err(
                         col,
