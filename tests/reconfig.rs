@@ -739,7 +739,6 @@ async fn spawns_racing_reviews_get_unique_names_and_no_cu_is_lost() {
 /// to one channel is 422, nothing changed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn set_config_refuses_two_out_ports_of_one_cu_on_one_channel() {
-    use axum::http::Method;
     let api = api();
     api.post_turtle(
         "/transformations",
@@ -761,19 +760,7 @@ async fn set_config_refuses_two_out_ports_of_one_cu_on_one_channel() {
         .expect(201)
         .json();
     let name = cu["name"].as_str().unwrap_or("").to_owned();
-    let put = |body: Value| {
-        let api = &api;
-        let uri = format!("/cus/{name}/config");
-        async move {
-            api.send(dyknow_acceptance::request(
-                Method::PUT,
-                &uri,
-                &[("content-type", "application/json")],
-                body.to_string().into(),
-            ))
-            .await
-        }
-    };
+    let put = |body: Value| put_config(&api, &name, body);
     let snapshot = api.snapshot().await;
     for body in [
         json!({"outputs": {"a": "x", "b": "x"}}),
@@ -801,6 +788,17 @@ async fn set_config_refuses_two_out_ports_of_one_cu_on_one_channel() {
     put(json!({"outputs": {"a": "x", "b": "z"}}))
         .await
         .expect(200);
+}
+
+/// SetConfig: `PUT /cus/{cu}/config` with `body`.
+async fn put_config(api: &Api, cu: &str, body: Value) -> dyknow_acceptance::Answer {
+    api.send(dyknow_acceptance::request(
+        axum::http::Method::PUT,
+        &format!("/cus/{cu}/config"),
+        &[("content-type", "application/json")],
+        body.to_string().into(),
+    ))
+    .await
 }
 
 /// Waits until no review runs or is pending.
@@ -857,7 +855,6 @@ async fn depends_on_by_bindings(api: &Api) -> BTreeSet<(String, String)> {
 /// its `fromCU`, so `mid dependsOn src` stayed derived, and came back with the old port).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_spec_posted_again_with_a_port_renamed_leaves_no_stale_subscription() {
-    use axum::http::Method;
     let api = api();
     // Tags no port produces: no review binds anything, only SetConfig does.
     let spec = |label: &str, port: &str, direction: &str| {
@@ -884,18 +881,10 @@ async fn a_spec_posted_again_with_a_port_renamed_leaves_no_stale_subscription() 
         .await
         .expect(201);
     }
-    let put = |cu: &str, body: Value| {
+    let put = |cu: &'static str, body: Value| {
         let api = &api;
-        let uri = format!("/cus/{cu}/config");
         async move {
-            api.send(dyknow_acceptance::request(
-                Method::PUT,
-                &uri,
-                &[("content-type", "application/json")],
-                body.to_string().into(),
-            ))
-            .await
-            .expect(200);
+            put_config(api, cu, body).await.expect(200);
         }
     };
     let dangling = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> \

@@ -7,7 +7,8 @@
 //! replayed through `dyknow check` with the same formulas, against real time.
 //!
 //! `cargo bench -p dyknow-server --bench groups -- [--seconds S] [--symbols N] [--hz H]`
-//! (or `-- --create 5,10,15,21`: the time `POST /groups` takes for large groups, see `create`)
+//! (or `-- --create 5,10,15,21`: the time `POST /groups` takes for large groups, see `create`;
+//! `DYKNOW_BIN` runs another build of the service)
 //! (`./dev bench groups` runs it for 180 s: about 100,000 states); `--baseline 1` runs the same
 //! sources and CUs with the group never started.
 
@@ -142,22 +143,12 @@ fn formulas(symbols: usize, hz: u64) -> Vec<String> {
     out
 }
 
-/// `--create N,N,..`: how long `POST /groups` takes to answer for a group of one formula whose
-/// three nested `forall` over a domain of `N` constants ground `N`³ symbols, each a target
-/// (the groups' limit is 10,000 ground atoms: 21³ = 9,261 is the largest cube under it). On
-/// disk with the embedded executor, as `./dev serve` runs; each group is deleted before the
-/// next (its targets released), and each uses a predicate of its own.
-fn create(sizes: &str) {
-    let zenoh_ep = format!("tcp/127.0.0.1:{}", free_port());
-    let data = std::env::temp_dir().join(format!("dyknow-groups-create-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&data);
-    // `DYKNOW_BIN`: another build of `dyknow` to measure (an earlier commit's, to compare).
-    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
+/// `dyknow serve` (the `bin` build) with `args`, on an endpoint printed when it listens;
+/// returns it (stopped when dropped) and its URL. Its standard error is drained.
+fn serve(bin: &str, args: &[&str]) -> (Proc, String) {
     let mut child = Command::new(bin)
         .arg("serve")
-        .arg("--data")
-        .arg(&data)
-        .args(["--bind", "127.0.0.1:0", "--zenoh-listen", &zenoh_ep])
+        .args(args)
         .env("RUST_LOG", "warn,dyknow_server=info")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -171,7 +162,31 @@ fn create(sizes: &str) {
         }
     };
     std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
-    let service = Proc(child);
+    (Proc(child), url)
+}
+
+/// `--create N,N,..`: how long `POST /groups` takes to answer for a group of one formula whose
+/// three nested `forall` over a domain of `N` constants ground `N`³ symbols, each a target
+/// (the groups' limit is 10,000 ground atoms: 21³ = 9,261 is the largest cube under it). On
+/// disk with the embedded executor, as `./dev serve` runs; each group is deleted before the
+/// next (its targets released), and each uses a predicate of its own.
+fn create(sizes: &str) {
+    let zenoh_ep = format!("tcp/127.0.0.1:{}", free_port());
+    let data = std::env::temp_dir().join(format!("dyknow-groups-create-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&data);
+    // `DYKNOW_BIN`: another build of `dyknow` to measure (an earlier commit's, to compare).
+    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
+    let (service, url) = serve(
+        &bin,
+        &[
+            "--data",
+            data.to_str().unwrap(),
+            "--bind",
+            "127.0.0.1:0",
+            "--zenoh-listen",
+            &zenoh_ep,
+        ],
+    );
     println!("| domain | symbols (targets) | POST /groups answered in | DELETE answered in |");
     println!("| ---: | ---: | ---: | ---: |");
     for (k, n) in sizes
@@ -226,31 +241,19 @@ fn main() {
     // On disk, as a deployment runs: the trace goes to a file, not to memory.
     let data = std::env::temp_dir().join(format!("dyknow-groups-bench-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&data);
-    let mut child = Command::new(BIN)
-        .arg("serve")
-        .arg("--data")
-        .arg(&data)
-        .args([
+    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
+    let (service, url) = serve(
+        &bin,
+        &[
+            "--data",
+            data.to_str().unwrap(),
             "--no-executor",
             "--bind",
             "127.0.0.1:0",
             "--zenoh-listen",
             &zenoh_ep,
-        ])
-        .env("RUST_LOG", "warn,dyknow_server=info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
-    let url = loop {
-        let line = lines.next().expect("the service exited").unwrap();
-        if let Some(rest) = line.split("listening on ").nth(1) {
-            break rest.split_whitespace().next().unwrap().to_owned();
-        }
-    };
-    std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
-    let service = Proc(child);
+        ],
+    );
     let pid = service.0.id();
     let mut exec = Command::new(BIN)
         .args(["executor", "--name", "bench", "--connect", &zenoh_ep])
