@@ -71,8 +71,6 @@ fn stat(pid: u32) -> Option<(char, String)> {
     Some((state, start))
 }
 
-/// Whether the process `identity` ([`process_identity`]) still runs; a zombie (exited, not
-/// yet reaped) does not.
 /// How long a control request that arrives while the CU is starting waits for it.
 const START_WAIT: Duration = Duration::from_secs(5);
 
@@ -109,6 +107,8 @@ impl<U: Clone> StartSlot<U> {
     }
 }
 
+/// Whether the process `identity` ([`process_identity`]) still runs; a zombie (exited, not
+/// yet reaped) does not.
 fn still_runs(identity: &str) -> bool {
     let Some((pid, start)) = identity
         .split_once(':')

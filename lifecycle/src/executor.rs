@@ -78,6 +78,13 @@ pub trait Executor: Send + Sync {
         None
     }
 
+    /// Whether executors that vanished while the manager itself did not run may still come
+    /// back (their CUs kept running): reviews wait until they are back or counted lost, so
+    /// that none places work on them meanwhile.
+    fn settling(&self) -> bool {
+        false
+    }
+
     /// The executor a CU runs on, if any (`None` in model-only mode).
     fn placed(&self, cu: &Cid) -> Option<String> {
         let _ = cu;

@@ -112,6 +112,10 @@ struct Inner {
     events: mpsc::UnboundedSender<FleetEvent>,
     /// Whether the manager itself ran of late ([`membership::Pulse`]).
     pulse: membership::Pulse,
+    /// Executors whose token went down during a stall of the manager, with the instance
+    /// they were and the CUs placed on them then ([`membership::Grace`]). Locked after
+    /// `tokens`, before `executors`, `placement` and `running`.
+    graces: Mutex<BTreeMap<String, membership::Grace>>,
 }
 
 /// The executors as the manager sees them.
@@ -178,6 +182,7 @@ impl Fleet {
             instances: Mutex::default(),
             events: tx,
             pulse: membership::Pulse::default(),
+            graces: Mutex::default(),
         });
         membership::Pulse::start(&inner);
         let [instances, tokens] = membership::watch(&inner, session, &namespace)?;
@@ -739,6 +744,10 @@ impl Executor for Fleet {
 
     fn describe(&self, cu: &Cid) -> Option<CuView> {
         self.describe_all(std::slice::from_ref(cu)).remove(cu)
+    }
+
+    fn settling(&self) -> bool {
+        !lock(&self.inner.graces).is_empty()
     }
 
     fn placed(&self, cu: &Cid) -> Option<String> {

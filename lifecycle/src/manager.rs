@@ -478,12 +478,17 @@ impl Manager {
     /// client saw what its executor did not); a short-term negative perturbation starts a
     /// review at once.
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
-        match &perturbation {
-            Perturbation::Registered { transformations } => self.resync(Some(transformations))?,
+        // The spec is written whatever happens here: a failure to bring the CU graphs in step
+        // is logged, and the validity check below is asked for all the same.
+        let resynced = match &perturbation {
+            Perturbation::Registered { transformations } => self.resync(Some(transformations)),
             Perturbation::Deregistered { transformation } => {
-                self.resync(Some(std::slice::from_ref(transformation)))?;
+                self.resync(Some(std::slice::from_ref(transformation)))
             }
-            _ => {}
+            _ => Ok(()),
+        };
+        if let Err(e) = resynced {
+            tracing::warn!("the CU graphs could not be brought in step with the specs: {e}");
         }
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
@@ -1350,6 +1355,12 @@ impl Manager {
             tokio::select! {
                 () = self.wake.notified() => {}
                 () = tokio::time::sleep(wait) => {}
+            }
+            // Executors lost to a stall of the manager itself may be coming back (at most
+            // the fleet's grace): no review until they are, or are counted lost.
+            if self.executor.settling() {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
             }
             let (due, check) = lock(&self.schedule).due();
             if !due && check.is_none() {

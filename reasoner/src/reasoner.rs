@@ -778,13 +778,21 @@ fn literal_value(term: &Term) -> String {
             _ => {}
         }
     }
-    if matches!(local, "double" | "float")
+    // `-0` and `0` are equal; the two types share no values with each other either, and a
+    // float is parsed as one (`"0.1"` and `"0.100000001"` are one float).
+    if local == "double"
         && let Ok(v) = lexical.parse::<f64>()
         && !v.is_nan()
     {
-        // `-0` and `0` are equal; the two types share no values with each other either.
         let v = if v == 0.0 { 0.0 } else { v };
-        return format!("{local}:{:?}", v);
+        return format!("double:{v:?}");
+    }
+    if local == "float"
+        && let Ok(v) = lexical.parse::<f32>()
+        && !v.is_nan()
+    {
+        let v = if v == 0.0 { 0.0 } else { v };
+        return format!("float:{v:?}");
     }
     if local == "string" && l.language().is_none() {
         return format!("string:{}", l.value());

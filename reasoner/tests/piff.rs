@@ -147,6 +147,7 @@ fn a_functional_data_property_is_violated_by_two_values_not_two_spellings() {
         r#"ex:w dyknow:hasValue "1E0"^^xsd:double, "1.0"^^xsd:double ."#,
         r#"ex:w dyknow:hasValue "a", "a"^^xsd:string ."#,
         r#"ex:w dyknow:hasValue "true"^^xsd:boolean, "1"^^xsd:boolean ."#,
+        r#"ex:w dyknow:hasValue "0.1"^^xsd:float, "0.100000001"^^xsd:float ."#,
     ] {
         assert!(
             violations(same).is_empty(),

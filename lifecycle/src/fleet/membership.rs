@@ -8,7 +8,7 @@
 //! the holder, remembers whose it took, and handles a change of holder under a name whose
 //! token stayed up as the name gone and back.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -218,6 +218,7 @@ impl Inner {
             };
             token.probing = false;
             token.instance.clone_from(&info.instance);
+            self.grace_ended(&mut tokens, name, &info);
             tracing::info!(
                 "executor {name} is present ({} builtins{})",
                 info.builtins.len(),
@@ -256,63 +257,109 @@ impl Inner {
             return;
         };
         tokens.entry(name.to_owned()).or_default().set(false);
-        drop(tokens);
+        let placed: Vec<Cid> = lock(&inner.placement)
+            .iter()
+            .filter(|(_, e)| *e == name)
+            .map(|(c, _)| c.clone())
+            .collect();
+        lock(&inner.graces).insert(
+            name.to_owned(),
+            Grace {
+                instance: before,
+                placed,
+            },
+        );
         tracing::warn!(
             "executor {name} vanished right after the manager itself did not run for a while: \
              waiting up to {} s for it to come back before its CUs count as crashed",
             STALL_GRACE.as_secs()
         );
-        let inner = inner.clone();
-        let name = name.to_owned();
-        let _ = std::thread::Builder::new()
+        let waiter = inner.clone();
+        let waited = name.to_owned();
+        let spawned = std::thread::Builder::new()
             .name("fleet-stall-grace".into())
             .spawn(move || {
-                let started = std::time::Instant::now();
                 std::thread::sleep(STALL_GRACE);
+                let started = std::time::Instant::now();
                 loop {
-                    let mut tokens = lock(&inner.tokens);
-                    let token = tokens.get(&name).cloned().unwrap_or_default();
-                    if token.up && token.instance.as_ref() == Some(&before) {
-                        tracing::info!(
-                            "executor {name} is back, the same instance: none of its CUs crashed"
-                        );
-                        return;
-                    }
+                    let mut tokens = lock(&waiter.tokens);
+                    let probing = tokens.get(&waited).is_some_and(|t| t.up && t.probing);
                     // Up and still being asked who it is: a moment more.
-                    if token.up
-                        && token.probing
-                        && started.elapsed() < STALL_GRACE + Duration::from_secs(2)
-                    {
+                    if probing && started.elapsed() < Duration::from_secs(2) {
                         drop(tokens);
                         std::thread::sleep(Duration::from_millis(100));
                         continue;
                     }
-                    inner.lost(&mut tokens, &name);
+                    // Not back (or not yet told who it is): its CUs of then are lost. Back,
+                    // [`Inner::grace_ended`] took the grace already.
+                    let grace = lock(&waiter.graces).remove(&waited);
+                    if let Some(grace) = grace {
+                        waiter.lost(&mut tokens, &waited, Some(&grace.placed));
+                    }
                     return;
                 }
             });
+        if spawned.is_err() {
+            // No thread to wait with: gone now, as without a stall.
+            lock(&inner.graces).remove(name);
+            inner.lost(&mut tokens, name, None);
+        }
+    }
+
+    /// Executor `name` described itself (`info`, running `running`) after its token came back
+    /// up: if it had a grace ([`Inner::token_down`]), the grace ends. The same instance
+    /// kept its CUs, except those it no longer runs (they crashed while the manager could
+    /// not hear of it); another instance has none of them. The token lock held.
+    fn grace_ended(&self, tokens: &mut BTreeMap<String, Token>, name: &str, info: &ExecutorInfo) {
+        let Some(grace) = lock(&self.graces).remove(name) else {
+            return;
+        };
+        let lost: Vec<Cid> = if info.instance.as_ref() == Some(&grace.instance) {
+            let running: BTreeSet<&str> = info.cus.iter().map(|c| c.cu.as_str()).collect();
+            let lost: Vec<Cid> = grace
+                .placed
+                .into_iter()
+                .filter(|c| !running.contains(c.as_str()))
+                .collect();
+            tracing::info!(
+                "executor {name} is back, the same instance: {} of its CUs crashed meanwhile",
+                lost.len()
+            );
+            lost
+        } else {
+            tracing::warn!(
+                "executor {name} is back as another instance: its CUs of before are lost"
+            );
+            grace.placed
+        };
+        if !lost.is_empty() {
+            self.lost(tokens, name, Some(&lost));
+        }
     }
 
     /// Executor `name` vanished: its token is down, and [`Inner::lost`]. The token lock held.
     fn vanished_locked(&self, tokens: &mut BTreeMap<String, Token>, name: &str) {
         tokens.entry(name.to_owned()).or_default().set(false);
-        self.lost(tokens, name);
+        // A grace under way ends: everything placed on it is lost now.
+        lock(&self.graces).remove(name);
+        self.lost(tokens, name, None);
     }
 
     /// Executor `name` is gone (its token went down, or another instance holds its name):
-    /// absent while its token is down, and the CUs placed on it crashed. The token lock held.
-    fn lost(&self, tokens: &mut BTreeMap<String, Token>, name: &str) {
-        tracing::warn!("executor {name} vanished");
-        if !tokens.get(name).is_some_and(|t| t.up)
-            && let Some(known) = lock(&self.executors).get_mut(name)
-        {
-            known.present = false;
+    /// absent while its token is down, and the CUs placed on it crashed; with `only`, those
+    /// of them that are still placed on it. The token lock held.
+    fn lost(&self, tokens: &mut BTreeMap<String, Token>, name: &str, only: Option<&[Cid]>) {
+        if !tokens.get(name).is_some_and(|t| t.up) {
+            tracing::warn!("executor {name} vanished");
+            if let Some(known) = lock(&self.executors).get_mut(name) {
+                known.present = false;
+            }
         }
         let lost: Vec<Cid> = {
             let mut placement = lock(&self.placement);
             let lost: Vec<Cid> = placement
                 .iter()
-                .filter(|(_, e)| *e == name)
+                .filter(|(c, e)| *e == name && only.is_none_or(|only| only.contains(c)))
                 .map(|(c, _)| c.clone())
                 .collect();
             let mut running = lock(&self.running);
@@ -330,6 +377,14 @@ impl Inner {
         }
         let _ = self.events.send(FleetEvent::ExecutorsChanged);
     }
+}
+
+/// An executor whose token went down during a stall of the manager ([`Inner::token_down`]):
+/// the instance it was, and the CUs placed on it then.
+#[derive(Debug)]
+pub(super) struct Grace {
+    instance: InstanceId,
+    placed: Vec<Cid>,
 }
 
 /// How long an executor that vanished right after the manager stalled has to come back.

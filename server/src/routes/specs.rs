@@ -250,9 +250,17 @@ async fn post_specs(
                 })?;
             }
         }
-        SpecKind::Transformation => state.lifecycle.report(Perturbation::Registered {
-            transformations: report.labels.iter().map(Into::into).collect(),
-        })?,
+        SpecKind::Transformation => {
+            // Off the async workers: with CUs of a replaced transformation, the life-cycle
+            // rewrites their graphs under the configuration lock, which a review may hold.
+            let s = state.clone();
+            let transformations = report.labels.iter().map(Into::into).collect();
+            crate::app::blocking(move || {
+                Ok(s.lifecycle
+                    .report(Perturbation::Registered { transformations })?)
+            })
+            .await?;
+        }
     }
     Ok((
         StatusCode::CREATED,
@@ -380,14 +388,17 @@ async fn delete_spec(
     .await?;
     // Whether a review follows at once is the life-cycle's call: a released target always, a
     // deregistered transformation when CUs of it are left invalid.
-    state.lifecycle.report(match kind {
+    let perturbation = match kind {
         SpecKind::Target => Perturbation::TargetReleased {
             target: label.into(),
         },
         SpecKind::Transformation => Perturbation::Deregistered {
             transformation: label.into(),
         },
-    })?;
+    };
+    // Off the async workers (see `post_specs`).
+    let s = state.clone();
+    crate::app::blocking(move || Ok(s.lifecycle.report(perturbation)?)).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 

@@ -305,6 +305,12 @@ pub fn resync(
     let mut parts = Vec::new();
     for cid in names {
         let Some(cu) = env.cus.get(cid) else { continue };
+        // A CU whose transformation has no spec now (removed; the review destroys the CU)
+        // reads with the transformation's IRI for a label: written back, it would lose its
+        // `instanceOf`, and with it its place in the model. Left to the review.
+        if !iris.transformations.contains_key(&cu.tid) || !env.library.contains_key(&cu.tid) {
+            continue;
+        }
         let part = EnvironmentPart::Cu(cid.clone());
         let stored: HashSet<Triple> = kb
             .graph_triples(part.graph().as_ref())?
