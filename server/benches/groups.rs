@@ -143,12 +143,18 @@ fn formulas(symbols: usize, hz: u64) -> Vec<String> {
     out
 }
 
-/// `dyknow serve` (the `bin` build) with `args`, on an endpoint printed when it listens;
-/// returns it (stopped when dropped) and its URL. Its standard error is drained.
-fn serve(bin: &str, args: &[&str]) -> (Proc, String) {
+/// `dyknow serve` on the on-disk store `data` with its Zenoh router on `zenoh` and `extra`
+/// arguments, bound to a free port; returns it (stopped when dropped) and its URL. Its
+/// standard error is drained. `DYKNOW_BIN` runs another build of `dyknow` (an earlier
+/// commit's, to compare).
+fn serve(data: &std::path::Path, zenoh: &str, extra: &[&str]) -> (Proc, String) {
+    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
     let mut child = Command::new(bin)
         .arg("serve")
-        .args(args)
+        .arg("--data")
+        .arg(data)
+        .args(["--bind", "127.0.0.1:0", "--zenoh-listen", zenoh])
+        .args(extra)
         .env("RUST_LOG", "warn,dyknow_server=info")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -174,19 +180,7 @@ fn create(sizes: &str) {
     let zenoh_ep = format!("tcp/127.0.0.1:{}", free_port());
     let data = std::env::temp_dir().join(format!("dyknow-groups-create-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&data);
-    // `DYKNOW_BIN`: another build of `dyknow` to measure (an earlier commit's, to compare).
-    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
-    let (service, url) = serve(
-        &bin,
-        &[
-            "--data",
-            data.to_str().unwrap(),
-            "--bind",
-            "127.0.0.1:0",
-            "--zenoh-listen",
-            &zenoh_ep,
-        ],
-    );
+    let (service, url) = serve(&data, &zenoh_ep, &[]);
     println!("| domain | symbols (targets) | POST /groups answered in | DELETE answered in |");
     println!("| ---: | ---: | ---: | ---: |");
     for (k, n) in sizes
@@ -241,19 +235,7 @@ fn main() {
     // On disk, as a deployment runs: the trace goes to a file, not to memory.
     let data = std::env::temp_dir().join(format!("dyknow-groups-bench-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&data);
-    let bin = std::env::var("DYKNOW_BIN").unwrap_or_else(|_| BIN.to_owned());
-    let (service, url) = serve(
-        &bin,
-        &[
-            "--data",
-            data.to_str().unwrap(),
-            "--no-executor",
-            "--bind",
-            "127.0.0.1:0",
-            "--zenoh-listen",
-            &zenoh_ep,
-        ],
-    );
+    let (service, url) = serve(&data, &zenoh_ep, &["--no-executor"]);
     let pid = service.0.id();
     let mut exec = Command::new(BIN)
         .args(["executor", "--name", "bench", "--connect", &zenoh_ep])
