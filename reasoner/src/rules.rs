@@ -182,16 +182,28 @@ impl Rules {
             rules.axioms.push(text.to_owned());
             rules.axioms.len() - 1
         };
+        // `DisjointClasses(A B)` and `DisjointClasses(B A)` (two `owl:disjointWith` triples, one
+        // each way) are one constraint: a pair stated again is left out, so that an individual in
+        // both classes is one violation, reported with the first axiom that states it.
+        let mut pairs: FxHashSet<(Id, Id, bool)> = FxHashSet::default();
+        let unordered = |a: Id, b: Id, flip: bool| (a.min(b), a.max(b), flip);
         for (a, b, text) in &tbox.disjoint_classes {
-            let ax = axiom(&mut rules, text);
             let (a, b) = (dict.encode(a.clone()), dict.encode(b.clone()));
+            if !pairs.insert(unordered(a, b, false)) {
+                continue;
+            }
+            let ax = axiom(&mut rules, text);
             rules.disjoint_classes.entry(a).or_default().push((b, ax));
             rules.disjoint_classes.entry(b).or_default().push((a, ax));
         }
+        pairs.clear();
         for (a, b, text) in &tbox.disjoint_props {
-            let ax = axiom(&mut rules, text);
             let (a, b) = (link(a, dict), link(b, dict));
             let flip = a.inverse != b.inverse;
+            if !pairs.insert(unordered(a.prop, b.prop, flip)) {
+                continue;
+            }
+            let ax = axiom(&mut rules, text);
             rules
                 .disjoint_props
                 .entry(a.prop)

@@ -168,3 +168,53 @@ fn a_functional_data_property_is_violated_by_two_values_not_two_spellings() {
         );
     }
 }
+
+/// `A owl:disjointWith B` and `B owl:disjointWith A` state one constraint (OWL's
+/// `DisjointClasses` is a set): an individual in both classes is one violation, not two (a user
+/// audit found it reported once per direction). Likewise for disjoint properties, including
+/// one stated against the other's inverse. Two different pairs stay two violations.
+#[test]
+fn a_disjointness_stated_both_ways_is_violated_once() {
+    let triples = |text: &str| -> Vec<Triple> {
+        oxttl::TurtleParser::new()
+            .for_slice(
+                format!(
+                    "@prefix owl: <http://www.w3.org/2002/07/owl#> .
+                     @prefix ex: <http://example.org/> .
+                     ex:A a owl:Class . ex:B a owl:Class . ex:C a owl:Class .
+                     ex:p a owl:ObjectProperty . ex:q a owl:ObjectProperty .
+                     ex:r a owl:ObjectProperty . ex:s a owl:ObjectProperty .
+                     {text}"
+                )
+                .as_bytes(),
+            )
+            .map(|t| t.expect("valid Turtle"))
+            .collect()
+    };
+    let schema = triples(
+        "ex:A owl:disjointWith ex:B . ex:B owl:disjointWith ex:A . ex:C owl:disjointWith ex:A .
+         ex:p owl:propertyDisjointWith ex:q . ex:q owl:propertyDisjointWith ex:p .
+         ex:r owl:propertyDisjointWith [ owl:inverseOf ex:s ] .
+         ex:s owl:propertyDisjointWith [ owl:inverseOf ex:r ] .",
+    );
+    let mut all = builtin_ontology_triples();
+    all.extend(schema);
+    let mut reasoner = Reasoner::new(TBox::from_triples(&all).expect("the TBox"));
+    let found = reasoner
+        .update(
+            &[],
+            &triples("ex:x a ex:A, ex:B . ex:x ex:p ex:y ; ex:q ex:y . ex:u ex:r ex:v . ex:v ex:s ex:u ."),
+        )
+        .violations;
+    let mut rules: Vec<&str> = found.iter().map(|v| v.rule).collect();
+    rules.sort_unstable();
+    assert_eq!(rules, ["cax-dw", "prp-pdw", "prp-pdw"], "{found:?}");
+    let found = reasoner
+        .update(&[], &triples("ex:z a ex:A, ex:B, ex:C ."))
+        .violations;
+    assert_eq!(
+        found.iter().filter(|v| v.rule == "cax-dw").count(),
+        2,
+        "A–B and A–C: {found:?}"
+    );
+}

@@ -430,11 +430,13 @@ fn main() {
         .limit(u64::MAX)
         .read_to_string()
         .unwrap();
-    let file = std::env::temp_dir().join("dyknow-groups-bench-trace.jsonl");
-    std::fs::File::create(&file)
-        .unwrap()
-        .write_all(text.as_bytes())
+    let mut file = tempfile::Builder::new()
+        .prefix("dyknow-groups-bench-trace")
+        .suffix(".jsonl")
+        .tempfile()
         .unwrap();
+    file.write_all(text.as_bytes()).unwrap();
+    file.flush().unwrap();
     let ts: Vec<u64> = text
         .lines()
         .skip(1)
@@ -447,7 +449,7 @@ fn main() {
         cmd.args(["--formula", f]);
     }
     let t = Instant::now();
-    let out = cmd.arg("--trace").arg(&file).output().unwrap();
+    let out = cmd.arg("--trace").arg(file.path()).output().unwrap();
     let replay = t.elapsed().as_secs_f64();
     assert!(
         out.status.success(),
