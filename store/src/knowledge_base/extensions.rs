@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use super::KnowledgeBase;
 use crate::error::{IngestError, SpecValidationError, Violation};
-use crate::graphs::{extension_graph, fnv1a, is_extension_graph};
+use crate::graphs::{extension_graph, graph_hash, is_extension_graph};
 use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{SpecClasses, extract_specs};
 
@@ -131,7 +131,7 @@ impl KnowledgeBase {
         if !literal_similar.is_empty() {
             return Err(SpecValidationError(literal_similar).into());
         }
-        let graph = extension_graph(fnv1a(body));
+        let graph = extension_graph(graph_hash(&triples));
         let mut reasoner = self.lock();
         let triples = fresh_blank_nodes(&triples);
         let replaced = self.commit(&mut reasoner, &[(&graph, &triples)], &[])?[0];

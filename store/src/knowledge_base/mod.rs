@@ -237,7 +237,7 @@ mod tests {
     use super::*;
     use crate::error::{IngestError, SpecValidationError};
     use crate::export::INFERRED_GRAPH;
-    use crate::graphs::{extension_graph, fnv1a, spec_graph};
+    use crate::graphs::{extension_graph, graph_hash, spec_graph};
     use crate::spec::extract_specs;
     use dyknow_ontology::vocab::{dkros, dyknow};
     use oxigraph::model::{NamedNode, Triple};
@@ -449,6 +449,23 @@ mod tests {
         assert!(report.extension.is_some());
         assert!(report.transformations.labels.is_empty());
         assert!(kb.classes().transformation.contains(&ex("Camera")));
+        // The same vocabulary beside a spec, then beside the spec edited: the vocabulary stays
+        // one extension (it was named after the whole document's bytes, so each edit of a spec
+        // added a copy of it).
+        let with_spec = |tag: &str| {
+            ttl(&format!(
+                "ex:Camera rdfs:subClassOf dyknow:Transformation .
+                 ex:cam a ex:Camera ; rdfs:label \"cam\" ;
+                   dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"{tag}\" ] ] ."
+            ))
+        };
+        for tag in ["Image", "Frame"] {
+            let loaded = kb
+                .load_document(&with_spec(tag), InputFormat::Turtle)
+                .expect("a spec and its vocabulary");
+            assert_eq!(loaded.extension, report.extension, "{tag}");
+            assert_eq!(kb.extensions().expect("storage").len(), 1, "{tag}");
+        }
     }
 
     #[test]
@@ -614,13 +631,31 @@ mod tests {
     }
 
     #[test]
-    fn extension_graphs_are_named_by_the_hash_of_the_body() {
+    fn extension_graphs_are_named_by_the_hash_of_their_statements() {
         let kb = kb();
         let body = ttl("ex:A dyknow:similarTo ex:B .");
         let report = kb
             .post_extension(&body, InputFormat::Turtle)
             .expect("valid");
-        assert_eq!(report.graph, extension_graph(fnv1a(&body)).into_string());
+        let triples = crate::rdf_input::parse_triples(&body, InputFormat::Turtle).expect("valid");
+        assert_eq!(
+            report.graph,
+            extension_graph(graph_hash(&triples)).into_string()
+        );
+        assert!(!report.replaced);
+        // The same statement written otherwise (a comment, other prefixes and layout, said
+        // twice) is the same extension: posting it replaces it (a user audit got a second one).
+        let again = kb
+            .post_extension(
+                b"# edited\n@prefix e: <http://example.org/ex#> .\n\
+                  e:A <http://www.dyknow.eu/ontology/dyknow#similarTo> e:B , e:B .",
+                InputFormat::Turtle,
+            )
+            .expect("valid");
+        assert_eq!(
+            (again.graph.as_str(), again.replaced),
+            (report.graph.as_str(), true)
+        );
         let info = kb.extensions().expect("storage");
         assert_eq!(
             info,

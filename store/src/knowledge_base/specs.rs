@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use super::KnowledgeBase;
 use crate::error::{IngestError, SpecValidationError, Violation};
-use crate::graphs::{extension_graph, fnv1a, spec_graph, spec_of_graph};
+use crate::graphs::{extension_graph, graph_hash, spec_graph, spec_of_graph};
 use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{ExtractedSpec, Spec, SpecKind, extract_specs, spec_from_graph};
 
@@ -101,8 +101,12 @@ impl KnowledgeBase {
         let doc = extract_specs(&triples, &self.classes(), None)?;
         let mut reasoner = self.lock();
         self.check_identities(&doc.specs)?;
-        let extension = (!doc.rest.is_empty())
-            .then(|| (extension_graph(fnv1a(body)), fresh_blank_nodes(&doc.rest)));
+        let extension = (!doc.rest.is_empty()).then(|| {
+            (
+                extension_graph(graph_hash(&doc.rest)),
+                fresh_blank_nodes(&doc.rest),
+            )
+        });
         let mut graphs: Vec<(&NamedNode, &[Triple])> = doc
             .specs
             .iter()
