@@ -14,6 +14,10 @@
 //!    instances when `PEER_PYTHON` is set, and with GQR when `GQR_BIN` is set
 //!    (`benches/peers/build_gqr.sh` builds it from a checkout; never committed).
 //!
+//! 4. Exact consistency (`dyknow rcc8 --exact`): splitting over the tractable subclass `B̂8`
+//!    (`consistent_until`) against backtracking to a scenario (`solve_until`, what `--exact`
+//!    ran before 2026-11-29), same instances, answers compared where both decide.
+//!
 //! The landmark experiment (Figures 3.8–3.9) is `benches/landmarks.rs`.
 //! `BENCH_QUICK=1`: fewer instances.
 #![expect(clippy::unwrap_used, reason = "a benchmark binary")]
@@ -147,6 +151,7 @@ fn main() {
         out.flush().unwrap();
     }
 
+    exact_side_by_side(&mut rng, quick, &mut out);
     gqr_side_by_side(&sets, &mut out);
 
     let Ok(python) = std::env::var("PEER_PYTHON") else {
@@ -317,4 +322,57 @@ fn gqr_side_by_side(sets: &[(usize, f64, Vec<Network>)], out: &mut impl Write) {
         out.flush().unwrap();
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Exact consistency, `B̂8` splitting against scenario search, on model A(n, d, l = 5) networks
+/// (path consistent at these degrees, so the search has to run). Scenario search is cut off at
+/// 10 s an instance.
+fn exact_side_by_side(rng: &mut Rng, quick: bool, out: &mut impl Write) {
+    writeln!(
+        out,
+        "\n## Exact consistency: splitting over B̂8 against backtracking to a scenario (l = 5)\n"
+    )
+    .unwrap();
+    writeln!(
+        out,
+        "| n | d | instances | consistent | B̂8 splitting, mean | scenario search, mean (cut off at 10 s) | ratio |"
+    )
+    .unwrap();
+    writeln!(out, "| --- | --- | --- | --- | --- | --- | --- |").unwrap();
+    let cap = std::time::Duration::from_secs(10);
+    for (n, count) in [(100usize, 5usize), (300, 3), (600, 2)] {
+        for d in [9.0, 11.0] {
+            let count = if quick { 1 } else { count };
+            let (mut ours, mut theirs, mut consistent, mut cut) = (0.0, 0.0, 0, 0);
+            for _ in 0..count {
+                let net = instance(rng, n, d, 5.0);
+                let start = Instant::now();
+                let answer = net.clone().consistent_until(None).unwrap();
+                ours += start.elapsed().as_secs_f64();
+                let start = Instant::now();
+                let scenario = net.clone().solve_until(Some(start + cap));
+                theirs += start.elapsed().as_secs_f64();
+                match scenario {
+                    Some(s) => assert_eq!(s, answer, "the two searches must agree"),
+                    None => cut += 1,
+                }
+                consistent += usize::from(answer);
+            }
+            let (ours, theirs) = (ours / count as f64, theirs / count as f64);
+            let over = if cut > 0 {
+                format!(" ({cut} cut off: more)")
+            } else {
+                String::new()
+            };
+            writeln!(
+                out,
+                "| {n} | {d} | {count} | {consistent} | {:.1} ms | {:.1} ms{over} | {:.0}× |",
+                ours * 1e3,
+                theirs * 1e3,
+                theirs / ours
+            )
+            .unwrap();
+            out.flush().unwrap();
+        }
+    }
 }

@@ -1,6 +1,6 @@
 //! Constraint networks and their algebraic closure (issue 6, item 2): queue-based path
-//! consistency (seed Algorithm 1), and exact consistency by backtracking over base relations
-//! with path consistency at each node.
+//! consistency (seed Algorithm 1), and exact consistency by backtracking with path consistency
+//! at each node, over base relations (a scenario) or over the tractable subclass `B̂8`.
 
 use crate::relation::{Relation, composition_table};
 
@@ -206,20 +206,64 @@ impl Network {
     /// (for RCC-8, an atomic path-consistent network is consistent: Renz and Nebel 1999); on
     /// failure it is left closed as before the search.
     pub fn solve(&mut self) -> bool {
-        if self.algebraic_closure().is_err() {
-            return false;
+        self.solve_until(None)
+            .unwrap_or_else(|| unreachable!("no deadline, so the search ends with an answer"))
+    }
+
+    /// [`Network::solve`] that gives up at `deadline`: `None` if the search had not decided by
+    /// then (the network is then left closed as before the search). The clock is read every
+    /// 256 nodes of the search, so it overruns the deadline by at most 256 closures.
+    pub fn solve_until(&mut self, deadline: Option<std::time::Instant>) -> Option<bool> {
+        let (answer, trail) = self.search(deadline, Branching::Bases);
+        if answer != Some(true) {
+            self.undo(trail);
         }
+        answer
+    }
+
+    /// Exact consistency without a scenario, the way GQR decides it: backtracking splits each
+    /// relation outside `B̂8` (the closure of the base relations under composition,
+    /// intersection and converse: 38 relations with the universal one) into members of it,
+    /// largest first, and stops as soon as every relation is in `B̂8` and the network is path
+    /// consistent. Path consistency decides consistency for the maximal tractable subclass
+    /// Ĥ8 ⊇ B̂8 (Renz and Nebel 1999), so this answers as [`Network::solve`] does, but decides
+    /// far fewer pairs: unconstrained (universal) pairs never, where a scenario needs every
+    /// one. `None` if undecided at `deadline`. The network is left closed as before the search.
+    pub fn consistent_until(&mut self, deadline: Option<std::time::Instant>) -> Option<bool> {
+        let (answer, trail) = self.search(deadline, Branching::Tractable);
+        self.undo(trail);
+        answer
+    }
+
+    /// The backtracking search of [`Network::solve_until`] and [`Network::consistent_until`]:
+    /// close, pick the undecided pair with the fewest base relations, try the parts of its
+    /// relation `split` gives with path consistency from it, and undo through a trail of
+    /// changed cells. Returns the answer and the trail of what the search changed after the
+    /// closure (empty unless it is `Some(true)` or `None`).
+    fn search(
+        &mut self,
+        deadline: Option<std::time::Instant>,
+        split: Branching,
+    ) -> (Option<bool>, Vec<(usize, Relation)>) {
         let mut trail: Vec<(usize, Relation)> = Vec::new();
-        // Frames: the pair decided, the base relations not yet tried, the trail mark.
+        if self.algebraic_closure().is_err() {
+            return (Some(false), trail);
+        }
+        let mut nodes: u32 = 0;
+        // Frames: the pair decided, the part of its relation not yet tried, the trail mark.
         let mut frames: Vec<(usize, usize, Relation, usize)> = Vec::new();
-        loop {
-            match self.undecided() {
-                None => return true,
+        let answer = 'search: loop {
+            match self.undecided(split) {
+                None => break Some(true),
                 Some((i, j)) => frames.push((i, j, self.get(i, j), trail.len())),
             }
             loop {
+                nodes = nodes.wrapping_add(1);
+                if nodes % 256 == 0 && deadline.is_some_and(|d| std::time::Instant::now() >= d) {
+                    break 'search None;
+                }
                 let Some(top) = frames.last_mut() else {
-                    return false;
+                    break 'search Some(false);
                 };
                 let (i, j, remaining, mark) = *top;
                 while trail.len() > mark {
@@ -227,27 +271,41 @@ impl Network {
                         self.rel[cell] = old;
                     }
                 }
-                let Some(b) = remaining.bases().next() else {
+                if remaining.is_empty() {
                     frames.pop();
                     continue;
-                };
-                top.2 = Relation(remaining.0 & !b.0);
+                }
+                let part = split.part(remaining);
+                top.2 = Relation(remaining.0 & !part.0);
                 let mut log = |cell, old| trail.push((cell, old));
-                self.write(i, j, b, &mut log);
+                self.write(i, j, part, &mut log);
                 if self.close_logged(&[(i, j)], &mut log).is_ok() {
                     break;
                 }
             }
+        };
+        (answer, trail)
+    }
+
+    /// Undoes a search's changes, the last first.
+    fn undo(&mut self, mut trail: Vec<(usize, Relation)>) {
+        while let Some((cell, old)) = trail.pop() {
+            self.rel[cell] = old;
         }
     }
 
-    /// The pair `i < j` with the fewest base relations above one, if any.
-    fn undecided(&self) -> Option<(usize, usize)> {
+    /// The pair `i < j` with the fewest base relations whose relation `split` would still
+    /// split, if any.
+    fn undecided(&self, split: Branching) -> Option<(usize, usize)> {
         let mut pick: Option<(usize, usize, u32)> = None;
         for i in 0..self.n {
             for j in i + 1..self.n {
-                let k = self.get(i, j).len();
-                if k > 1 && pick.is_none_or(|(_, _, best)| k < best) {
+                let r = self.get(i, j);
+                if split.done(r) {
+                    continue;
+                }
+                let k = r.len();
+                if pick.is_none_or(|(_, _, best)| k < best) {
                     pick = Some((i, j, k));
                     if k == 2 {
                         return Some((i, j));
@@ -256,6 +314,103 @@ impl Network {
             }
         }
         pick.map(|(i, j, _)| (i, j))
+    }
+}
+
+/// How the exact search splits a relation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Branching {
+    /// Into base relations, one at a time, until every relation is one (a scenario).
+    Bases,
+    /// Into members of `B̂8`, the largest first, until every relation is one.
+    Tractable,
+}
+
+impl Branching {
+    /// Whether a pair holding `r` is decided.
+    fn done(self, r: Relation) -> bool {
+        match self {
+            Self::Bases => r.len() <= 1,
+            Self::Tractable => closure_of_bases()[usize::from(r.0)] == r.0,
+        }
+    }
+
+    /// The next part of `remaining` (not empty) to try.
+    fn part(self, remaining: Relation) -> Relation {
+        match self {
+            Self::Bases => remaining.bases().next().unwrap_or(remaining),
+            Self::Tractable => Relation(closure_of_bases()[usize::from(remaining.0)]),
+        }
+    }
+}
+
+/// For every relation `r`, the largest member of `B̂8` (the closure of the base relations under
+/// composition, intersection and converse) contained in `r`; `r` itself exactly when `r` is in
+/// `B̂8`. Every base relation is in it, so a non-empty `r` contains a non-empty member.
+fn closure_of_bases() -> &'static [u8; 256] {
+    static TABLE: std::sync::OnceLock<[u8; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut members: Vec<Relation> = Relation::BASE.to_vec();
+        let mut known = [false; 256];
+        for b in &members {
+            known[usize::from(b.0)] = true;
+        }
+        let mut grown = true;
+        while grown {
+            grown = false;
+            let snapshot = members.clone();
+            for a in &snapshot {
+                for b in &snapshot {
+                    for r in [a.compose(*b), a.and(*b), a.converse()] {
+                        if !r.is_empty() && !known[usize::from(r.0)] {
+                            known[usize::from(r.0)] = true;
+                            members.push(r);
+                            grown = true;
+                        }
+                    }
+                }
+            }
+        }
+        let mut table = [0u8; 256];
+        for (r, best) in table.iter_mut().enumerate().skip(1) {
+            *best = members
+                .iter()
+                .filter(|m| usize::from(m.0) & r == usize::from(m.0))
+                .max_by_key(|m| (m.len(), m.0))
+                .map_or(0, |m| m.0);
+        }
+        table
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `B̂8` holds the base relations and the universal one, 37 relations besides the empty
+    /// one, and is closed under composition, intersection and converse; every relation's part
+    /// is a member inside it.
+    #[test]
+    fn the_closure_of_the_base_relations() {
+        let members: Vec<u8> = (1..=255u8)
+            .filter(|r| closure_of_bases()[usize::from(*r)] == *r)
+            .collect();
+        assert_eq!(members.len(), 37, "{members:?}");
+        let member = |r: Relation| r.is_empty() || members.contains(&r.0);
+        for a in &members {
+            for b in &members {
+                let (a, b) = (Relation(*a), Relation(*b));
+                assert!(member(a.compose(b)) && member(a.and(b)) && member(a.converse()));
+            }
+        }
+        assert!(members.contains(&Relation::UNIVERSAL.0));
+        for b in Relation::BASE {
+            assert!(members.contains(&b.0));
+        }
+        for r in 1..=255u8 {
+            let part = closure_of_bases()[usize::from(r)];
+            assert!(part != 0 && part & r == part, "{r:#010b}");
+        }
     }
 }
 

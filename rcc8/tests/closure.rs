@@ -118,6 +118,19 @@ proptest! {
         }
     }
 
+    /// Splitting over `B̂8` decides as brute force does, and leaves the network closed.
+    #[test]
+    fn tractable_against_brute_force(net in network()) {
+        let all = scenarios(&net);
+        let mut closed = net.clone();
+        let pc = closed.algebraic_closure().is_ok();
+        let mut decided = net.clone();
+        prop_assert_eq!(decided.consistent_until(None), Some(!all.is_empty()));
+        if pc {
+            prop_assert_eq!(decided, closed);
+        }
+    }
+
     /// Exact consistency decides exactly when a scenario exists, and returns one.
     #[test]
     fn exact_against_brute_force(net in network()) {
@@ -371,10 +384,62 @@ fn gqr_sample_instances_answer_as_gqr_does() {
             .iter()
             .map(|n| if n.clone().solve() { '1' } else { '0' })
             .collect();
+        let ours_tractable: String = nets
+            .iter()
+            .map(|n| match n.clone().consistent_until(None) {
+                Some(true) => '1',
+                Some(false) => '0',
+                None => unreachable!("no deadline"),
+            })
+            .collect();
+        assert_eq!(ours_tractable, ours_exact, "{file}");
         assert_eq!(
             (ours_pc.as_str(), ours_exact.as_str()),
             (pc, exact),
             "{file}"
         );
     }
+}
+
+/// On model A networks around the phase transition (n = 12–40, too large for brute force),
+/// splitting over `B̂8` answers as backtracking over base relations does (which the brute force
+/// checks on small networks): 240 instances, consistent and inconsistent ones in the mix. (Path
+/// consistency alone is right on nearly all of them; GQR's `example-10x20.csp`, where it is not,
+/// is checked in `gqr_sample_instances_answer_as_gqr_does`.)
+#[test]
+fn tractable_splitting_answers_as_scenario_search() {
+    let mut rng = Rng(7);
+    let mut consistent = 0;
+    for k in 0..240 {
+        let n = 12 + k % 29;
+        let d = 6.0 + (k % 7) as f64;
+        let net = model_a(&mut rng, n, d, 4.0);
+        let scenario = net.clone().solve();
+        assert_eq!(
+            net.clone().consistent_until(None),
+            Some(scenario),
+            "instance {k}"
+        );
+        consistent += usize::from(scenario);
+    }
+    assert!(consistent > 20 && consistent < 220, "{consistent}");
+}
+
+/// A deadline that has passed gives up (`None`) and leaves the network closed.
+#[test]
+fn a_search_past_its_deadline_gives_up_and_leaves_the_closure() {
+    let mut rng = Rng(3);
+    let net = model_a(&mut rng, 300, 11.0, 5.0);
+    let mut closed = net.clone();
+    assert!(
+        closed.algebraic_closure().is_ok(),
+        "pick a path-consistent instance"
+    );
+    let past = std::time::Instant::now();
+    let mut searched = net.clone();
+    assert_eq!(searched.solve_until(Some(past)), None);
+    assert_eq!(searched, closed);
+    let mut searched = net;
+    assert_eq!(searched.consistent_until(Some(past)), None);
+    assert_eq!(searched, closed);
 }

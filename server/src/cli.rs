@@ -163,10 +163,15 @@ pub enum Command {
     /// instance `consistent` and the refined network, or `inconsistent`. Exits 1 if any
     /// instance is inconsistent.
     Rcc8 {
-        /// Decide consistency exactly (backtracking over base relations), not only by path
-        /// consistency.
+        /// Decide consistency exactly (backtracking over the tractable subclass B̂8 with path
+        /// consistency, as GQR does), not only by path consistency.
         #[arg(long)]
         exact: bool,
+        /// With --exact: how long the search may take for one instance, in seconds. An
+        /// instance it has not decided by then is answered `unknown`, followed by its algebraic
+        /// closure (it is path consistent); the exit status counts only `inconsistent` ones.
+        #[arg(long, value_name = "SECONDS", requires = "exact", value_parser = seconds)]
+        timeout: Option<std::time::Duration>,
         /// The network file (several instances, each ended by `.`); `-` reads standard input.
         #[arg(value_name = "FILE")]
         file: PathBuf,
@@ -428,7 +433,11 @@ pub fn main() -> ExitCode {
             static_regions,
             domains,
         } => check(&formulas, &trace, landmarks, static_regions, &domains),
-        Command::Rcc8 { exact, file } => rcc8(&file, exact),
+        Command::Rcc8 {
+            exact,
+            timeout,
+            file,
+        } => rcc8(&file, exact, timeout),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -780,8 +789,20 @@ fn check(
     }
 }
 
-/// `dyknow rcc8`: every instance closed (and, with `--exact`, solved); answers in input order.
-fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
+/// A positive, finite number of seconds.
+fn seconds(text: &str) -> Result<std::time::Duration, String> {
+    let value: f64 = text
+        .parse()
+        .map_err(|_| format!("'{text}' is not a number of seconds"))?;
+    std::time::Duration::try_from_secs_f64(value)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| format!("'{text}': a time limit is a positive number of seconds"))
+}
+
+/// `dyknow rcc8`: every instance closed (and, with `--exact`, solved); answers in input order,
+/// each written as soon as it is decided.
+fn rcc8(file: &Path, exact: bool, timeout: Option<std::time::Duration>) -> Result<(), Failure> {
     use std::io::Read;
     let name = file.display().to_string();
     let mut bytes = Vec::new();
@@ -809,19 +830,38 @@ fn rcc8(file: &Path, exact: bool) -> Result<(), Failure> {
     })?;
     let networks =
         dyknow_rcc8::gqr::parse(&text).map_err(|e| Failure(2, format!("{name}: {e}")))?;
-    let mut out = String::new();
-    let mut inconsistent = 0;
+    let (mut inconsistent, mut unknown) = (0, 0);
     for mut network in networks {
-        let closed = network.algebraic_closure().is_ok() && (!exact || network.clone().solve());
-        if closed {
-            out.push_str("consistent\n");
-            dyknow_rcc8::gqr::write(&network, &mut out)?;
+        let mut out = String::new();
+        let answer = if network.algebraic_closure().is_err() {
+            Some(false)
+        } else if exact {
+            network
+                .clone()
+                .consistent_until(timeout.map(|t| std::time::Instant::now() + t))
         } else {
-            out.push_str("inconsistent\n");
-            inconsistent += 1;
+            Some(true)
+        };
+        match answer {
+            Some(true) | None => {
+                out.push_str(if answer.is_some() {
+                    "consistent\n"
+                } else {
+                    unknown += 1;
+                    "unknown\n"
+                });
+                dyknow_rcc8::gqr::write(&network, &mut out)?;
+            }
+            Some(false) => {
+                out.push_str("inconsistent\n");
+                inconsistent += 1;
+            }
         }
+        write_stdout(&out)?;
     }
-    write_stdout(&out)?;
+    if unknown > 0 {
+        eprintln!("dyknow: {unknown} instance(s) undecided within the time limit");
+    }
     if inconsistent > 0 {
         return Err(Failure(
             1,

@@ -20,12 +20,8 @@ fn rcc8(input: &str, extra: &[&str]) -> (i32, String, String) {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
+    // A usage error exits before reading its input: the pipe may then be closed.
+    let _ = child.stdin.take().unwrap().write_all(input.as_bytes());
     let out = child.wait_with_output().unwrap();
     (
         out.status.code().unwrap_or(-1),
@@ -113,15 +109,42 @@ fn a_closed_output_pipe_is_an_error_not_a_panic() {
         .unwrap();
     // The reader goes away before anything is written.
     drop(child.stdout.take());
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
+    // A usage error exits before reading its input: the pipe may then be closed.
+    let _ = child.stdin.take().unwrap().write_all(input.as_bytes());
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(stderr.contains("writing the output"), "{stderr}");
+}
+
+/// `--exact --timeout`: an instance the search has not decided in time is `unknown`, followed
+/// by its closure, and does not count as inconsistent (exit 0); given time, the same instance
+/// is decided. `--timeout` needs `--exact` and a positive number (exit 2).
+#[test]
+fn a_time_limit_answers_unknown_with_the_closure() {
+    let mut rng = dyknow_rcc8::generate::Rng(3);
+    let net = dyknow_rcc8::generate::model_a(&mut rng, 600, 11.0, 5.0);
+    let mut text = String::new();
+    dyknow_rcc8::gqr::write(&net, &mut text).unwrap();
+    let (_, closed, _) = rcc8(&text, &[]);
+    assert!(closed.starts_with("consistent\n"), "{closed}");
+    let (code, out, stderr) = rcc8(&text, &["--exact", "--timeout", "0.001"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(out.replacen("unknown", "consistent", 1), closed);
+    assert!(stderr.contains("1 instance(s) undecided"), "{stderr}");
+    let (code, out, stderr) = rcc8(&text, &["--exact", "--timeout", "60"]);
+    assert_eq!(
+        (code, out.lines().next()),
+        (0, Some("consistent")),
+        "{stderr}"
+    );
+    for bad in [
+        &["--timeout", "1"][..],
+        &["--exact", "--timeout", "0"],
+        &["--exact", "--timeout", "x"],
+    ] {
+        let (code, out, _) = rcc8(&text, bad);
+        assert_eq!((code, out.as_str()), (2, ""), "{bad:?}");
+    }
 }
