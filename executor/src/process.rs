@@ -538,12 +538,8 @@ fn copy_stderr(name: &str, stderr: impl std::io::Read) {
             Ok(_) => {}
         }
         let cut = line.last() != Some(&b'\n') && line.len() >= STDERR_LINE_BYTES;
-        if cut {
-            // The rest of a long line is read and not logged.
-            let mut rest = Vec::new();
-            if reader.read_until(b'\n', &mut rest).is_err() {
-                break;
-            }
+        if cut && skip_line(&mut reader).is_err() {
+            break;
         }
         let (log, dropped) = budget.admit(std::time::Instant::now());
         if let Some(dropped) = dropped {
@@ -551,13 +547,48 @@ fn copy_stderr(name: &str, stderr: impl std::io::Read) {
         }
         if log {
             let text = String::from_utf8_lossy(&line);
-            let text = text.trim_end_matches(['\n', '\r']);
+            // Control characters (a NUL, a carriage return inside the line, escape sequences)
+            // are shown escaped, so that a CU cannot rewrite the log's lines.
+            let text: String = text
+                .trim_end_matches(['\n', '\r'])
+                .chars()
+                .flat_map(|c| {
+                    let escaped = c.is_control() && c != '\t';
+                    let (plain, code) = if escaped {
+                        (None, Some(c.escape_default()))
+                    } else {
+                        (Some(c), None)
+                    };
+                    plain.into_iter().chain(code.into_iter().flatten())
+                })
+                .collect();
             let more = if cut { " [cut]" } else { "" };
             tracing::info!(target: "dyknow::cu", "{name}: {text}{more}");
         }
     }
     if budget.dropped > 0 {
         report_dropped(name, budget.dropped);
+    }
+}
+
+/// Reads and drops the rest of a line, to its newline or the end of the stream, holding no
+/// more of it than the reader's buffer: a CU may write gigabytes without a newline.
+fn skip_line(reader: &mut impl std::io::BufRead) -> std::io::Result<()> {
+    loop {
+        let buf = reader.fill_buf()?;
+        if buf.is_empty() {
+            return Ok(());
+        }
+        match buf.iter().position(|b| *b == b'\n') {
+            Some(at) => {
+                reader.consume(at + 1);
+                return Ok(());
+            }
+            None => {
+                let len = buf.len();
+                reader.consume(len);
+            }
+        }
     }
 }
 
@@ -590,6 +621,35 @@ mod stderr_tests {
         let read = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
         copy_stderr("cu-1", Counted(&input[..], read.clone()));
         assert_eq!(read.load(std::sync::atomic::Ordering::Relaxed), input.len());
+    }
+
+    /// The peak resident memory of this process, in KiB (Linux's `VmHWM`).
+    fn peak_kib() -> u64 {
+        std::fs::read_to_string("/proc/self/status")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find_map(|l| l.strip_prefix("VmHWM:"))
+                    .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+            })
+            .unwrap_or(0)
+    }
+
+    /// A line of 256 MiB without a newline is read through, not held: the copy's peak memory
+    /// stays far below the line (a user audit saw the service grow by 400 MB and stay there).
+    #[test]
+    fn a_huge_line_is_skipped_without_holding_it() {
+        use std::io::Read;
+        let before = peak_kib();
+        let line = std::io::repeat(b'a').take(256 << 20);
+        let read = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        copy_stderr("cu-1", Counted(line.chain(&b"\nlast\n"[..]), read.clone()));
+        assert_eq!(
+            read.load(std::sync::atomic::Ordering::Relaxed),
+            (256 << 20) + 6
+        );
+        let grown = peak_kib().saturating_sub(before);
+        assert!(grown < 64 << 10, "the peak grew by {grown} KiB");
     }
 
     #[test]

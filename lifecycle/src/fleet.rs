@@ -558,8 +558,14 @@ impl Executor for Fleet {
                         failures.push(fail(format!("no transformation {transformation}")));
                         continue;
                     };
+                    // The fewest CUs counts this change set's spawns so far: its CUs are
+                    // spread, not all put where there were fewest before it.
                     let executor = match inner.candidates(spec) {
-                        Ok(able) => able[0].clone(),
+                        Ok(able) => able
+                            .iter()
+                            .min_by_key(|n| placed.values().filter(|e| e == n).count())
+                            .unwrap_or(&able[0])
+                            .clone(),
                         Err(why) => {
                             failures.push(fail(why));
                             continue;

@@ -477,6 +477,63 @@ fn destroys_are_sent_after_every_executors_other_actions() {
     );
 }
 
+/// A change set's spawns are spread over the executors that can run them, each going where the
+/// fewest CUs are, counting those the change set placed before it (a user audit saw a chain of
+/// four CUs all go to one executor while two others stood idle: the count read only the
+/// placement from before the change set). Ties go by name.
+#[test]
+fn a_change_sets_spawns_are_spread_over_the_executors() {
+    use dyknow_engine::Action;
+    let (router, client) = sessions();
+    let namespace = Namespace::new("spread").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let _x = fake_executor(&client, &namespace, "x", &log);
+    until_appeared(&mut events, "x", 0);
+    let _y = fake_executor(&client, &namespace, "y", &log);
+    until_appeared(&mut events, "y", 0);
+    let _z = fake_executor(&client, &namespace, "z", &log);
+    until_appeared(&mut events, "z", 0);
+    let specs = BTreeMap::from([(dyknow_engine::Tid::from("t"), relay_spec())]);
+    let spawns = |names: &[&str]| {
+        names
+            .iter()
+            .map(|cu| Action::Spawn {
+                cu: (*cu).into(),
+                transformation: "t".into(),
+            })
+            .collect()
+    };
+    let applied = fleet.apply(&change_set(1, spawns(&["a", "b", "c", "d"])), &specs);
+    assert!(applied.failures.is_empty(), "{applied:?}");
+    let mut sent: Vec<(String, Vec<String>)> = log.lock().expect("the log").clone();
+    sent.sort();
+    assert_eq!(
+        sent,
+        [
+            (
+                "x".to_owned(),
+                vec!["spawn a".to_owned(), "spawn d".to_owned()]
+            ),
+            ("y".to_owned(), vec!["spawn b".to_owned()]),
+            ("z".to_owned(), vec!["spawn c".to_owned()]),
+        ]
+    );
+    // The next change set starts from where they are: y and z have fewest.
+    log.lock().expect("the log").clear();
+    let applied = fleet.apply(&change_set(2, spawns(&["e", "f"])), &specs);
+    assert!(applied.failures.is_empty(), "{applied:?}");
+    let mut sent: Vec<(String, Vec<String>)> = log.lock().expect("the log").clone();
+    sent.sort();
+    assert_eq!(
+        sent,
+        [
+            ("y".to_owned(), vec!["spawn e".to_owned()]),
+            ("z".to_owned(), vec!["spawn f".to_owned()]),
+        ]
+    );
+}
+
 /// An instance of executor `x` as a fake: its instance token, its name's token, and an
 /// `info` that says which instance answers and that it runs `cus` CUs, `delay` after it is
 /// asked.
