@@ -48,6 +48,24 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
+/// How long a release or a statistics read waits for a running callback to leave the core.
+const CORE_WAIT: Duration = Duration::from_millis(50);
+
+/// The lock of `m` if it comes free within `wait` (polled), else `None`.
+fn lock_within<T>(m: &Mutex<T>, wait: Duration) -> Option<MutexGuard<'_, T>> {
+    let deadline = Instant::now() + wait;
+    loop {
+        match m.try_lock() {
+            Ok(guard) => return Some(guard),
+            Err(std::sync::TryLockError::Poisoned(p)) => return Some(p.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            Err(std::sync::TryLockError::WouldBlock) => return None,
+        }
+    }
+}
+
 static NEXT_ID: AtomicUsize = AtomicUsize::new(1);
 
 /// Set in a process CU ([`crate::run_process`]): the process holds one CU, whose stalled
@@ -75,6 +93,9 @@ struct OutBinding {
 struct OutPorts {
     cu: String,
     ports: BTreeMap<String, OutBinding>,
+    /// Set when the CU is released while a callback runs: its publishers are dropped when
+    /// the callback returns, and nothing it publishes until then goes out.
+    released: Arc<AtomicBool>,
     /// The payload of the sample the running callback received, for [`Outputs::forward`].
     received: Option<ZBytes>,
 }
@@ -96,8 +117,9 @@ impl OutBinding {
 impl OutPorts {
     /// Out port `port` while it is bound; `None` while it is not.
     fn bound(&mut self, port: &str) -> Result<Option<&mut OutBinding>, CuError> {
+        let released = self.released.load(Ordering::Acquire);
         match self.ports.get_mut(port) {
-            Some(out) => Ok(out.publisher.is_some().then_some(out)),
+            Some(out) => Ok((out.publisher.is_some() && !released).then_some(out)),
             None => Err(CuError::UnknownPort {
                 cu: self.cu.clone(),
                 direction: "out",
@@ -199,6 +221,11 @@ struct Shared {
     namespace: Namespace,
     session: zenoh::Session,
     core: Mutex<Core>,
+    /// The core's [`OutPorts::released`].
+    released: Arc<AtomicBool>,
+    /// The out ports' channels, as bound last: read without the core, which a running
+    /// callback holds.
+    out_channels: Mutex<BTreeMap<String, String>>,
     inputs: Mutex<BTreeMap<String, InBinding>>,
     life: Mutex<Life>,
     token: Mutex<Option<LivelinessToken>>,
@@ -263,7 +290,9 @@ impl Unit {
                 })
                 .collect(),
             received: None,
+            released: Arc::new(AtomicBool::new(false)),
         };
+        let released = outputs.released.clone();
         let mut core = Core {
             transformation,
             outputs,
@@ -311,6 +340,8 @@ impl Unit {
             namespace: namespace.clone(),
             session: session.clone(),
             core: Mutex::new(core),
+            released,
+            out_channels: Mutex::new(BTreeMap::new()),
             inputs: Mutex::new(BTreeMap::new()),
             life: Mutex::new(Life {
                 state: CuState::Running,
@@ -451,6 +482,12 @@ impl Unit {
                 return Ok(());
             };
             out.channel = channel.map(str::to_owned);
+            let mut channels = lock(&shared.out_channels);
+            match channel {
+                Some(c) => channels.insert(port.to_owned(), c.to_owned()),
+                None => channels.remove(port),
+            };
+            drop(channels);
             std::mem::replace(&mut out.publisher, publisher)
         };
         drop(old);
@@ -489,12 +526,13 @@ impl Unit {
             .map(|p| (p.clone(), inputs.get(p).map(|b| b.channel.clone())))
             .collect();
         drop(inputs);
-        let core = lock(&self.shared.core);
-        let outs = core
+        let channels = lock(&self.shared.out_channels);
+        let outs = self
+            .shared
+            .spec
             .outputs
-            .ports
             .iter()
-            .map(|(p, o)| (p.clone(), o.channel.clone()))
+            .map(|p| (p.clone(), channels.get(p).cloned()))
             .collect();
         (ins, outs)
     }
@@ -514,12 +552,15 @@ impl Unit {
             _ => 0,
         };
         drop(life);
-        let core = lock(&self.shared.core);
-        let mut ports = core.in_stats.clone();
-        for (port, out) in &core.outputs.ports {
-            ports.insert(port.clone(), out.stats.clone());
+        // A callback running long (stalled) holds the core: its port statistics are then left
+        // out rather than waited for, so that an executor's `info` answers for its other CUs.
+        let mut ports = BTreeMap::new();
+        if let Some(core) = lock_within(&self.shared.core, CORE_WAIT) {
+            ports = core.in_stats.clone();
+            for (port, out) in &core.outputs.ports {
+                ports.insert(port.clone(), out.stats.clone());
+            }
         }
-        drop(core);
         CuStatistics {
             uptime_ms,
             reconfigurations: self.shared.reconfigurations.load(Ordering::Relaxed),
@@ -552,8 +593,9 @@ impl Unit {
         self.shared.crash(reason);
     }
 
-    /// Stops it (destroy): no callback runs after this returns, its bindings and token are
-    /// gone. A crashed CU keeps its crashed state.
+    /// Stops it (destroy): no callback starts after this returns, its bindings and token are
+    /// gone; a callback running on (stalled) is not waited for, and nothing it publishes goes
+    /// out. A crashed CU keeps its crashed state.
     pub fn stop(&self) {
         {
             let mut life = lock(&self.shared.life);
@@ -567,18 +609,25 @@ impl Unit {
     }
 
     /// Undeclares its subscriptions, publishers and token (after a crash: the executor calls
-    /// this from its own thread, never from inside a callback).
+    /// this from its own thread, never from inside a callback). It does not wait for a
+    /// callback that runs on (stalled): nothing that callback publishes goes out any more, and
+    /// its publishers are dropped when it returns, so that one stalled CU never holds up its
+    /// executor's other actions or its shutdown.
     pub fn release(&self) {
         let inputs = std::mem::take(&mut *lock(&self.shared.inputs));
         drop(inputs);
-        // Wait for a running callback: it holds the core.
-        let publishers: Vec<_> = lock(&self.shared.core)
-            .outputs
-            .ports
-            .values_mut()
-            .filter_map(|o| o.publisher.take())
-            .collect();
-        drop(publishers);
+        self.shared.released.store(true, Ordering::Release);
+        lock(&self.shared.out_channels).clear();
+        if let Some(mut core) = lock_within(&self.shared.core, CORE_WAIT) {
+            let publishers: Vec<_> = core
+                .outputs
+                .ports
+                .values_mut()
+                .filter_map(|o| o.publisher.take())
+                .collect();
+            drop(core);
+            drop(publishers);
+        }
         let token = lock(&self.shared.token).take();
         drop(token);
     }
@@ -769,6 +818,12 @@ impl Shared {
             }))
         };
         core.outputs.received = None;
+        if self.released.load(Ordering::Acquire) {
+            // Released while this callback ran: its publishers go now.
+            for out in core.outputs.ports.values_mut() {
+                out.publisher = None;
+            }
+        }
         drop(core);
         let total = clock.elapsed();
         let nested = ACTIVE.with(|a| {

@@ -303,3 +303,83 @@ fn samples_from_another_process_keep_their_order() {
     assert_eq!(*seen.lock().unwrap(), (1..=500).collect::<Vec<i64>>());
     unit.stop();
 }
+
+/// Stalls in its first callback until released, then publishes `t` = 42 on `out` and says so.
+struct StallsThenPublishes {
+    release: Receiver<()>,
+    stalled: Sender<()>,
+    returned: Sender<()>,
+}
+
+impl Transformation for StallsThenPublishes {
+    fn on_sample(&mut self, cu: &mut NodeHandle<'_>, _: &str, _: Sample) -> Result<(), CuError> {
+        let _ = self.stalled.send(());
+        let _ = self.release.recv();
+        let published = cu.publish("out", 42, 42);
+        let _ = self.returned.send(());
+        published
+    }
+}
+
+/// Stopping a CU whose callback is stalled returns at once (a user audit saw an executor's
+/// every later change set time out, and its shutdown take minutes, behind one builtin CU stalled
+/// in a callback: the stop waited for it); its statistics and bindings answer meanwhile; and
+/// what the callback publishes once it returns does not go out.
+#[test]
+fn a_stalled_cu_stops_without_waiting_and_publishes_nothing_after() {
+    let (session, remote) = sessions();
+    let timers = Timers::start();
+    let (watch, watched) = recording(&session, &remote, &timers, "watch", "o");
+    let (release_tx, release) = mpsc::channel();
+    let (stalled_tx, stalled) = mpsc::channel();
+    let (returned_tx, returned) = mpsc::channel();
+    let unit = start(
+        &session,
+        &timers,
+        "stuck",
+        StallsThenPublishes {
+            release,
+            stalled: stalled_tx,
+            returned: returned_tx,
+        },
+        Some("c"),
+        Some("o"),
+    );
+    until("the stalling sample is taken", || {
+        put(&remote, "c", 1);
+        stalled.recv_timeout(Duration::from_millis(50)).is_ok()
+    });
+    let asked = Instant::now();
+    let statistics = unit.statistics();
+    assert!(
+        asked.elapsed() < Duration::from_secs(1),
+        "statistics waited"
+    );
+    assert!(statistics.ports.is_empty(), "{statistics:?}");
+    assert_eq!(unit.bindings().1["out"].as_deref(), Some("o"));
+    let stopping = Instant::now();
+    unit.stop();
+    assert!(
+        stopping.elapsed() < Duration::from_secs(1),
+        "stop waited {:?} for the stalled callback",
+        stopping.elapsed()
+    );
+    assert_eq!(unit.bindings().1["out"], None);
+    release_tx.send(()).unwrap();
+    returned
+        .recv_timeout(Duration::from_secs(10))
+        .expect("the callback returns once released");
+    // A marker put on the same channel after the callback returned arrives; the callback's
+    // sample, had it gone out, would be there too.
+    until("the marker arrives", || {
+        put(&session, "o", 7);
+        std::thread::sleep(Duration::from_millis(20));
+        watched.lock().unwrap().contains(&7)
+    });
+    assert!(
+        !watched.lock().unwrap().contains(&42),
+        "the stopped CU published: {:?}",
+        watched.lock().unwrap()
+    );
+    watch.stop();
+}
