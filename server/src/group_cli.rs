@@ -114,8 +114,8 @@ pub enum GroupCommand {
         /// Replay the recorded verdicts with `t` at or after this first (0: all).
         #[arg(long, value_name = "T")]
         since: Option<u64>,
-        /// Exit after this many verdict lines.
-        #[arg(long, value_name = "N")]
+        /// Exit after this many verdict lines (at least 1).
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         count: Option<u64>,
     },
     /// Prints the recorded state stream as a `dyknow check` trace.

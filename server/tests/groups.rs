@@ -730,6 +730,24 @@ fn bad_groups_are_refused_and_nothing_is_created() {
     assert!(targets(&service).contains_key("symbol:p"));
     // Another label with the same tag is the client's own.
     assert_eq!(post_target("mine").0, 201);
+    // Nor may a target take a group's result channel after the group was made (the group
+    // checks targets when it is created; a user audit posted the target after it, and the
+    // engine wired a CU's stream onto the verdicts' channel).
+    let on_verdicts = |channel: &str| {
+        let mut r = agent()
+            .post(&format!("{}/targets", service.url))
+            .header("Content-Type", "text/turtle")
+            .send(mine("late").replace("\"/mine\"", &format!("{channel:?}")))
+            .unwrap();
+        let status = r.status().as_u16();
+        (status, r.body_mut().read_to_string().unwrap())
+    };
+    for channel in ["/dyknow/verdicts/g", "dyknow/verdicts/g"] {
+        let (status, answer) = on_verdicts(channel);
+        assert_eq!(status, 422, "{channel}: {answer}");
+        assert!(answer.contains("verdicts of formula group"), "{answer}");
+    }
+    assert!(!targets(&service).contains_key("late"));
     // A result channel that is a stream of the configuration is refused: verdict lines on a
     // CU's input crashed it at every verdict (the engine's `ch-N` channels), and on a target's
     // channel they mix with the target's stream.
@@ -765,6 +783,8 @@ fn bad_groups_are_refused_and_nothing_is_created() {
     // Stop then start: 409.
     assert_eq!(send(&service, "POST", "/groups/g/stop", None).0, 200);
     assert!(!targets(&service).contains_key("symbol:p"));
+    // A stopped group writes no more verdicts: its channel is free.
+    assert_eq!(on_verdicts("/dyknow/verdicts/g").0, 201);
     assert_eq!(send(&service, "POST", "/groups/g/start", None).0, 409);
     assert_eq!(
         send(
@@ -976,6 +996,62 @@ fn groups_survive_a_restart() {
     assert_eq!(check(&formulas, &text), verdicts(&stopped));
 }
 
+/// A group whose `group.json` cannot be read at start-up is not loaded, and its directory is
+/// not overwritten by a new group of its label: that is 409, and the old trace stays (a user
+/// audit lost a trace of 9,459 lines this way).
+#[test]
+fn a_group_that_cannot_be_loaded_is_not_overwritten() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let service = start();
+    let (status, g) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "kept", "formulas": ["p"]})),
+    );
+    assert_eq!(status, 201, "{g}");
+    drop(service);
+    let record = data.join("groups").join("kept");
+    let trace_before = std::fs::read_to_string(record.join("trace.jsonl")).unwrap();
+    std::fs::write(record.join("group.json"), "{\"broken").unwrap();
+    let service = start();
+    assert_eq!(
+        service.get("/groups"),
+        json!([]),
+        "the damaged group is not loaded"
+    );
+    let (status, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "kept", "formulas": ["q"]})),
+    );
+    assert_eq!(status, 409, "{answer}");
+    assert!(
+        answer["error"].as_str().unwrap().contains("was not loaded"),
+        "{answer}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(record.join("trace.jsonl")).unwrap(),
+        trace_before
+    );
+    assert_eq!(
+        std::fs::read_to_string(record.join("group.json")).unwrap(),
+        "{\"broken"
+    );
+    // Other labels are unaffected.
+    let (status, g) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "other", "formulas": ["q"]})),
+    );
+    assert_eq!(status, 201, "{g}");
+}
+
 /// `dyknow group`: create, list, show, add, remove, watch, trace, stop, destroy.
 #[test]
 fn the_group_command_line() {
@@ -1044,6 +1120,9 @@ fn the_group_command_line() {
     // Replayed with --since.
     let (_, again, _) = cli(&["watch", "cli", "--since", "0", "--count", "1"]);
     assert_eq!(again, out);
+    // `--count 0` is a usage error, not a watch that never ends (nor one that prints a line).
+    let (code, none, err) = cli(&["watch", "cli", "--since", "0", "--count", "0"]);
+    assert_eq!((code, none.as_str()), (2, ""), "{err}");
     let (code, text, _) = cli(&["trace", "cli"]);
     assert_eq!(code, 0);
     assert!(

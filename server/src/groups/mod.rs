@@ -452,6 +452,14 @@ impl Groups {
             prog.add(&g.formula)
                 .map_err(|e| GroupError::Internal(e.to_string()))?;
         }
+        if let Some(dir) = self.store.as_ref().and_then(|s| s.occupied(&def.label)) {
+            return Err(GroupError::Conflict(format!(
+                "{} holds the record of a group of this label that was not loaded at start-up \
+                 (its group.json could not be read: see the service's log); repair it and \
+                 restart, or move it away, before a group of this label is created",
+                dir.display()
+            )));
+        }
         let writer = match &self.store {
             Some(s) => s.create(&def).map_err(GroupError::Internal)?,
             None => TraceWriter::memory(&def.header.line()),
@@ -847,6 +855,18 @@ impl Groups {
             }
         }
         out
+    }
+
+    /// The group whose verdicts go to `channel` now (one not stopped), if any: a target on
+    /// that channel would have its stream mixed with verdict lines.
+    pub fn result_channel_user(&self, channel: &str) -> Option<String> {
+        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
+        let name = bare(channel);
+        self.list().into_iter().find_map(|g| {
+            let core = g.core();
+            (core.def.phase != Phase::Stopped && bare(&core.def.result_channel) == name)
+                .then(|| g.label.clone())
+        })
     }
 
     /// Refuses a result channel that is a stream of the configuration: verdict lines written

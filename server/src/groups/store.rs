@@ -139,6 +139,14 @@ impl GroupStore {
         write().map_err(|e| format!("{}: {e}", dir.display()))
     }
 
+    /// The directory `label`'s group would be written to, if something is there already:
+    /// a group that could not be loaded at start-up (a damaged `group.json`), which a new
+    /// group of that label must not overwrite with its trace.
+    pub fn occupied(&self, label: &str) -> Option<PathBuf> {
+        let dir = self.group_dir(label);
+        (dir.join("group.json").exists() || dir.join("trace.jsonl").exists()).then_some(dir)
+    }
+
     /// A new group: its definition and a trace holding only the header.
     pub fn create(&self, def: &GroupDef) -> Result<TraceWriter, String> {
         let dir = self.group_dir(&def.label);

@@ -238,8 +238,22 @@ async fn post_specs(
 ) -> Result<Response, ApiError> {
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
+    let groups = state.groups.clone();
     let report = in_turn(&state, move || {
-        Ok(kb.post_specs_checked(&body, format, kind, &reserved_label)?)
+        let refused = |spec: &Spec| {
+            reserved_label(spec).or_else(|| match spec {
+                Spec::Target(t) => groups.result_channel_user(&t.channel).map(|group| {
+                    format!(
+                        "channel {:?} carries the verdicts of formula group {group:?} (its \
+                         result_channel): a stream there would be mixed with verdict lines; \
+                         choose another channel, or stop the group",
+                        t.channel
+                    )
+                }),
+                Spec::Transformation(_) => None,
+            })
+        };
+        Ok(kb.post_specs_checked(&body, format, kind, &refused)?)
     })
     .await?;
     match kind {
