@@ -636,7 +636,7 @@ mod stderr_tests {
     }
 
     /// A line of 256 MiB without a newline is read through, not held: the copy's peak memory
-    /// stays far below the line (a user audit saw the service grow by 400 MB and stay there).
+    /// stays well below the line (a user audit saw the service grow by 400 MB and stay there).
     #[test]
     fn a_huge_line_is_skipped_without_holding_it() {
         use std::io::Read;
@@ -649,7 +649,9 @@ mod stderr_tests {
             (256 << 20) + 6
         );
         let grown = peak_kib().saturating_sub(before);
-        assert!(grown < 64 << 10, "the peak grew by {grown} KiB");
+        // Other tests of this binary running beside it add up to ~80 MiB; holding the line would
+        // add at least its 256 MiB.
+        assert!(grown < 160 << 10, "the peak grew by {grown} KiB");
     }
 
     #[test]

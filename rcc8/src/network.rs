@@ -259,7 +259,9 @@ impl Network {
             }
             loop {
                 nodes = nodes.wrapping_add(1);
-                if nodes % 256 == 0 && deadline.is_some_and(|d| std::time::Instant::now() >= d) {
+                if nodes.is_multiple_of(256)
+                    && deadline.is_some_and(|d| std::time::Instant::now() >= d)
+                {
                     break 'search None;
                 }
                 let Some(top) = frames.last_mut() else {
@@ -383,37 +385,6 @@ fn closure_of_bases() -> &'static [u8; 256] {
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// `B̂8` holds the base relations and the universal one, 37 relations besides the empty
-    /// one, and is closed under composition, intersection and converse; every relation's part
-    /// is a member inside it.
-    #[test]
-    fn the_closure_of_the_base_relations() {
-        let members: Vec<u8> = (1..=255u8)
-            .filter(|r| closure_of_bases()[usize::from(*r)] == *r)
-            .collect();
-        assert_eq!(members.len(), 37, "{members:?}");
-        let member = |r: Relation| r.is_empty() || members.contains(&r.0);
-        for a in &members {
-            for b in &members {
-                let (a, b) = (Relation(*a), Relation(*b));
-                assert!(member(a.compose(b)) && member(a.and(b)) && member(a.converse()));
-            }
-        }
-        assert!(members.contains(&Relation::UNIVERSAL.0));
-        for b in Relation::BASE {
-            assert!(members.contains(&b.0));
-        }
-        for r in 1..=255u8 {
-            let part = closure_of_bases()[usize::from(r)];
-            assert!(part != 0 && part & r == part, "{r:#010b}");
-        }
-    }
-}
-
 /// The row of the composition table for `r`: `r ∘ s` for every set `s`.
 fn row(table: &[u8], r: Relation) -> &[u8; 256] {
     let start = usize::from(r.0) * 256;
@@ -443,5 +414,36 @@ impl Queue {
         let (a, b) = self.edges.pop_front()?;
         self.queued[a * self.n + b] = false;
         Some((a, b))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `B̂8` holds the base relations and the universal one, 37 relations besides the empty
+    /// one, and is closed under composition, intersection and converse; every relation's part
+    /// is a member inside it.
+    #[test]
+    fn the_closure_of_the_base_relations() {
+        let members: Vec<u8> = (1..=255u8)
+            .filter(|r| closure_of_bases()[usize::from(*r)] == *r)
+            .collect();
+        assert_eq!(members.len(), 37, "{members:?}");
+        let member = |r: Relation| r.is_empty() || members.contains(&r.0);
+        for a in &members {
+            for b in &members {
+                let (a, b) = (Relation(*a), Relation(*b));
+                assert!(member(a.compose(b)) && member(a.and(b)) && member(a.converse()));
+            }
+        }
+        assert!(members.contains(&Relation::UNIVERSAL.0));
+        for b in Relation::BASE {
+            assert!(members.contains(&b.0));
+        }
+        for r in 1..=255u8 {
+            let part = closure_of_bases()[usize::from(r)];
+            assert!(part != 0 && part & r == part, "{r:#010b}");
+        }
     }
 }

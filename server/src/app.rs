@@ -58,6 +58,9 @@ impl Default for ServerConfig {
     }
 }
 
+/// A write probe of `GET /health`: when, and the storage error it met, if any.
+pub(crate) type WriteProbe = (std::time::Instant, Option<String>);
+
 /// Shared state of the handlers: cheap to clone.
 #[derive(Clone)]
 pub struct AppState {
@@ -77,6 +80,8 @@ pub struct AppState {
     turns: Arc<tokio::sync::Semaphore>,
     /// Cancels SPARQL queries at `query_timeout`.
     pub(crate) watchdog: Arc<crate::watchdog::Watchdog>,
+    /// The last write probe of `GET /health`.
+    pub(crate) write_probe: Arc<std::sync::Mutex<Option<WriteProbe>>>,
 }
 
 impl AppState {
@@ -109,6 +114,7 @@ impl AppState {
         Ok(Self {
             turns: Arc::new(tokio::sync::Semaphore::new(permits)),
             watchdog: Arc::default(),
+            write_probe: Arc::default(),
             groups,
             kb,
             config: Arc::new(config),

@@ -123,7 +123,14 @@ impl From<IngestError> for ApiError {
             }
             IngestError::NotFound(m) => Self::not_found(m),
             IngestError::Conflict(m) => Self::new(StatusCode::CONFLICT, m),
-            IngestError::Storage(s) => Self::internal(s),
+            IngestError::Storage(s) => {
+                tracing::error!("storage error: {s}");
+                Self::new(
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    "the store could not complete the write, and nothing of it was written; \
+                     see the server log (GET /health says whether the store still takes writes)",
+                )
+            }
             other => Self::internal(other),
         }
     }

@@ -348,3 +348,128 @@ fn acknowledged_writes_survive_kill_9() {
         restarts.iter().map(Duration::as_millis).sum::<u128>() / restarts.len() as u128,
     );
 }
+
+/// A tmpfs of `size` mounted at a fresh directory, unmounted when dropped.
+struct Tmpfs(tempfile::TempDir);
+
+impl Tmpfs {
+    fn new(size: &str) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir.path())
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "mount tmpfs (needs root; DYKNOW_SKIP_TMPFS=1 skips this test): {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Self(dir)
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg("-l")
+            .arg(self.0.path())
+            .output();
+    }
+}
+
+/// A full disk (docs/reliability.md, section 4): the write that meets it fails and writes
+/// nothing; RocksDB then refuses every later write, even once space is back, and `GET /health`
+/// says so (503 `storage-failed`; before, it said `ok` while every write failed); reads go on;
+/// a restart with space back takes writes again, and every acknowledged write is there.
+#[test]
+fn a_full_disk_fails_writes_and_health_says_so() {
+    if std::env::var_os("DYKNOW_SKIP_TMPFS").is_some() {
+        eprintln!("DYKNOW_SKIP_TMPFS is set: the full-disk test does not run");
+        return;
+    }
+    let disk = Tmpfs::new("64m");
+    let data = disk.0.path().join("store");
+    let data = data.to_str().unwrap();
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let health = |service: &Service| request(&service.url, "GET", "/health", None).unwrap();
+    let post = |service: &Service, label: &str| {
+        request(
+            &service.url,
+            "POST",
+            "/transformations",
+            Some(("text/turtle", relay(label))),
+        )
+        .unwrap()
+        .0
+    };
+    let service = Service::start_with(&["--data", data], &zenoh, &["--model-only"]);
+    assert_eq!(health(&service), (200, json!({"status": "ok"})));
+    assert_eq!(post(&service, "before"), 201);
+    // Fill the disk.
+    let filler = disk.0.path().join("filler");
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&filler).unwrap();
+        let block = vec![0u8; 1 << 20];
+        while f.write_all(&block).and_then(|()| f.sync_all()).is_ok() {}
+    }
+    // Writes fail (a spec big enough not to fit in what the filler left).
+    let mut status = 201;
+    for i in 0..50 {
+        status = post(&service, &format!("full{i}"));
+        if status != 201 {
+            break;
+        }
+    }
+    assert_eq!(status, 500, "a write on a full disk fails");
+    // Health probes at most once a second: it says so within a second or so.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let answer = loop {
+        let (code, answer) = health(&service);
+        if code == 503 || Instant::now() > deadline {
+            break answer;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(answer["status"], "storage-failed", "{answer}");
+    assert!(
+        answer["error"].as_str().unwrap().contains("No space left"),
+        "{answer}"
+    );
+    // Space back: RocksDB still refuses (it needs the store opened again), and health still
+    // says so; reads answer.
+    std::fs::remove_file(&filler).unwrap();
+    std::thread::sleep(Duration::from_millis(1100)); // the probe's answer stands 1 s
+    assert_eq!(health(&service).0, 503);
+    let listed = service.get("/transformations");
+    assert!(
+        listed
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|t| t["label"] == "before"),
+        "{listed}"
+    );
+    let acknowledged: BTreeSet<String> = listed
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["label"].as_str().unwrap().to_owned())
+        .collect();
+    drop(service);
+    let service = Service::start_with(&["--data", data], &zenoh, &["--model-only"]);
+    assert_eq!(health(&service), (200, json!({"status": "ok"})));
+    let after: BTreeSet<String> = service
+        .get("/transformations")
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["label"].as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(
+        after, acknowledged,
+        "what was acknowledged is there, nothing else"
+    );
+    assert_eq!(post(&service, "after"), 201);
+}

@@ -2,7 +2,7 @@
 
 use axum::extract::State;
 use axum::http::StatusCode;
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde::Serialize;
@@ -21,14 +21,62 @@ pub(crate) fn router() -> Router<AppState> {
 /// The health answer.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Health {
-    /// `"ok"`.
+    /// `"ok"`, or `"storage-failed"` when the store refuses writes.
     pub status: &'static str,
+    /// Why the store refuses writes (with `"storage-failed"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
-/// Liveness.
-#[utoipa::path(get, path = "/health", tag = "operations", responses((status = 200, body = Health)))]
-pub async fn health() -> Json<Health> {
-    Json(Health { status: "ok" })
+/// How long a write probe's answer stands.
+const PROBE_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Liveness, and whether the store takes writes: 200 `{"status": "ok"}`, or 503
+/// `{"status": "storage-failed", "error"}` once a write of the storage failed (a full disk:
+/// RocksDB then refuses every write until the service is restarted, even once space is back).
+/// The store is probed with a write that changes nothing, at most once a second; the probe
+/// takes no turn, so health answers while every turn is held.
+#[utoipa::path(get, path = "/health", tag = "operations",
+    responses((status = 200, body = Health), (status = 503, body = Health)))]
+pub async fn health(State(state): State<AppState>) -> Response {
+    let cached = state
+        .write_probe
+        .lock()
+        .ok()
+        .and_then(|p| p.clone())
+        .filter(|(at, _)| at.elapsed() < PROBE_INTERVAL);
+    let failure = match cached {
+        Some((_, failure)) => failure,
+        None => {
+            let kb = state.kb.clone();
+            let failure = tokio::task::spawn_blocking(move || kb.probe_write().err())
+                .await
+                .ok()
+                .flatten()
+                .map(|e| e.to_string());
+            if let Ok(mut probe) = state.write_probe.lock() {
+                *probe = Some((std::time::Instant::now(), failure.clone()));
+            }
+            failure
+        }
+    };
+    match failure {
+        None => Json(Health {
+            status: "ok",
+            error: None,
+        })
+        .into_response(),
+        Some(error) => (
+            StatusCode::SERVICE_UNAVAILABLE,
+            Json(Health {
+                status: "storage-failed",
+                error: Some(format!(
+                    "the store refuses writes ({error}); free the disk and restart the service"
+                )),
+            }),
+        )
+            .into_response(),
+    }
 }
 
 /// Prometheus metrics: request counts and latencies by route and status, the store's size.

@@ -170,6 +170,26 @@ impl KnowledgeBase {
         Ok(())
     }
 
+    /// Whether the store takes writes now: one transaction that adds a statement to the
+    /// default graph (which holds nothing of the model) and removes it again, so it changes
+    /// nothing readers can see, but goes through the write-ahead log like any write. After a
+    /// write of the storage failed (a full disk), RocksDB refuses every later write until the
+    /// store is opened again, even once space is back: this finds it (`GET /health`). It does
+    /// not take the write lock.
+    pub fn probe_write(&self) -> Result<(), StorageError> {
+        let probe = NamedNodeRef::new_unchecked("urn:dyknow:health");
+        let quad = oxigraph::model::QuadRef::new(
+            probe,
+            probe,
+            probe,
+            oxigraph::model::GraphNameRef::DefaultGraph,
+        );
+        let mut transaction = self.store.start_transaction()?;
+        transaction.insert(quad);
+        transaction.remove(quad);
+        transaction.commit()
+    }
+
     /// Counts for monitoring.
     pub fn statistics(&self) -> Result<StoreStatistics, StorageError> {
         let mut stats = StoreStatistics {
