@@ -14,6 +14,7 @@
 //! | `DYKNOW_INPUTS`, `DYKNOW_OUTPUTS` | port names, comma-separated |
 //! | `DYKNOW_PARAMS` | the parameters, a JSON object |
 //! | `DYKNOW_ZENOH_CONFIG` | optional: a Zenoh configuration file (TLS certificates), the executor's `--zenoh-config` |
+//! | `DYKNOW_ZENOH_LEASE_MS` | optional: Zenoh's link lease to declare (`transport/link/tx/lease`), the executor's `--zenoh-lease-ms`, so that a hung CU is noticed as soon as a hung executor |
 //!
 //! The CU then declares its liveliness token and its control queryable (which answers
 //! [`ControlRequest`]s with [`ControlReply`]s), and runs until told to stop, until it
@@ -50,6 +51,8 @@ pub struct ProcessEnv {
     pub executor_process: Option<String>,
     /// Zenoh's own configuration file the executor runs with, if any (TLS certificates).
     pub zenoh_config: Option<std::path::PathBuf>,
+    /// Zenoh's link lease to declare, in milliseconds (`DYKNOW_ZENOH_LEASE_MS`), if set.
+    pub lease_ms: Option<u64>,
 }
 
 /// A process's identity on this host, `<pid>:<start time>` (field 22 of `/proc/<pid>/stat`,
@@ -158,6 +161,14 @@ impl ProcessEnv {
             zenoh_config: std::env::var_os("DYKNOW_ZENOH_CONFIG")
                 .filter(|v| !v.is_empty())
                 .map(Into::into),
+            lease_ms: match std::env::var("DYKNOW_ZENOH_LEASE_MS") {
+                Ok(v) if !v.is_empty() => Some(v.parse().map_err(|_| {
+                    CuError::failed(format!(
+                        "DYKNOW_ZENOH_LEASE_MS={v:?} is not a number of milliseconds"
+                    ))
+                })?),
+                _ => None,
+            },
         })
     }
 }
@@ -264,11 +275,11 @@ fn serve<T: Transformation>(
         // Started after the executor died (a wrapper that took its time): never run.
         return Ok(Exit::Orphaned);
     }
-    let session = zenoh::open(client_config_file(
-        env.zenoh_config.as_deref(),
-        &env.connect,
-    )?)
-    .wait()?;
+    let mut config = client_config_file(env.zenoh_config.as_deref(), &env.connect)?;
+    if let Some(lease) = env.lease_ms {
+        config.insert_json5("transport/link/tx/lease", &lease.to_string())?;
+    }
+    let session = zenoh::open(config).wait()?;
     let transformation = make(&env.spec)?;
     let (exit_tx, exit_rx) = mpsc::channel::<Exit>();
     // One CU: its callbacks run one at a time anyway, so the queue's thread fires them.

@@ -108,20 +108,51 @@ def control(query):
     query.reply(query.key_expr, json.dumps(reply))
 
 
+def process_stat(pid):
+    """The state and start time of process `pid` (fields 3 and 22 of /proc/PID/stat)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return fields[0], fields[19]
+    except (OSError, IndexError):
+        return None
+
+
+def executor_runs():
+    """Whether the executor named by DYKNOW_EXECUTOR_PROCESS ("pid:start time") still runs:
+    a wrapper between it and this process (a shell) may outlive it."""
+    identity = env.get("DYKNOW_EXECUTOR_PROCESS", "")
+    pid, _, start = identity.partition(":")
+    if not pid.isdigit() or not start:
+        return True
+    stat = process_stat(int(pid))
+    return stat is not None and stat[0] != "Z" and stat[1] == start
+
+
 def watch_parent():
-    """Orphaned when the executor (our parent process) is gone."""
+    """Orphaned when the executor is gone (our parent changed, or the executor's process)."""
     parent = os.getppid()
     while not done.is_set():
         time.sleep(0.2)
-        if os.getppid() != parent:
+        if os.getppid() != parent or not executor_runs():
             status["code"] = 2
             done.set()
 
 
-config = zenoh.Config()
+if not executor_runs():
+    sys.exit(2)  # started after the executor died: never run
+# The executor's Zenoh configuration file (TLS certificates for tls/ endpoints) and lease.
+config = (
+    zenoh.Config.from_file(env["DYKNOW_ZENOH_CONFIG"])
+    if env.get("DYKNOW_ZENOH_CONFIG")
+    else zenoh.Config()
+)
 config.insert_json5("mode", '"client"')
 config.insert_json5("connect/endpoints", json.dumps(CONNECT))
+config.insert_json5("listen/endpoints", "[]")
 config.insert_json5("scouting/multicast/enabled", "false")
+if env.get("DYKNOW_ZENOH_LEASE_MS"):
+    config.insert_json5("transport/link/tx/lease", str(int(env["DYKNOW_ZENOH_LEASE_MS"])))
 session = zenoh.open(config)
 queryable = session.declare_queryable(f"{CONTROL}/cu-control/*/{NAME}", control)
 threading.Thread(target=watch_parent, daemon=True).start()

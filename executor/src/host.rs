@@ -45,6 +45,10 @@ pub struct ExecutorConfig {
     /// Zenoh's own configuration file its process CUs read too (`DYKNOW_ZENOH_CONFIG`: the
     /// TLS certificates for `tls/` endpoints), if any.
     pub zenoh_config: Option<std::path::PathBuf>,
+    /// Zenoh's link lease its process CUs declare (`DYKNOW_ZENOH_LEASE_MS`), in milliseconds:
+    /// the executor's own `--zenoh-lease-ms`, so that a hung process CU is noticed as soon as
+    /// a hung executor is. `None`: the configuration file's, else Zenoh's 10 s.
+    pub zenoh_lease_ms: Option<u64>,
     /// Called once if the executor steps down for an earlier executor of its name
     /// ([`Executor::start`]), after it stopped, with that executor's instance.
     pub on_step_down: Option<OnStepDown>,
@@ -74,6 +78,7 @@ impl ExecutorConfig {
             report_interval: Duration::from_secs(1),
             start_timeout: Duration::from_secs(10),
             zenoh_config: None,
+            zenoh_lease_ms: None,
             on_step_down: None,
         }
     }
@@ -844,6 +849,7 @@ impl Inner {
                     connect: self.config.process_connect.clone(),
                     start_timeout: self.config.start_timeout,
                     zenoh_config: self.config.zenoh_config.clone(),
+                    lease_ms: self.config.zenoh_lease_ms,
                 };
                 let p = ProcessCu::start(&self.session, &launch, spec, &command, self.on_crash())?;
                 let labour = p.labour();

@@ -96,6 +96,8 @@ pub struct Launch {
     pub start_timeout: Duration,
     /// Zenoh's own configuration file, handed to the child (`DYKNOW_ZENOH_CONFIG`).
     pub zenoh_config: Option<std::path::PathBuf>,
+    /// Zenoh's link lease the child declares (`DYKNOW_ZENOH_LEASE_MS`), if set.
+    pub lease_ms: Option<u64>,
 }
 
 struct Life {
@@ -156,6 +158,9 @@ impl ProcessCu {
         let mut child = Command::new(&program);
         if let Some(file) = &launch.zenoh_config {
             child.env("DYKNOW_ZENOH_CONFIG", file);
+        }
+        if let Some(lease) = launch.lease_ms {
+            child.env("DYKNOW_ZENOH_LEASE_MS", lease.to_string());
         }
         let mut child = child
             .args(&command[1..])

@@ -816,3 +816,60 @@ fn a_process_cu_answers_a_request_sent_as_soon_as_its_token_appears() {
         assert!(reply.ok, "round {round}: refused: {:?}", reply.error);
     }
 }
+
+/// A hung process CU (`kill -STOP`) is noticed after the executor's lease, which the executor
+/// hands its process CUs (`DYKNOW_ZENOH_LEASE_MS`): its link goes when the lease the CU
+/// declared runs out. Before, the CU declared Zenoh's default 10 s whatever the executor's
+/// `--zenoh-lease-ms` was (a user audit saw 9.9 s with 2 s).
+#[test]
+fn a_hung_process_cu_is_noticed_after_the_executors_lease() {
+    let (session, endpoint) = session();
+    let mut config = ExecutorConfig::new("t-lease", Namespace::default(), vec![endpoint]);
+    config.zenoh_lease_ms = Some(1000);
+    let executor = Executor::start(&session, config).expect("an executor");
+    let (crashes, _e) = events(&session);
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    apply(
+        &executor,
+        vec![spawn(
+            "hung",
+            implementation(
+                "process",
+                &format!("{program} dyknow/relay"),
+                &["i"],
+                &["o"],
+                json!({}),
+            ),
+        )],
+    );
+    let (_, pid) = executor
+        .pids()
+        .into_iter()
+        .find(|(n, _)| n == "hung")
+        .expect("a pid");
+    let signal = |s: &str| {
+        std::process::Command::new("kill")
+            .args([s, &pid.to_string()])
+            .status()
+            .expect("kill");
+    };
+    signal("-STOP");
+    let stopped = Instant::now();
+    let seen = loop {
+        match crashes.recv_timeout(Duration::from_secs(20)) {
+            Ok(Event::CuCrashed { cu, .. }) if cu == "hung" => break stopped.elapsed(),
+            Ok(_) => continue,
+            Err(e) => {
+                signal("-CONT");
+                panic!("no crash event for the hung CU: {e}");
+            }
+        }
+    };
+    signal("-CONT");
+    signal("-9");
+    assert!(
+        seen < Duration::from_secs(4),
+        "a hung CU was noticed after {seen:?} with a lease of 1 s"
+    );
+    executor.shutdown();
+}

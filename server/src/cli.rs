@@ -1061,6 +1061,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             let mut config =
                 dyknow_executor::ExecutorConfig::new("local", namespace.clone(), listen.clone());
             config.zenoh_config = zenoh_file.as_ref().map(|f| f.path.clone());
+            config.zenoh_lease_ms = args.zenoh_lease_ms;
             let executor = dyknow_executor::Executor::start(&session, config)
                 .map_err(|e| Failure(2, format!("executor: {e}")))?;
             if !fleet.wait_for("local", Duration::from_secs(10)) {
@@ -1235,6 +1236,7 @@ fn executor(args: &ExecutorArgs) -> Result<(), Failure> {
     let mut config =
         dyknow_executor::ExecutorConfig::new(args.name.clone(), namespace, process_connect);
     config.zenoh_config = zenoh_file.map(|f| f.path);
+    config.zenoh_lease_ms = args.zenoh_lease_ms;
     // Stepping down for an earlier executor of the name ends the process (exit 2), as being
     // refused at start would have.
     let (stepped_down, mut step_down) = tokio::sync::mpsc::unbounded_channel();
