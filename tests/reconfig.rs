@@ -938,3 +938,87 @@ async fn a_spec_posted_again_with_a_port_renamed_leaves_no_stale_subscription() 
         .expect(201);
     check("old out port back").await;
 }
+
+/// A spec posted again with another implementation (here a parameter) replaces the CUs of the
+/// transformation: the seed (Ch. 4) says the behaviour of such CUs "becomes undefined, and they
+/// therefore require removal" (a user audit saw the old CU compute with the old factor on and
+/// on). The same spec posted again, or one changing only costs, leaves them; a protected CU is
+/// left as it runs.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_spec_posted_again_with_another_implementation_replaces_its_cus() {
+    let api = api();
+    let source = |period: u32, upkeep: f64| {
+        format!(
+            "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+             @prefix dkros: <http://www.dyknow.eu/ontology/dyknow-ros#> .
+             @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+             [] a dkros:ROSTransformation ; rdfs:label \"src\" ;
+                dkros:hasType \"builtin\" ; dkros:hasSource \"dyknow/signal\" ;
+                dkros:hasParam [ dyknow:hasName \"period_ms\" ; dyknow:hasValue {period} ] ;
+                dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"S\" ] ] ;
+                dyknow:hasCostModel [ a dyknow:UpkeepCostModel ; dyknow:hasValue {upkeep:?} ] ."
+        )
+    };
+    api.post_turtle("/transformations", source(100, 1.0))
+        .await
+        .expect(201);
+    let before = reviews(&api).await;
+    api.post_turtle(
+        "/targets",
+        "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+         @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+         [] a dyknow:Target ; rdfs:label \"t\" ;
+            dyknow:hasChannel [ dyknow:hasChannelName \"/t\" ] ;
+            dyknow:hasTag [ dyknow:hasValue \"S\" ] ."
+            .to_owned(),
+    )
+    .await
+    .expect(201);
+    settle(&api, before + 1).await;
+    let first = cu_of(&api, "src").await;
+    // The same implementation (the same spec; other costs): the CU stays.
+    for (period, upkeep) in [(100, 1.0), (100, 2.0)] {
+        api.post_turtle("/transformations", source(period, upkeep))
+            .await
+            .expect(201);
+        quiet(&api).await;
+        assert_eq!(
+            cu_of(&api, "src").await,
+            first,
+            "period {period}, upkeep {upkeep}"
+        );
+    }
+    let sets = change_sets(&api).await.len();
+    // Another parameter: the CU is replaced, by a review caused by its removal.
+    let before = reviews(&api).await;
+    api.post_turtle("/transformations", source(250, 2.0))
+        .await
+        .expect(201);
+    settle(&api, before + 1).await;
+    let second = cu_of(&api, "src").await;
+    assert_ne!(second, first);
+    assert_eq!(cus(&api).await.len(), 1, "{:?}", cus(&api).await);
+    let all = change_sets(&api).await;
+    assert_eq!(all.len(), sets + 1, "{all:?}");
+    let last = all.last().expect("a change set");
+    assert_eq!(last["cause"]["kind"], "cu-crashed", "{last}");
+    assert_eq!(last["cause"]["cu"], first.as_str(), "{last}");
+    assert_eq!(spawned(last), ["src"], "{last}");
+    // A protected CU of it is left as it runs.
+    api.post(
+        "/cus",
+        "application/json",
+        json!({"transformation": "src", "name": "kept", "protected": true}).to_string(),
+    )
+    .await
+    .expect(201);
+    api.post_turtle("/transformations", source(300, 2.0))
+        .await
+        .expect(201);
+    quiet(&api).await;
+    assert!(
+        cus(&api).await.iter().any(|c| c["name"] == "kept"),
+        "{:?}",
+        cus(&api).await
+    );
+}
