@@ -478,17 +478,6 @@ impl Manager {
     /// client saw what its executor did not); a short-term negative perturbation starts a
     /// review at once.
     pub fn report(&self, perturbation: Perturbation) -> Result<(), LifecycleError> {
-        // CUs whose transformation now names another implementation: read before anything
-        // publishes the new specs (the last publication still has the old ones).
-        let stale = match &perturbation {
-            Perturbation::Registered { transformations } => {
-                self.stale_cus(transformations).unwrap_or_else(|e| {
-                    tracing::warn!("cannot tell whether running CUs changed implementation: {e}");
-                    Vec::new()
-                })
-            }
-            _ => Vec::new(),
-        };
         // The spec is written whatever happens here: a failure to bring the CU graphs in step
         // is logged, and the validity check below is asked for all the same.
         let resynced = match &perturbation {
@@ -501,21 +490,7 @@ impl Manager {
         if let Err(e) = resynced {
             tracing::warn!("the CU graphs could not be brought in step with the specs: {e}");
         }
-        if !stale.is_empty() {
-            // The seed (Ch. 4): a CU whose transformation changed behaves in no defined way
-            // and requires removal. They leave the model as crashed CUs do, are stopped where
-            // they run, and the review they start replaces them with CUs of the new spec,
-            // wired as they were (their transformations tried first).
-            let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
-            tracing::info!(
-                "{} run an implementation (type, source, parameters or executor) their \
-                 transformation's new spec no longer has: replaced",
-                names.join(", ")
-            );
-            self.remove_all_crashed(&stale)?;
-            self.executor.abandon(&stale);
-            lock(&self.schedule).urgent();
-        }
+
         if let Perturbation::CuCrashed { cu } = &perturbation {
             self.remove_crashed(cu)?;
             self.executor.abandon(std::slice::from_ref(cu));
@@ -529,40 +504,50 @@ impl Manager {
         Ok(())
     }
 
-    /// The CUs (not protected) of `changed` whose implementation the new specs change: the
-    /// type, the source, the parameters or the executor it is pinned to differ between the
-    /// specs of the last publication (the CUs' as they were spawned, or as last read) and the
-    /// specs now. A protected CU is left as it runs (reviews never touch it).
-    fn stale_cus(&self, changed: &[Tid]) -> Result<Vec<Cid>, LifecycleError> {
-        let Some(last) = self.specs.last_published() else {
-            return Ok(Vec::new());
-        };
-        let mut candidates = last
-            .cus
-            .values()
-            .filter(|cu| !cu.protected && changed.contains(&cu.tid))
-            .peekable();
-        if candidates.peek().is_none() {
-            return Ok(Vec::new());
+    /// Whether unprotected CUs of `transformation` run now (as last published): whether a new
+    /// spec of it has CUs to replace when its implementation changes
+    /// ([`Manager::implementation_changed`]). No read of the store.
+    pub fn runs_cus_of(&self, transformation: &Tid) -> bool {
+        self.specs.last_published().is_some_and(|last| {
+            last.cus
+                .values()
+                .any(|cu| !cu.protected && &cu.tid == transformation)
+        })
+    }
+
+    /// The specs of `transformations` were replaced by ones with another implementation (type,
+    /// source, parameters or pinned executor; the caller compared them before writing). The
+    /// seed (Ch. 4): a CU whose transformation changed behaves in no defined way and requires
+    /// removal. Their unprotected CUs leave the model as crashed CUs do, are stopped where
+    /// they run, and the review this starts replaces them with CUs of the new spec, wired as
+    /// they were (their transformations tried first). Protected CUs are left as they run.
+    /// Report [`Perturbation::Registered`] as well.
+    pub fn implementation_changed(&self, transformations: &[Tid]) -> Result<(), LifecycleError> {
+        let stale: Vec<Cid> = self
+            .specs
+            .last_published()
+            .map(|last| {
+                last.cus
+                    .values()
+                    .filter(|cu| !cu.protected && transformations.contains(&cu.tid))
+                    .map(|cu| cu.cid.clone())
+                    .collect()
+            })
+            .unwrap_or_default();
+        if stale.is_empty() {
+            return Ok(());
         }
-        let now = self.specs.load(&self.kb, Some(&self.learned()))?;
-        let implementation = |s: &TransformationSpec| {
-            (
-                s.exec_type.clone(),
-                s.source.clone(),
-                s.params.clone(),
-                s.executor.clone(),
-            )
-        };
-        Ok(candidates
-            .filter(
-                |cu| match (last.specs.get(&cu.tid), now.specs.get(&cu.tid)) {
-                    (Some(old), Some(new)) => implementation(old) != implementation(new),
-                    _ => false,
-                },
-            )
-            .map(|cu| cu.cid.clone())
-            .collect())
+        let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
+        tracing::info!(
+            "{} run an implementation (type, source, parameters or executor) their \
+             transformation's new spec no longer has: replaced",
+            names.join(", ")
+        );
+        self.remove_all_crashed(&stale)?;
+        self.executor.abandon(&stale);
+        lock(&self.schedule).urgent();
+        self.wake.notify_one();
+        Ok(())
     }
 
     /// A crashed CU leaves the model (not a change set: nobody decided it), and the next

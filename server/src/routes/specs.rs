@@ -239,8 +239,24 @@ async fn post_specs(
     let format = input_format(&headers)?;
     let kb = state.kb.clone();
     let groups = state.groups.clone();
-    let report = in_turn(&state, move || {
+    let lifecycle = state.lifecycle.clone();
+    let (report, changed_implementation) = in_turn(&state, move || {
+        // Transformations with running CUs whose spec now names another implementation:
+        // compared with the stored spec before it is replaced (only where CUs run: no read
+        // otherwise).
+        let changed = std::sync::Mutex::new(Vec::<String>::new());
         let refused = |spec: &Spec| {
+            if let Spec::Transformation(t) = spec
+                && lifecycle.runs_cus_of(&t.label.as_str().into())
+                && let Ok(Some(Spec::Transformation(old))) =
+                    kb.spec(SpecKind::Transformation, &t.label)
+                && implementation(&old) != implementation(t)
+            {
+                changed
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .push(t.label.clone());
+            }
             reserved_label(spec).or_else(|| match spec {
                 Spec::Target(t) => groups.result_channel_user(&t.channel).map(|group| {
                     format!(
@@ -253,9 +269,20 @@ async fn post_specs(
                 Spec::Transformation(_) => None,
             })
         };
-        Ok(kb.post_specs_checked(&body, format, kind, &refused)?)
+        let report = kb.post_specs_checked(&body, format, kind, &refused)?;
+        Ok((
+            report,
+            changed
+                .into_inner()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        ))
     })
     .await?;
+    if !changed_implementation.is_empty() {
+        let s = state.clone();
+        let tids: Vec<_> = changed_implementation.iter().map(Into::into).collect();
+        crate::app::blocking(move || Ok(s.lifecycle.implementation_changed(&tids)?)).await?;
+    }
     match kind {
         SpecKind::Target => {
             for label in &report.labels {
@@ -359,6 +386,19 @@ async fn get_spec(
     .await?
     .ok_or_else(missing)?;
     Ok(Json(value).into_response())
+}
+
+/// What an executor runs of a transformation: a CU of it runs this, and a spec that changes
+/// it replaces the CUs.
+fn implementation(
+    t: &dyknow_store::spec::TransformationSpec,
+) -> (
+    &Option<String>,
+    &Option<String>,
+    &[dyknow_store::spec::Param],
+    &Option<String>,
+) {
+    (&t.exec_type, &t.source, &t.params, &t.executor)
 }
 
 /// Why a posted spec may not be written: the labels of group targets (`symbol:…`) are the
