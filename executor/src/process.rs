@@ -120,8 +120,13 @@ pub struct ProcessCu {
     outputs: Mutex<BTreeMap<String, Option<String>>>,
     reconfigurations: std::sync::atomic::AtomicU64,
     labour_ns: std::sync::atomic::AtomicU64,
+    /// What its last answer to a statistics request said.
+    last_statistics: Mutex<CuStatistics>,
     _watch: Mutex<Option<Subscriber<()>>>,
 }
+
+/// How long a report waits for a process CU's statistics before it shows the last ones.
+const STATISTICS_WAIT: Duration = Duration::from_millis(500);
 
 impl std::fmt::Debug for ProcessCu {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -204,6 +209,7 @@ impl ProcessCu {
             outputs: Mutex::default(),
             reconfigurations: std::sync::atomic::AtomicU64::new(0),
             labour_ns: std::sync::atomic::AtomicU64::new(0),
+            last_statistics: Mutex::default(),
             _watch: Mutex::new(None),
         });
         {
@@ -328,12 +334,20 @@ impl ProcessCu {
     }
 
     fn control(&self, request: &ControlRequest) -> Result<ControlReply, CuError> {
+        self.control_within(request, Duration::from_secs(5))
+    }
+
+    fn control_within(
+        &self,
+        request: &ControlRequest,
+        timeout: Duration,
+    ) -> Result<ControlReply, CuError> {
         let payload = serde_json::to_vec(request).unwrap_or_default();
         let replies = self
             .session
             .get(self.namespace.cu_control(&self.spec.name))
             .payload(payload)
-            .timeout(Duration::from_secs(5))
+            .timeout(timeout)
             .wait()?;
         match replies.recv() {
             Ok(reply) => match reply.result() {
@@ -381,12 +395,25 @@ impl ProcessCu {
 
     /// Its report; statistics from the process when it answers within the timeout.
     pub fn report(&self) -> CuReport {
+        // A process that does not answer within STATISTICS_WAIT (hung, stopped) is shown with
+        // the statistics it last gave: the executor's `info` reports every CU it hosts, and
+        // one hung process held it up for the control timeout (5 s), so that every CU of the
+        // executor was shown as last heard, without statistics.
         let mut statistics = match self.state() {
-            CuState::Running => self
-                .control(&ControlRequest::Statistics)
-                .ok()
-                .and_then(|r| r.statistics)
-                .unwrap_or_default(),
+            CuState::Running => {
+                let asked = self
+                    .control_within(&ControlRequest::Statistics, STATISTICS_WAIT)
+                    .ok()
+                    .and_then(|r| r.statistics);
+                let mut last = lock(&self.last_statistics);
+                match asked {
+                    Some(s) => {
+                        *last = s.clone();
+                        s
+                    }
+                    None => last.clone(),
+                }
+            }
             _ => CuStatistics::default(),
         };
         let life = lock(&self.life);

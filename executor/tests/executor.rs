@@ -853,8 +853,25 @@ fn a_hung_process_cu_is_noticed_after_the_executors_lease() {
             .status()
             .expect("kill");
     };
+    // Asked while the process hangs, the executor answers `info` at once with every CU, the
+    // hung one with the statistics it gave last (before, the hung process held `info` up for
+    // its 5 s control timeout).
+    let statistics = |info: &dyknow_cu::protocol::ExecutorInfo| {
+        info.cus
+            .iter()
+            .find(|c| c.cu == "hung")
+            .map(|c| c.statistics.ports.len())
+    };
+    assert_eq!(statistics(&executor.info()), Some(2), "in and out ports");
     signal("-STOP");
     let stopped = Instant::now();
+    let info = executor.info();
+    let answered = stopped.elapsed();
+    assert!(
+        answered < Duration::from_secs(2),
+        "info took {answered:?} with one CU hung"
+    );
+    assert_eq!(statistics(&info), Some(2), "the last statistics: {info:?}");
     let seen = loop {
         match crashes.recv_timeout(Duration::from_secs(20)) {
             Ok(Event::CuCrashed { cu, .. }) if cu == "hung" => break stopped.elapsed(),
