@@ -170,9 +170,20 @@
     function fullLayout(first) {
       const t0 = performance.now();
       const eles = cy.elements().not(cy.nodes().filter((n) => state.pinned.has(n.id())));
-      eles.layout(layoutOptions(first ? { animate: false, fit: true } : {})).run();
+      // The area per node of a fresh layout, at its end (the animation moves the nodes).
+      eles.layout(layoutOptions(Object.assign(first ? { animate: false, fit: true } : {}, {
+        stop: () => { state.spread = spread(); },
+      }))).run();
       state.metrics.layouts.push(performance.now() - t0);
       state.laidOut = true;
+    }
+
+    // The drawing's area per node.
+    function spread() {
+      const n = cy.nodes().length;
+      if (!n) return null;
+      const bb = cy.nodes().boundingBox({ includeLabels: false, includeOverlays: false });
+      return (bb.w * bb.h) / n;
     }
 
     // Places each new node beside its placed neighbours: one layer after its producers (or
@@ -181,6 +192,9 @@
       const horizontal = state.rankDir === "LR";
       const placed = new Set(cy.nodes().filter((n) => !nodes.has(n.id())).map((n) => n.id()));
       const boxes = () => cy.nodes().filter((n) => placed.has(n.id()) && !n.hasClass("hidden"));
+      // The nodes' bodies: with labels and overlays each new first-layer node moved the edge
+      // it is placed against by a few pixels.
+      const BODIES = { includeLabels: false, includeOverlays: false, includeEdges: false };
       let pending = [...nodes.values()];
       for (let pass = 0; pending.length && pass < 4; pass++) {
         const later = [];
@@ -190,7 +204,7 @@
           if (!preds.length && !succs.length && pass < 3) { later.push(n); continue; }
           const main = (p) => horizontal ? p.x : p.y;
           const cross = (p) => horizontal ? p.y : p.x;
-          const ext = (m) => (horizontal ? m.width() : m.height()) / 2;
+          const ext = (m) => (horizontal ? m.outerWidth() : m.outerHeight()) / 2;
           let along, across;
           if (preds.length) {
             along = Math.max(...preds.map((m) => main(m.position()) + ext(m))) + RANK_GAP + ext(n);
@@ -199,29 +213,34 @@
             along = Math.min(...succs.map((m) => main(m.position()) - ext(m))) - RANK_GAP - ext(n);
             across = avg(succs.map((m) => cross(m.position())));
           } else {
-            const bb = boxes().boundingBox();
+            // A new component: the first free place in the first layer, from the top (or
+            // left) of the drawing, so that it takes the room a removed one left (below
+            // everything, the drawing grew on every round of churn).
+            const bb = boxes().boundingBox(BODIES);
             along = placed.size ? (horizontal ? bb.x1 : bb.y1) + ext(n) : 0;
-            across = placed.size ? (horizontal ? bb.y2 : bb.x2) + RANK_GAP : 0;
+            across = placed.size ? (horizontal ? bb.y1 + n.outerHeight() / 2 : bb.x1 + n.outerWidth() / 2) : 0;
           }
           const pos = (a, c) => horizontal ? { x: a, y: c } : { x: c, y: a };
           const others = boxes();
           let c = across;
           for (let i = 0; i < 500; i++) {
             const p = pos(along, c);
-            const w = n.width() / 2 + NODE_GAP, h = n.height() / 2 + NODE_GAP;
+            const w = n.outerWidth() / 2 + NODE_GAP, h = n.outerHeight() / 2 + NODE_GAP;
             const hit = others.filter((m) => {
               const q = m.position();
-              return Math.abs(q.x - p.x) < w + m.width() / 2 && Math.abs(q.y - p.y) < h + m.height() / 2;
+              return Math.abs(q.x - p.x) < w + m.outerWidth() / 2 && Math.abs(q.y - p.y) < h + m.outerHeight() / 2;
             });
             if (!hit.length) break;
-            const step = horizontal ? Math.max(...hit.map((m) => m.position().y + m.height() / 2)) + NODE_GAP + n.height() / 2
-                                    : Math.max(...hit.map((m) => m.position().x + m.width() / 2)) + NODE_GAP + n.width() / 2;
+            const step = horizontal ? Math.max(...hit.map((m) => m.position().y + m.outerHeight() / 2)) + NODE_GAP + n.outerHeight() / 2
+                                    : Math.max(...hit.map((m) => m.position().x + m.outerWidth() / 2)) + NODE_GAP + n.outerWidth() / 2;
             c = step;
           }
           n.position(pos(along, c));
           placed.add(n.id());
         }
-        pending = later;
+        // What is left has no placed neighbour: new components. Each starts from a source of
+        // its own (a node nothing feeds), placed in the first layer; the rest follow it.
+        pending = later.sort((a, b) => a.incomers("node").length - b.incomers("node").length);
       }
     }
 
@@ -267,6 +286,14 @@
         fullLayout(false);
       } else if (added.size) {
         placeNew(added);
+        // Placing beside neighbours keeps what is drawn where it was, but churn leaves holes
+        // that new components cannot always use: once the drawing is four times as sparse as a
+        // fresh layout of it, it is laid out afresh.
+        const now = spread();
+        if (state.spread && now && now > 4 * state.spread) {
+          state.metrics.relayouts = (state.metrics.relayouts || 0) + 1;
+          fullLayout(false);
+        }
       }
       const ms = performance.now() - t0;
       state.metrics.updates.push({ ms, nodes, added: added.size });
