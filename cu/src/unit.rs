@@ -610,9 +610,10 @@ impl Unit {
 
     /// Undeclares its subscriptions, publishers and token (after a crash: the executor calls
     /// this from its own thread, never from inside a callback). It does not wait for a
-    /// callback that runs on (stalled): nothing that callback publishes goes out any more, and
-    /// its publishers are dropped when it returns, so that one stalled CU never holds up its
-    /// executor's other actions or its shutdown.
+    /// callback that runs on (stalled): nothing that callback publishes afterwards goes out
+    /// (but a sample it was sending at that moment), and its publishers are dropped when it
+    /// returns, so that one stalled CU never holds up its executor's other actions or its
+    /// shutdown.
     pub fn release(&self) {
         let inputs = std::mem::take(&mut *lock(&self.shared.inputs));
         drop(inputs);

@@ -240,6 +240,17 @@ impl Transformation for Map {
             return Ok(());
         };
         let y = x * self.scale + self.offset;
+        if !y.is_finite() {
+            // Past f64's range (1e308 × 10): JSON has no number for it, and `Value::from`
+            // made it `null`, which went on down the chain as if it were a value.
+            tracing::debug!(
+                "{}: {x} × {} + {} is not a finite number: dropped",
+                cu.name(),
+                self.scale,
+                self.offset
+            );
+            return Ok(());
+        }
         // Integers stay integers when they can.
         let value = if y.fract() == 0.0 && y.abs() < 9.0e15 {
             #[allow(clippy::cast_possible_truncation)]
@@ -539,6 +550,19 @@ mod tests {
         assert_eq!(out.len(), 2, "a non-number is dropped");
         let out = run("dyknow/map", json!({"scale": 10}), &[json!(3)]).expect("runs");
         assert_eq!(out[0].1.value, json!(30));
+        // Past f64's range: dropped, not published as `null` (a user audit saw 1e308 × 10
+        // reach the next CU as null).
+        let out = run(
+            "dyknow/map",
+            json!({"scale": 10}),
+            &[json!(1e308), json!(1)],
+        )
+        .expect("runs");
+        assert_eq!(
+            out.iter().map(|(_, s)| s.value.clone()).collect::<Vec<_>>(),
+            [json!(10), json!(10)],
+            "only the second sample, on both out ports"
+        );
         let out = run(
             "dyknow/threshold",
             json!({"threshold": 5}),

@@ -578,10 +578,28 @@ impl Inner {
                 // Reported outside the lock: a process CU's report asks the process, and a
                 // change set being applied meanwhile must not wait for that.
                 let hosted: Vec<Hosted> = lock(&self.cus).values().cloned().collect();
-                hosted
-                    .iter()
-                    .map(|hosted| {
-                        let mut report = hosted.report();
+                // Process CUs are asked at once, each on a thread of its own: a hung one waits
+                // out its 500 ms, not one after another (ten hung CUs took 5 s, the manager's
+                // timeout for the whole answer).
+                let reports: Vec<CuReport> = std::thread::scope(|scope| {
+                    let asked: Vec<_> = hosted
+                        .iter()
+                        .map(|hosted| match hosted {
+                            Hosted::Process(_) => Err(scope.spawn(|| hosted.report())),
+                            Hosted::Builtin(_) => Ok(hosted),
+                        })
+                        .collect();
+                    asked
+                        .into_iter()
+                        .filter_map(|a| match a {
+                            Ok(builtin) => Some(builtin.report()),
+                            Err(thread) => thread.join().ok(),
+                        })
+                        .collect()
+                });
+                reports
+                    .into_iter()
+                    .map(|mut report| {
                         report.generation = generations.get(&report.cu).copied().unwrap_or(0);
                         report
                     })

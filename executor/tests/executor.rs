@@ -862,7 +862,14 @@ fn a_hung_process_cu_is_noticed_after_the_executors_lease() {
             .find(|c| c.cu == "hung")
             .map(|c| c.statistics.ports.len())
     };
-    assert_eq!(statistics(&executor.info()), Some(2), "in and out ports");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while statistics(&executor.info()) != Some(2) {
+        assert!(
+            Instant::now() < deadline,
+            "no statistics of the CU's two ports"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     signal("-STOP");
     let stopped = Instant::now();
     let info = executor.info();
@@ -889,4 +896,70 @@ fn a_hung_process_cu_is_noticed_after_the_executors_lease() {
         "a hung CU was noticed after {seen:?} with a lease of 1 s"
     );
     executor.shutdown();
+}
+
+/// A process CU runs in a process group of its own, and stopping it stops what it started: a
+/// wrapper script's background child (a user audit found a wrapper's `sleep` running on after
+/// its CU was destroyed). The wrapper also makes the CU's work a child's: its CPU time counts.
+#[test]
+fn stopping_a_process_cu_stops_what_it_started() {
+    let (session, endpoint) = session();
+    let executor = Executor::start(
+        &session,
+        ExecutorConfig::new("t-group", Namespace::default(), vec![endpoint]),
+    )
+    .expect("an executor");
+    let dir = std::env::temp_dir().join(format!("dyknow-wrapper-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a directory");
+    let marker = dir.join("sleep.pid");
+    let script = dir.join("wrapper.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nsleep 1000 &\necho $! > {}\nexec {} dyknow/relay\n",
+            marker.display(),
+            env!("CARGO_BIN_EXE_dyknow-cu")
+        ),
+    )
+    .expect("the script");
+    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755))
+        .expect("chmod");
+    apply(
+        &executor,
+        vec![spawn(
+            "wrapped",
+            implementation(
+                "process",
+                &script.display().to_string(),
+                &["i"],
+                &["o"],
+                json!({}),
+            ),
+        )],
+    );
+    let sleep: u32 = std::fs::read_to_string(&marker)
+        .expect("the wrapper wrote its child's pid")
+        .trim()
+        .parse()
+        .expect("a pid");
+    let alive = |pid: u32| {
+        std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|s| {
+            s.rsplit_once(')')
+                .is_some_and(|(_, r)| !r.trim_start().starts_with('Z'))
+        })
+    };
+    assert!(alive(sleep));
+    apply(
+        &executor,
+        vec![CuAction::Destroy {
+            cu: "wrapped".into(),
+        }],
+    );
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while alive(sleep) && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(!alive(sleep), "the wrapper's child {sleep} runs on");
+    executor.shutdown();
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -833,14 +833,12 @@ fn rcc8(file: &Path, exact: bool, timeout: Option<std::time::Duration>) -> Resul
     let (mut inconsistent, mut unknown) = (0, 0);
     for mut network in networks {
         let mut out = String::new();
-        let answer = if network.algebraic_closure().is_err() {
-            Some(false)
-        } else if exact {
-            network
-                .clone()
-                .consistent_until(timeout.map(|t| std::time::Instant::now() + t))
+        // With --exact the search closes the network first and leaves it closed (one closure,
+        // not two); a deadline past what an Instant holds is none.
+        let answer = if exact {
+            network.consistent_until(timeout.and_then(|t| std::time::Instant::now().checked_add(t)))
         } else {
-            Some(true)
+            Some(network.algebraic_closure().is_ok())
         };
         match answer {
             Some(true) | None => {

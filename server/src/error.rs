@@ -124,6 +124,7 @@ impl From<IngestError> for ApiError {
             IngestError::NotFound(m) => Self::not_found(m),
             IngestError::Conflict(m) => Self::new(StatusCode::CONFLICT, m),
             IngestError::Storage(s) => {
+                STORAGE_FAILED.store(true, std::sync::atomic::Ordering::Relaxed);
                 tracing::error!("storage error: {s}");
                 Self::new(
                     StatusCode::INTERNAL_SERVER_ERROR,
@@ -178,9 +179,16 @@ impl From<ExportError> for ApiError {
 
 impl From<dyknow_store::oxigraph::store::StorageError> for ApiError {
     fn from(e: dyknow_store::oxigraph::store::StorageError) -> Self {
+        STORAGE_FAILED.store(true, std::sync::atomic::Ordering::Relaxed);
         Self::internal(e)
     }
 }
+
+/// Set when a request met a storage error: `GET /health` then probes whether the store still
+/// takes writes (and clears it when it does). Not probed otherwise: on a disk that is full for
+/// a moment, the probe's own write could be the one that makes RocksDB refuse every write.
+pub(crate) static STORAGE_FAILED: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
 
 impl From<ModelReadError> for ApiError {
     fn from(e: ModelReadError) -> Self {

@@ -1031,7 +1031,10 @@ fn a_group_that_cannot_be_loaded_is_not_overwritten() {
     );
     assert_eq!(status, 409, "{answer}");
     assert!(
-        answer["error"].as_str().unwrap().contains("was not loaded"),
+        answer["error"]
+            .as_str()
+            .unwrap()
+            .contains("not loaded at start-up"),
         "{answer}"
     );
     assert_eq!(

@@ -139,6 +139,13 @@ fn a_time_limit_answers_unknown_with_the_closure() {
         (0, Some("consistent")),
         "{stderr}"
     );
+    // A limit past what the clock can hold is no limit (it overflowed the deadline: a panic).
+    let (code, out, stderr) = rcc8(&text, &["--exact", "--timeout", "1e19"]);
+    assert_eq!(
+        (code, out.lines().next()),
+        (0, Some("consistent")),
+        "{stderr}"
+    );
     for bad in [
         &["--timeout", "1"][..],
         &["--exact", "--timeout", "0"],

@@ -464,7 +464,12 @@
   }
 
   function noteChangeSet(cs, fresh) {
-    if (ui.changeSets.some((c) => c.id === cs.id)) return;
+    const seen = ui.changeSets.find((c) => c.id === cs.id);
+    if (seen && seen.at === cs.at) return;
+    // The same id made at another time: the service's history is another one (an in-memory
+    // service restarted, and its ids began again). The old timeline is forgotten, or the new
+    // change sets would be dropped as seen.
+    if (seen) ui.changeSets = [];
     cs.fresh = fresh;
     ui.changeSets.push(cs);
     for (const a of cs.actions || []) if (a.action === "destroy" && a.cu) { ui.destroyed.add(a.cu); ui.crashed.delete(a.cu); }
@@ -475,11 +480,17 @@
     if (fresh) graph.flash((cs.actions || []).map((a) => a.cu).filter(Boolean));
   }
 
+  // On (re)connecting: the change sets the page has not seen. After a reconnection the whole
+  // history is read: if it no longer holds the page's last change set as it was (the service
+  // restarted in memory, its ids began again), the timeline starts over from it.
   async function catchUp() {
-    const last = ui.changeSets.length ? ui.changeSets[ui.changeSets.length - 1].id : null;
+    const last = ui.changeSets.length ? ui.changeSets[ui.changeSets.length - 1] : null;
     try {
-      const list = await getJson("/changesets" + (last ? "?since=" + enc(last) : ""));
-      for (const cs of list) noteChangeSet(cs, !!last);
+      const list = await getJson("/changesets");
+      const mine = last && list.find((c) => c.id === last.id);
+      if (last && (!mine || mine.at !== last.at)) ui.changeSets = [];
+      const from = mine && mine.at === last.at ? list.indexOf(mine) + 1 : 0;
+      for (const cs of list.slice(from)) noteChangeSet(cs, !!last);
       renderTimeline();
     } catch (e) { say(e.message, "error"); }
   }

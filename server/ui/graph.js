@@ -195,52 +195,64 @@
       // The nodes' bodies: with labels and overlays each new first-layer node moved the edge
       // it is placed against by a few pixels.
       const BODIES = { includeLabels: false, includeOverlays: false, includeEdges: false };
-      let pending = [...nodes.values()];
-      for (let pass = 0; pending.length && pass < 4; pass++) {
-        const later = [];
-        for (const n of pending) {
-          const preds = n.incomers("node").filter((m) => placed.has(m.id()));
-          const succs = n.outgoers("node").filter((m) => placed.has(m.id()));
-          if (!preds.length && !succs.length && pass < 3) { later.push(n); continue; }
-          const main = (p) => horizontal ? p.x : p.y;
-          const cross = (p) => horizontal ? p.y : p.x;
-          const ext = (m) => (horizontal ? m.outerWidth() : m.outerHeight()) / 2;
-          let along, across;
-          if (preds.length) {
-            along = Math.max(...preds.map((m) => main(m.position()) + ext(m))) + RANK_GAP + ext(n);
-            across = avg(preds.map((m) => cross(m.position())));
-          } else if (succs.length) {
-            along = Math.min(...succs.map((m) => main(m.position()) - ext(m))) - RANK_GAP - ext(n);
-            across = avg(succs.map((m) => cross(m.position())));
-          } else {
-            // A new component: the first free place in the first layer, from the top (or
-            // left) of the drawing, so that it takes the room a removed one left (below
-            // everything, the drawing grew on every round of churn).
-            const bb = boxes().boundingBox(BODIES);
-            along = placed.size ? (horizontal ? bb.x1 : bb.y1) + ext(n) : 0;
-            across = placed.size ? (horizontal ? bb.y1 + n.outerHeight() / 2 : bb.x1 + n.outerWidth() / 2) : 0;
-          }
-          const pos = (a, c) => horizontal ? { x: a, y: c } : { x: c, y: a };
-          const others = boxes();
-          let c = across;
-          for (let i = 0; i < 500; i++) {
-            const p = pos(along, c);
-            const w = n.outerWidth() / 2 + NODE_GAP, h = n.outerHeight() / 2 + NODE_GAP;
-            const hit = others.filter((m) => {
-              const q = m.position();
-              return Math.abs(q.x - p.x) < w + m.outerWidth() / 2 && Math.abs(q.y - p.y) < h + m.outerHeight() / 2;
-            });
-            if (!hit.length) break;
-            const step = horizontal ? Math.max(...hit.map((m) => m.position().y + m.outerHeight() / 2)) + NODE_GAP + n.outerHeight() / 2
-                                    : Math.max(...hit.map((m) => m.position().x + m.outerWidth() / 2)) + NODE_GAP + n.outerWidth() / 2;
-            c = step;
-          }
-          n.position(pos(along, c));
-          placed.add(n.id());
+      const main = (p) => horizontal ? p.x : p.y;
+      const cross = (p) => horizontal ? p.y : p.x;
+      const ext = (m) => (horizontal ? m.outerWidth() : m.outerHeight()) / 2;
+      const place = (n) => {
+        const preds = n.incomers("node").filter((m) => placed.has(m.id()));
+        const succs = n.outgoers("node").filter((m) => placed.has(m.id()));
+        let along, across;
+        if (preds.length) {
+          along = Math.max(...preds.map((m) => main(m.position()) + ext(m))) + RANK_GAP + ext(n);
+          across = avg(preds.map((m) => cross(m.position())));
+        } else if (succs.length) {
+          along = Math.min(...succs.map((m) => main(m.position()) - ext(m))) - RANK_GAP - ext(n);
+          across = avg(succs.map((m) => cross(m.position())));
+        } else {
+          // A new component: the first free place in the first layer, from the top (or
+          // left) of the drawing, so that it takes the room a removed one left (below
+          // everything, the drawing grew on every round of churn).
+          const bb = boxes().boundingBox(BODIES);
+          along = placed.size ? (horizontal ? bb.x1 : bb.y1) + ext(n) : 0;
+          across = placed.size ? (horizontal ? bb.y1 + n.outerHeight() / 2 : bb.x1 + n.outerWidth() / 2) : 0;
         }
-        // What is left has no placed neighbour: new components. Each starts from a source of
-        // its own (a node nothing feeds), placed in the first layer; the rest follow it.
-        pending = later.sort((a, b) => a.incomers("node").length - b.incomers("node").length);
+        const pos = (a, c) => horizontal ? { x: a, y: c } : { x: c, y: a };
+        const others = boxes();
+        let c = across;
+        for (let i = 0; i < 500; i++) {
+          const p = pos(along, c);
+          const w = n.outerWidth() / 2 + NODE_GAP, h = n.outerHeight() / 2 + NODE_GAP;
+          const hit = others.filter((m) => {
+            const q = m.position();
+            return Math.abs(q.x - p.x) < w + m.outerWidth() / 2 && Math.abs(q.y - p.y) < h + m.outerHeight() / 2;
+          });
+          if (!hit.length) break;
+          c = horizontal ? Math.max(...hit.map((m) => m.position().y + m.outerHeight() / 2)) + NODE_GAP + n.outerHeight() / 2
+                         : Math.max(...hit.map((m) => m.position().x + m.outerWidth() / 2)) + NODE_GAP + n.outerWidth() / 2;
+        }
+        n.position(pos(along, c));
+        placed.add(n.id());
+      };
+      const touches = (n) => n.neighborhood("node").some((m) => placed.has(m.id()));
+      let pending = [...nodes.values()];
+      while (pending.length) {
+        // Beside placed neighbours, for as long as that places any; then one new component
+        // is seeded from a source of its own (a node nothing new feeds) and the rest follow
+        // from it, so that its nodes are placed in the order of its edges.
+        let progress = true;
+        while (progress) {
+          progress = false;
+          const later = [];
+          for (const n of pending) {
+            if (touches(n)) { place(n); progress = true; } else later.push(n);
+          }
+          pending = later;
+        }
+        if (!pending.length) break;
+        const seed = pending.reduce((best, n) =>
+          n.incomers("node").length < best.incomers("node").length ? n : best);
+        place(seed);
+        pending = pending.filter((n) => n !== seed);
       }
     }
 

@@ -454,9 +454,9 @@ impl Groups {
         }
         if let Some(dir) = self.store.as_ref().and_then(|s| s.occupied(&def.label)) {
             return Err(GroupError::Conflict(format!(
-                "{} holds the record of a group of this label that was not loaded at start-up \
-                 (its group.json could not be read: see the service's log); repair it and \
-                 restart, or move it away, before a group of this label is created",
+                "{} holds the record of a group of this label: one that was not loaded at \
+                 start-up (its group.json could not be read: see the service's log; repair it \
+                 and restart, or move it away), or one being destroyed now (try again)",
                 dir.display()
             )));
         }

@@ -34,11 +34,20 @@ const PROBE_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
 /// Liveness, and whether the store takes writes: 200 `{"status": "ok"}`, or 503
 /// `{"status": "storage-failed", "error"}` once a write of the storage failed (a full disk:
 /// RocksDB then refuses every write until the service is restarted, even once space is back).
-/// The store is probed with a write that changes nothing, at most once a second; the probe
-/// takes no turn, so health answers while every turn is held.
+/// After a request met a storage error, the store is probed with a write that changes
+/// nothing, at most once a second, until a probe succeeds; the probe takes no turn, so health
+/// answers while every turn is held.
 #[utoipa::path(get, path = "/health", tag = "operations",
     responses((status = 200, body = Health), (status = 503, body = Health)))]
 pub async fn health(State(state): State<AppState>) -> Response {
+    use std::sync::atomic::Ordering;
+    if !crate::error::STORAGE_FAILED.load(Ordering::Relaxed) {
+        return Json(Health {
+            status: "ok",
+            error: None,
+        })
+        .into_response();
+    }
     let cached = state
         .write_probe
         .lock()
@@ -56,6 +65,9 @@ pub async fn health(State(state): State<AppState>) -> Response {
                 .map(|e| e.to_string());
             if let Ok(mut probe) = state.write_probe.lock() {
                 *probe = Some((std::time::Instant::now(), failure.clone()));
+            }
+            if failure.is_none() {
+                crate::error::STORAGE_FAILED.store(false, Ordering::Relaxed);
             }
             failure
         }

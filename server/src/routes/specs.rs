@@ -279,9 +279,19 @@ async fn post_specs(
     })
     .await?;
     if !changed_implementation.is_empty() {
+        // The spec is written: a failure to replace the CUs is logged, and the registration
+        // below is reported all the same (a review follows the new spec).
         let s = state.clone();
         let tids: Vec<_> = changed_implementation.iter().map(Into::into).collect();
-        crate::app::blocking(move || Ok(s.lifecycle.implementation_changed(&tids)?)).await?;
+        if let Err(e) =
+            crate::app::blocking(move || Ok(s.lifecycle.implementation_changed(&tids)?)).await
+        {
+            tracing::warn!(
+                "the CUs of {} could not be replaced after their implementation changed: {}",
+                changed_implementation.join(", "),
+                e.message
+            );
+        }
     }
     match kind {
         SpecKind::Target => {
@@ -389,16 +399,19 @@ async fn get_spec(
 }
 
 /// What an executor runs of a transformation: a CU of it runs this, and a spec that changes
-/// it replaces the CUs.
+/// it replaces the CUs. Parameters by name: a stored spec gives them back in the store's
+/// order, not the document's.
 fn implementation(
     t: &dyknow_store::spec::TransformationSpec,
 ) -> (
     &Option<String>,
     &Option<String>,
-    &[dyknow_store::spec::Param],
+    Vec<&dyknow_store::spec::Param>,
     &Option<String>,
 ) {
-    (&t.exec_type, &t.source, &t.params, &t.executor)
+    let mut params: Vec<&dyknow_store::spec::Param> = t.params.iter().collect();
+    params.sort_by(|a, b| (&a.name, &a.value).cmp(&(&b.name, &b.value)));
+    (&t.exec_type, &t.source, params, &t.executor)
 }
 
 /// Why a posted spec may not be written: the labels of group targets (`symbol:…`) are the

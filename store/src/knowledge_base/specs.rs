@@ -99,14 +99,15 @@ impl KnowledgeBase {
     ) -> Result<LoadReport, IngestError> {
         let triples = parse_triples(body, format)?;
         let doc = extract_specs(&triples, &self.classes(), None)?;
-        let mut reasoner = self.lock();
-        self.check_identities(&doc.specs)?;
+        // Hashed before the lock: a long list takes a round of refinement per member.
         let extension = (!doc.rest.is_empty()).then(|| {
             (
                 extension_graph(graph_hash(&doc.rest)),
                 fresh_blank_nodes(&doc.rest),
             )
         });
+        let mut reasoner = self.lock();
+        self.check_identities(&doc.specs)?;
         let mut graphs: Vec<(&NamedNode, &[Triple])> = doc
             .specs
             .iter()
