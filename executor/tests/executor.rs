@@ -106,6 +106,31 @@ fn apply(executor: &Executor, actions: Vec<CuAction>) {
     assert!(reply.failures.is_empty(), "{:?}", reply.failures);
 }
 
+/// Spawns CU `cu` as a process running `dyknow-cu dyknow/relay` (in port `i`, out port `o`) and
+/// returns its pid.
+fn spawn_process_relay(executor: &Executor, cu: &str) -> u32 {
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    apply(
+        executor,
+        vec![spawn(
+            cu,
+            implementation(
+                "process",
+                &format!("{program} dyknow/relay"),
+                &["i"],
+                &["o"],
+                json!({}),
+            ),
+        )],
+    );
+    executor
+        .pids()
+        .into_iter()
+        .find(|(n, _)| n == cu)
+        .expect("a pid")
+        .1
+}
+
 #[test]
 fn a_signal_relay_map_chain_computes_and_a_panic_is_a_crash() {
     let (session, endpoint) = session();
@@ -365,24 +390,7 @@ fn process_cus_compute_and_their_death_is_seen_at_once() {
         reply.failures
     );
     // Shutdown leaves no child behind.
-    apply(
-        &executor,
-        vec![spawn(
-            "p2",
-            implementation(
-                "process",
-                &format!("{program} dyknow/relay"),
-                &["i"],
-                &["o"],
-                json!({}),
-            ),
-        )],
-    );
-    let (_, pid) = executor
-        .pids()
-        .into_iter()
-        .find(|(n, _)| n == "p2")
-        .expect("a pid");
+    let pid = spawn_process_relay(&executor, "p2");
     executor.shutdown();
     assert!(
         !std::path::Path::new(&format!("/proc/{pid}")).exists() || is_zombie(pid),
@@ -828,25 +836,7 @@ fn a_hung_process_cu_is_noticed_after_the_executors_lease() {
     config.zenoh_lease_ms = Some(1000);
     let executor = Executor::start(&session, config).expect("an executor");
     let (crashes, _e) = events(&session);
-    let program = env!("CARGO_BIN_EXE_dyknow-cu");
-    apply(
-        &executor,
-        vec![spawn(
-            "hung",
-            implementation(
-                "process",
-                &format!("{program} dyknow/relay"),
-                &["i"],
-                &["o"],
-                json!({}),
-            ),
-        )],
-    );
-    let (_, pid) = executor
-        .pids()
-        .into_iter()
-        .find(|(n, _)| n == "hung")
-        .expect("a pid");
+    let pid = spawn_process_relay(&executor, "hung");
     let signal = |s: &str| {
         std::process::Command::new("kill")
             .args([s, &pid.to_string()])

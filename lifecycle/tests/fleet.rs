@@ -405,6 +405,27 @@ fn fake_executor(
     }
 }
 
+/// What a [`fleet_of`] needs kept alive: the sessions and the fake executors.
+type Kept = (zenoh::Session, zenoh::Session, Vec<FakeExecutor>);
+
+/// A fleet on a fresh router session in `namespace`, with fake executors `names` (each present
+/// before this returns), all logging what they are sent into one log.
+fn fleet_of(namespace: &str, names: &[&'static str]) -> (Fleet, ApplyLog, Kept) {
+    let (router, client) = sessions();
+    let namespace = Namespace::new(namespace).expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let executors = names
+        .iter()
+        .map(|&name| {
+            let executor = fake_executor(&client, &namespace, name, &log);
+            until_appeared(&mut events, name, 0);
+            executor
+        })
+        .collect();
+    (fleet, log, (router, client, executors))
+}
+
 /// A change set across executors makes before it breaks: a destroy on one executor is sent
 /// after the spawns on every other (before, each executor got its actions in one request, in
 /// order of its first action: x's destroy went before y's spawn, and the stream stopped
@@ -412,14 +433,7 @@ fn fake_executor(
 #[test]
 fn destroys_are_sent_after_every_executors_other_actions() {
     use dyknow_engine::{Action, Cid};
-    let (router, client) = sessions();
-    let namespace = Namespace::new("order").expect("a namespace");
-    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
-    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let _x = fake_executor(&client, &namespace, "x", &log);
-    until_appeared(&mut events, "x", 0);
-    let _y = fake_executor(&client, &namespace, "y", &log);
-    until_appeared(&mut events, "y", 0);
+    let (fleet, log, _executors) = fleet_of("order", &["x", "y"]);
     let mut on_y = relay_spec();
     on_y.label = "u".into();
     on_y.iri = "urn:u".into();
@@ -484,16 +498,7 @@ fn destroys_are_sent_after_every_executors_other_actions() {
 #[test]
 fn a_change_sets_spawns_are_spread_over_the_executors() {
     use dyknow_engine::Action;
-    let (router, client) = sessions();
-    let namespace = Namespace::new("spread").expect("a namespace");
-    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
-    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let _x = fake_executor(&client, &namespace, "x", &log);
-    until_appeared(&mut events, "x", 0);
-    let _y = fake_executor(&client, &namespace, "y", &log);
-    until_appeared(&mut events, "y", 0);
-    let _z = fake_executor(&client, &namespace, "z", &log);
-    until_appeared(&mut events, "z", 0);
+    let (fleet, log, _executors) = fleet_of("spread", &["x", "y", "z"]);
     let specs = BTreeMap::from([(dyknow_engine::Tid::from("t"), relay_spec())]);
     let spawns = |names: &[&str]| {
         names
