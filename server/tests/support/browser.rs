@@ -56,7 +56,13 @@ impl Browser {
         let driver_bin = find("chromedriver", "/usr/bin/chromedriver");
         let chromium = find("chromium", "/usr/bin/chromium");
         let port = free_port();
+        let profile = tempfile::tempdir().expect("profile directory");
+        // Chromium's own temporary directories (`org.chromium.Chromium.scoped_dir.*`) go inside
+        // the profile's, removed with it: in /tmp they were left behind by every run.
+        let scratch = profile.path().join("tmp");
+        std::fs::create_dir_all(&scratch).expect("a temporary directory");
         let driver = Command::new(driver_bin)
+            .env("TMPDIR", &scratch)
             .arg(format!("--port={port}"))
             .arg("--allowed-ips=127.0.0.1")
             .stdout(Stdio::null())
@@ -68,7 +74,6 @@ impl Browser {
             assert!(Instant::now() < deadline, "chromedriver did not listen");
             std::thread::sleep(Duration::from_millis(50));
         }
-        let profile = tempfile::tempdir().expect("profile directory");
         let args = [
             "--headless=new".to_owned(),
             "--no-sandbox".to_owned(),
