@@ -41,9 +41,10 @@ pub struct GroupSpec {
     pub start: bool,
 }
 
-/// The tag a symbol's target asks for, instead of the symbol itself.
+/// The tag a symbol's target asks for, instead of the symbol itself: `{"tag": "..."}` or
+/// `{"description": "<IRI>"}`.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(untagged, deny_unknown_fields)]
+#[serde(untagged, try_from = "GroundingFields")]
 pub enum Grounding {
     /// A tag value (`dyknow:hasValue`).
     Tag {
@@ -55,6 +56,31 @@ pub enum Grounding {
         /// The concept's IRI.
         description: String,
     },
+}
+
+/// A grounding as written: read field by field, so that a wrong one is refused with what a
+/// grounding is (an untagged enum said only "data did not match any variant").
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GroundingFields {
+    tag: Option<String>,
+    description: Option<String>,
+}
+
+impl TryFrom<GroundingFields> for Grounding {
+    type Error = String;
+
+    fn try_from(fields: GroundingFields) -> Result<Self, String> {
+        match (fields.tag, fields.description) {
+            (Some(tag), None) => Ok(Self::Tag { tag }),
+            (None, Some(description)) => Ok(Self::Description { description }),
+            (tag, _) => Err(format!(
+                "a symbol's grounding is {{\"tag\": \"<value>\"}} or {{\"description\": \"<IRI>\"}}, \
+                 not {}",
+                if tag.is_some() { "both" } else { "neither" }
+            )),
+        }
+    }
 }
 
 /// Why a group or formula is refused (nothing is created).

@@ -631,6 +631,26 @@ fn bad_groups_are_refused_and_nothing_is_created() {
             );
         }
     }
+    // A grounding that is neither a tag nor a description says what a grounding is (it said
+    // "data did not match any variant of untagged enum Grounding").
+    for (grounding, why) in [
+        (json!({}), "neither"),
+        (json!({"tag": "x", "description": "http://e/x"}), "both"),
+    ] {
+        let (got, answer) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"formulas": ["p"], "grounding": {"p": grounding}})),
+        );
+        assert_eq!(got, 422, "{answer}");
+        let error = answer["error"].as_str().unwrap();
+        assert!(
+            error.contains(r#"{"tag": "<value>"} or {"description": "<IRI>"}"#)
+                && error.contains(why),
+            "{answer}"
+        );
+    }
     // Not JSON, or not declared as JSON (no Content-Type declares nothing).
     for content_type in [Some("text/plain"), None] {
         let mut request = agent().post(&format!("{}/groups", service.url));
