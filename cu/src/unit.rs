@@ -85,7 +85,6 @@ thread_local! {
 }
 
 struct OutBinding {
-    channel: Option<String>,
     publisher: Option<Publisher<'static>>,
     stats: PortStatistics,
 }
@@ -282,7 +281,6 @@ impl Unit {
                     (
                         p.clone(),
                         OutBinding {
-                            channel: None,
                             publisher: None,
                             stats: PortStatistics::default(),
                         },
@@ -453,12 +451,7 @@ impl Unit {
         self.running()?;
         let publisher = match channel {
             Some(channel) => {
-                if lock(&shared.core)
-                    .outputs
-                    .ports
-                    .get(port)
-                    .is_some_and(|o| o.channel.as_deref() == Some(channel))
-                {
+                if lock(&shared.out_channels).get(port).map(String::as_str) == Some(channel) {
                     return Ok(());
                 }
                 let key = crate::pins::pinned_key(
@@ -481,7 +474,6 @@ impl Unit {
             let Some(out) = core.outputs.ports.get_mut(port) else {
                 return Ok(());
             };
-            out.channel = channel.map(str::to_owned);
             let mut channels = lock(&shared.out_channels);
             match channel {
                 Some(c) => channels.insert(port.to_owned(), c.to_owned()),

@@ -504,15 +504,20 @@ impl Manager {
         Ok(())
     }
 
-    /// Whether unprotected CUs of `transformation` run now (as last published): whether a new
-    /// spec of it has CUs to replace when its implementation changes
+    /// The transformations with unprotected CUs running now (as last published): those a new
+    /// spec has CUs to replace for when its implementation changes
     /// ([`Manager::implementation_changed`]). No read of the store.
-    pub fn runs_cus_of(&self, transformation: &Tid) -> bool {
-        self.specs.last_published().is_some_and(|last| {
-            last.cus
-                .values()
-                .any(|cu| !cu.protected && &cu.tid == transformation)
-        })
+    pub fn transformations_with_cus(&self) -> BTreeSet<Tid> {
+        self.specs
+            .last_published()
+            .map(|last| {
+                last.cus
+                    .values()
+                    .filter(|cu| !cu.protected)
+                    .map(|cu| cu.tid.clone())
+                    .collect()
+            })
+            .unwrap_or_default()
     }
 
     /// The specs of `transformations` were replaced by ones with another implementation (type,

@@ -245,9 +245,10 @@ async fn post_specs(
         // compared with the stored spec before it is replaced (only where CUs run: no read
         // otherwise).
         let changed = std::sync::Mutex::new(Vec::<String>::new());
+        let with_cus = lifecycle.transformations_with_cus();
         let refused = |spec: &Spec| {
             if let Spec::Transformation(t) = spec
-                && lifecycle.runs_cus_of(&t.label.as_str().into())
+                && with_cus.contains(&dyknow_engine::Tid::from(t.label.as_str()))
                 && let Ok(Some(Spec::Transformation(old))) =
                     kb.spec(SpecKind::Transformation, &t.label)
                 && implementation(&old) != implementation(t)
