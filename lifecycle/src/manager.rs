@@ -14,7 +14,7 @@ use dyknow_engine::{
     ProbeOptions, Tid,
 };
 use dyknow_store::model::{self, CuSnapshot, Loaded, SpecCache};
-use dyknow_store::spec::TransformationSpec;
+use dyknow_store::spec::{Implementation, SpecKind, TransformationSpec};
 use dyknow_store::{EnvironmentPart, KnowledgeBase};
 use tokio::sync::{Notify, broadcast};
 
@@ -185,6 +185,10 @@ pub struct Manager {
     /// ([`Manager::reconcile`] with `respawn`): no review runs before it.
     starting: std::sync::atomic::AtomicBool,
     started: Notify,
+    /// The unprotected CUs spawned since start-up, with their transformation and the
+    /// implementation they were started with: what a spec posted meanwhile is compared with
+    /// ([`Manager::stale_after_post`]), whether or not the spawn's write has been published.
+    spawned_with: Mutex<BTreeMap<Cid, (Tid, Implementation)>>,
 }
 
 impl std::fmt::Debug for Manager {
@@ -270,6 +274,7 @@ impl Manager {
             events,
             starting: std::sync::atomic::AtomicBool::new(false),
             started: Notify::new(),
+            spawned_with: Mutex::default(),
             kb,
         };
         // A store written before CU graphs were kept in step with spec writes may hold
@@ -520,36 +525,67 @@ impl Manager {
             .unwrap_or_default()
     }
 
-    /// The specs of `transformations` were replaced by ones with another implementation (type,
-    /// source, parameters or pinned executor; the caller compared them before writing). The
-    /// seed (Ch. 4): a CU whose transformation changed behaves in no defined way and requires
-    /// removal. Their unprotected CUs leave the model as crashed CUs do, are stopped where
-    /// they run, and the review this starts replaces them with CUs of the new spec, wired as
-    /// they were (their transformations tried first). Protected CUs are left as they run.
-    /// Report [`Perturbation::Registered`] as well.
-    pub fn implementation_changed(&self, transformations: &[Tid]) -> Result<(), LifecycleError> {
-        let stale: Vec<Cid> = self
-            .specs
-            .last_published()
-            .map(|last| {
+    /// The unprotected CUs that run an implementation the transformation specs just
+    /// `posted` no longer have (type, source, parameters or pinned executor): those spawned
+    /// since start-up are compared with the implementation they were started with, the others
+    /// (running before start-up) are stale when their transformation is in `changed` (the
+    /// caller compared the stored spec before writing). Call it after the write: a spawn
+    /// whose spec was read before the write is either recorded here by then, or its review
+    /// sees the write and replaces it itself ([`Manager::commit`]). No read of the store.
+    pub fn stale_after_post(
+        &self,
+        posted: &[(Tid, Implementation)],
+        changed: &BTreeSet<Tid>,
+    ) -> Vec<Cid> {
+        if posted.is_empty() {
+            return Vec::new();
+        }
+        let posted: BTreeMap<&Tid, &Implementation> = posted.iter().map(|(t, i)| (t, i)).collect();
+        let spawned = lock(&self.spawned_with);
+        let mut stale: BTreeSet<Cid> = spawned
+            .iter()
+            .filter(|(_, (tid, was))| posted.get(tid).is_some_and(|now| *now != was))
+            .map(|(cid, _)| cid.clone())
+            .collect();
+        if !changed.is_empty()
+            && let Some(last) = self.specs.last_published()
+        {
+            stale.extend(
                 last.cus
                     .values()
-                    .filter(|cu| !cu.protected && transformations.contains(&cu.tid))
-                    .map(|cu| cu.cid.clone())
-                    .collect()
-            })
-            .unwrap_or_default();
+                    .filter(|cu| {
+                        !cu.protected && changed.contains(&cu.tid) && !spawned.contains_key(&cu.cid)
+                    })
+                    .map(|cu| cu.cid.clone()),
+            );
+        }
+        stale.into_iter().collect()
+    }
+
+    /// Replaces CUs that run an implementation their transformation's spec no longer has
+    /// ([`Manager::stale_after_post`]). The seed (Ch. 4): a CU whose transformation changed
+    /// behaves in no defined way and requires removal. They leave the model as crashed CUs
+    /// do, are stopped where they run, and the review this starts replaces them with CUs of
+    /// the new spec, wired as they were (their transformations tried first). Protected CUs
+    /// are left as they run. Report [`Perturbation::Registered`] as well.
+    pub fn replace_stale(&self, stale: &[Cid]) -> Result<(), LifecycleError> {
         if stale.is_empty() {
             return Ok(());
         }
+        let _configuration = lock(&self.configuration);
+        self.replace_stale_locked(stale)
+    }
+
+    /// [`Manager::replace_stale`] under the configuration lock.
+    fn replace_stale_locked(&self, stale: &[Cid]) -> Result<(), LifecycleError> {
         let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
         tracing::info!(
             "{} run an implementation (type, source, parameters or executor) their \
              transformation's new spec no longer has: replaced",
             names.join(", ")
         );
-        self.remove_all_crashed(&stale)?;
-        self.executor.abandon(&stale);
+        self.remove_all_crashed_locked(stale)?;
+        self.executor.abandon(stale);
         lock(&self.schedule).urgent();
         self.wake.notify_one();
         Ok(())
@@ -575,14 +611,19 @@ impl Manager {
         // wait for the configuration lock (a review may hold it: single spec POSTs went from
         // about 960/s to 690/s waiting for it). The CUs are those of the last publication,
         // which every CU write makes before it answers. A Spawn of the transformation under
-        // way (it read the spec before this write) is not seen; the start-up pass repairs
-        // what it writes.
+        // way (it read the spec before this write) is not seen here: its change set sees the
+        // spec generation move and brings its CUs in step itself ([`Manager::commit`]).
         if let (Some(tids), Some(last)) = (changed, self.specs.last_published())
             && !last.cus.values().any(|cu| tids.contains(&cu.tid))
         {
             return Ok(());
         }
         let _configuration = lock(&self.configuration);
+        self.resync_locked(changed)
+    }
+
+    /// [`Manager::resync`] under the configuration lock.
+    fn resync_locked(&self, changed: Option<&[Tid]>) -> Result<(), LifecycleError> {
         // The whole library (not only what the executors run now): a CU graph writes its
         // transformation's upkeep whatever runs it.
         let loaded = self.specs.load(&self.kb, Some(&self.learned()))?;
@@ -606,6 +647,11 @@ impl Manager {
     /// have are skipped; returns how many it had.
     fn remove_all_crashed(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
         let _configuration = lock(&self.configuration);
+        self.remove_all_crashed_locked(cids)
+    }
+
+    /// [`Manager::remove_all_crashed`] under the configuration lock.
+    fn remove_all_crashed_locked(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
         let loaded = self.load()?;
         let mut after = loaded.env.clone();
         let removed: Vec<(Cid, Tid)> = cids
@@ -993,6 +1039,38 @@ impl Manager {
         };
         change_set.cus = reconciled.outcomes;
         change_set.cus.append(&mut applied.cus);
+        // The unprotected CUs it started, with the implementation they were started with:
+        // recorded before the spec generation is read again below, so that a spec written
+        // meanwhile is either seen moving here or finds them recorded
+        // ([`Manager::stale_after_post`]).
+        let spawned: Vec<(Cid, Tid)> = change_set
+            .actions
+            .iter()
+            .enumerate()
+            .filter_map(|(i, action)| match action {
+                Action::Spawn { cu, transformation }
+                    if !applied.failures.iter().any(|f| f.action == i)
+                        && after.cus.get(cu).is_some_and(|c| !c.protected) =>
+                {
+                    Some((cu.clone(), transformation.clone()))
+                }
+                _ => None,
+            })
+            .collect();
+        {
+            let mut recorded = lock(&self.spawned_with);
+            recorded.retain(|cid, _| after.cus.contains_key(cid));
+            for (cid, tid) in &spawned {
+                if let Some(spec) = loaded.specs.get(tid) {
+                    recorded.insert(cid.clone(), (tid.clone(), spec.implementation()));
+                }
+            }
+        }
+        let respec = if spawned.is_empty() || self.kb.spec_generation() == loaded.spec_generation {
+            None
+        } else {
+            Some(self.respecified(loaded, &spawned)?)
+        };
         let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;
@@ -1071,20 +1149,77 @@ impl Manager {
             history.prune(pruned.len());
         }
         let _ = self.events.send(change_set.clone());
-        let mut schedule = lock(&self.schedule);
-        if crashed.is_empty() {
-            schedule.applied();
-        } else {
-            // Not their transformations first: they may fail again. A repeated failure waits
-            // longer (the back-off), so an executor that cannot run something is not asked
-            // again and again.
-            for cu in crashed {
-                schedule.failed(cu);
+        {
+            let mut schedule = lock(&self.schedule);
+            if crashed.is_empty() {
+                schedule.applied();
+            } else {
+                // Not their transformations first: they may fail again. A repeated failure
+                // waits longer (the back-off), so an executor that cannot run something is
+                // not asked again and again.
+                for cu in crashed {
+                    schedule.failed(cu);
+                }
+                drop(schedule);
+                self.wake.notify_one();
             }
-            drop(schedule);
-            self.wake.notify_one();
+        }
+        // A spec written while this change set was planned and applied: what it spawned from
+        // the spec read before is brought in step (ports renamed) or, run from another
+        // implementation, replaced. Best effort: the change set is recorded already.
+        if let Some((stale, tids)) = respec {
+            if let Err(e) = self.resync_locked(Some(&tids)) {
+                tracing::warn!(
+                    "{}: CU graphs not brought in step with specs written meanwhile: {e}",
+                    change_set.id
+                );
+            }
+            if !stale.is_empty()
+                && let Err(e) = self.replace_stale_locked(&stale)
+            {
+                tracing::warn!(
+                    "{}: CUs of a replaced implementation not replaced: {e}",
+                    change_set.id
+                );
+            }
         }
         Ok(Committed { change_set, after })
+    }
+
+    /// Of the CUs a change set `spawned` from the specs in `loaded`, those whose
+    /// transformation's spec now names another implementation (read from the store), with the
+    /// transformations spawned: a spec was written since `loaded` was read.
+    fn respecified(
+        &self,
+        loaded: &Loaded,
+        spawned: &[(Cid, Tid)],
+    ) -> Result<(Vec<Cid>, Vec<Tid>), LifecycleError> {
+        let tids: BTreeSet<Tid> = spawned.iter().map(|(_, tid)| tid.clone()).collect();
+        let mut changed = BTreeSet::new();
+        for tid in &tids {
+            let now = match self
+                .kb
+                .spec(SpecKind::Transformation, tid.as_str())
+                .map_err(dyknow_store::ModelReadError::from)?
+            {
+                Some(dyknow_store::spec::Spec::Transformation(t)) => Some(t.implementation()),
+                _ => None,
+            };
+            let then = loaded
+                .specs
+                .get(tid)
+                .map(TransformationSpec::implementation);
+            // A spec removed meanwhile: the review its removal starts takes its CUs.
+            if now.is_some() && now != then {
+                changed.insert(tid.clone());
+            }
+        }
+        let stale = spawned
+            .iter()
+            .filter(|(_, tid)| changed.contains(tid))
+            .map(|(cid, _)| cid.clone())
+            .collect();
+        Ok((stale, tids.into_iter().collect()))
     }
 
     /// Holds reviews until the start-up reconciliation ([`Manager::reconcile`] with

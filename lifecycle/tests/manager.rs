@@ -14,6 +14,7 @@ use dyknow_lifecycle::{
     Applied, Executor, FleetEvent, LifecycleError, Manager, ModelOnly, Perturbation, Settings,
     SpawnRequest,
 };
+use dyknow_store::spec::{Spec, SpecKind};
 use dyknow_store::{InputFormat, KnowledgeBase};
 
 fn example_12() -> Arc<KnowledgeBase> {
@@ -875,4 +876,232 @@ fn a_change_set_that_repairs_no_kept_crash_is_not_named_after_one() {
     );
     repaired_when_back(&manager, &executor, &lost);
     assert!(manager.review().unwrap().is_none());
+}
+
+/// tid4 (a source, `f4()`) posted again with a parameter: another implementation.
+const TID4_WITH_A_PARAMETER: &str = r#"
+@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+@prefix dkros:  <http://www.dyknow.eu/ontology/dyknow-ros#> .
+@prefix rdfs:   <http://www.w3.org/2000/01/rdf-schema#> .
+@prefix ex:     <http://example.org/ex12#> .
+[] a dyknow:Transformation ;
+   rdfs:label "tid4" ;
+   dyknow:hasOutPort [ a dyknow:OutPort ; dyknow:hasName "out" ;
+                       dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription ex:F ] ] ;
+   dkros:hasParam [ a dyknow:Parameter ; dyknow:hasName "rate" ; dyknow:hasValue 5 ] ;
+   dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] ,
+                       [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .
+"#;
+
+fn post_tid4_with_a_parameter(kb: &KnowledgeBase) {
+    kb.post_specs(
+        TID4_WITH_A_PARAMETER.as_bytes(),
+        InputFormat::Turtle,
+        SpecKind::Transformation,
+    )
+    .unwrap();
+}
+
+/// Posts `spec` while it applies the first change set that spawns `on`: a spec written
+/// between a review's read of the specs and its record. Records the number of parameters each
+/// spawn of `on` was given.
+struct RespecifiesWhileSpawning {
+    kb: Arc<KnowledgeBase>,
+    on: &'static str,
+    spec: &'static str,
+    posted: std::sync::atomic::AtomicBool,
+    spawns: Mutex<Vec<(Cid, usize)>>,
+}
+
+impl RespecifiesWhileSpawning {
+    fn new(kb: &Arc<KnowledgeBase>, on: &'static str, spec: &'static str) -> Arc<Self> {
+        Arc::new(Self {
+            kb: kb.clone(),
+            on,
+            spec,
+            posted: false.into(),
+            spawns: Mutex::default(),
+        })
+    }
+}
+
+impl Executor for RespecifiesWhileSpawning {
+    fn apply(
+        &self,
+        change_set: &ChangeSet,
+        specs: &std::collections::BTreeMap<
+            dyknow_engine::Tid,
+            dyknow_store::spec::TransformationSpec,
+        >,
+    ) -> Applied {
+        for action in &change_set.actions {
+            if let Action::Spawn { cu, transformation } = action
+                && transformation == self.on
+            {
+                let params = specs[transformation].params.len();
+                self.spawns.lock().unwrap().push((cu.clone(), params));
+                if !self.posted.swap(true, std::sync::atomic::Ordering::SeqCst) {
+                    self.kb
+                        .post_specs(
+                            self.spec.as_bytes(),
+                            InputFormat::Turtle,
+                            SpecKind::Transformation,
+                        )
+                        .unwrap();
+                }
+            }
+        }
+        Applied::default()
+    }
+}
+
+#[test]
+fn a_cu_spawned_from_a_spec_replaced_meanwhile_is_replaced() {
+    let kb = example_12();
+    let executor = RespecifiesWhileSpawning::new(&kb, "tid4", TID4_WITH_A_PARAMETER);
+    let manager = Manager::new(kb, executor.clone(), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    let first = manager.review().unwrap().expect("a change set");
+    assert_eq!(first.status, ChangeSetStatus::Applied);
+    let spawns = executor.spawns.lock().unwrap().clone();
+    assert_eq!(spawns.len(), 1, "{spawns:?}");
+    let (old, params) = &spawns[0];
+    assert_eq!(*params, 0, "spawned from the spec read before the write");
+    // The spec changed while it was spawned: it left the model, and the next review is due
+    // at once, with its crash as the cause.
+    assert_eq!(cu_of(&manager, "tid4"), None);
+    assert!(manager.status().review_pending, "{:?}", manager.status());
+    let repair = manager.review().unwrap().expect("a repair");
+    assert!(
+        matches!(&repair.cause, Cause::CuCrashed { cu, .. } if cu == old),
+        "{:?}",
+        repair.cause
+    );
+    let spawns = executor.spawns.lock().unwrap().clone();
+    assert_eq!(spawns.len(), 2, "{spawns:?}");
+    assert_eq!(spawns[1].1, 1, "spawned from the new spec");
+    assert_eq!(cu_of(&manager, "tid4"), Some(spawns[1].0.clone()));
+    assert_eq!(manager.review().unwrap(), None, "nothing more to do");
+}
+
+#[test]
+fn a_spec_posted_after_a_spawn_names_the_cus_it_makes_stale() {
+    let kb = example_12();
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    manager.review().unwrap().expect("a change set");
+    let cu = cu_of(&manager, "tid4").expect("tid4 runs");
+    let spec = |kb: &KnowledgeBase| match kb.spec(SpecKind::Transformation, "tid4").unwrap() {
+        Some(Spec::Transformation(t)) => t,
+        other => panic!("{other:?}"),
+    };
+    let none = BTreeSet::new();
+    // The same implementation (costs aside): nothing stale.
+    let same = spec(&kb).implementation();
+    assert!(
+        manager
+            .stale_after_post(&[("tid4".into(), same.clone())], &none)
+            .is_empty()
+    );
+    post_tid4_with_a_parameter(&kb);
+    let other = spec(&kb).implementation();
+    // Compared with what it was started with, not with the stored spec (the caller's
+    // comparison with the stored one, `changed`, is for CUs from before start-up).
+    assert_eq!(
+        manager.stale_after_post(&[("tid4".into(), other.clone())], &none),
+        vec![cu.clone()]
+    );
+    assert!(
+        manager
+            .stale_after_post(&[("tid1".into(), same)], &none)
+            .is_empty(),
+        "tid1 runs the implementation it was started with"
+    );
+    // After a restart, the CU is from before start-up: only `changed` names it.
+    let restarted = Manager::new(kb, Arc::new(ModelOnly), Settings::default()).unwrap();
+    assert!(
+        restarted
+            .stale_after_post(&[("tid4".into(), other.clone())], &none)
+            .is_empty()
+    );
+    let changed: BTreeSet<dyknow_engine::Tid> = ["tid4".into()].into();
+    assert_eq!(
+        restarted.stale_after_post(&[("tid4".into(), other)], &changed),
+        vec![cu.clone()]
+    );
+    restarted.replace_stale(std::slice::from_ref(&cu)).unwrap();
+    assert_eq!(cu_of(&restarted, "tid4"), None);
+    let repair = restarted.review().unwrap().expect("a repair");
+    assert!(matches!(&repair.cause, Cause::CuCrashed { cu: c, .. } if *c == cu));
+    assert!(cu_of(&restarted, "tid4").is_some_and(|new| new != cu));
+}
+
+#[test]
+fn a_cu_spawned_from_a_spec_whose_port_was_renamed_meanwhile_is_brought_in_step() {
+    // tid1 posted again with its in port renamed: the same implementation, so the CU stays,
+    // but its subscription, written from the spec read before, names a port that is gone.
+    const TID1_RENAMED: &str = r#"
+    @prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+    @prefix rdfs:   <http://www.w3.org/2000/01/rdf-schema#> .
+    @prefix ex:     <http://example.org/ex12#> .
+    [] a dyknow:Transformation ;
+       rdfs:label "tid1" ;
+       dyknow:hasInPort  [ a dyknow:InPort ;  dyknow:hasName "input" ;
+                           dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription ex:A ] ] ;
+       dyknow:hasOutPort [ a dyknow:OutPort ; dyknow:hasName "out" ;
+                           dyknow:hasTag [ a dyknow:Tag ; dyknow:hasTagDescription ex:B ] ] ;
+       dyknow:hasCostModel [ a dyknow:LabourCostModel ; dyknow:hasValue 1.0 ] ,
+                           [ a dyknow:UpkeepCostModel ; dyknow:hasValue 1.0 ] .
+    "#;
+    let kb = example_12();
+    let executor = RespecifiesWhileSpawning::new(&kb, "tid1", TID1_RENAMED);
+    let manager = Manager::new(kb.clone(), executor.clone(), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    let first = manager.review().unwrap().expect("a change set");
+    assert_eq!(first.status, ChangeSetStatus::Applied);
+    assert!(executor.posted.load(std::sync::atomic::Ordering::SeqCst));
+    let cu = cu_of(&manager, "tid1").expect("tid1 stays: its implementation is the same");
+    assert_eq!(executor.spawns.lock().unwrap()[0].0, cu);
+    // Every CU graph says what the model says of its CU: nothing left for a repair.
+    let loaded = dyknow_store::model::load(&kb).unwrap();
+    let stale = dyknow_store::model::resync(&kb, &loaded.env, &loaded.iris, None).unwrap();
+    for (part, should) in &stale {
+        let stored = kb.graph_triples(part.graph().as_ref()).unwrap();
+        let extra: Vec<_> = stored.iter().filter(|t| !should.contains(t)).collect();
+        let missing: Vec<_> = should.iter().filter(|t| !stored.contains(t)).collect();
+        eprintln!("{part:?}: extra {extra:#?} missing {missing:#?}");
+    }
+    assert!(stale.is_empty(), "{stale:?}");
+}
+
+#[test]
+fn the_cu_graphs_a_review_writes_read_back_as_written() {
+    // A CU graph compared with what the store holds (at every start-up, after every spec
+    // write) differs only where the model does: the store gives an `xsd:double` back by
+    // value (`"1"`), so one written as `"1.0"` read as changed, and every CU graph was
+    // rewritten at every start.
+    let kb = example_12();
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+    manager.review().unwrap().expect("a change set");
+    let loaded = dyknow_store::model::load(&kb).unwrap();
+    assert_eq!(loaded.env.cus.len(), 3);
+    let stale = dyknow_store::model::resync(&kb, &loaded.env, &loaded.iris, None).unwrap();
+    assert!(stale.is_empty(), "{stale:?}");
 }

@@ -283,15 +283,25 @@ pub(crate) fn deep<R>(f: impl FnOnce() -> R) -> R {
 /// The window in timestamps: a relative one anchored at `t`, the node itself when anchored
 /// already. `None` when it starts beyond the last timestamp there can be (no state can fall in
 /// it); an end beyond it is no end.
+///
+/// A window that has begun by `t` begins before every later state, so its start no longer
+/// matters: it is written `0`. The obligations over one body that end together are then one
+/// node whenever they were anchored (`always eventually (next r)` waits on one `eventually`,
+/// not on one per state: the disjunctions holding them would not merge otherwise), and the
+/// node stays its own residual from then on.
 fn anchor(w: Window, t: u64, n: NodeId) -> Option<(u64, Option<u64>, Option<NodeId>)> {
-    match w {
-        Window::Rel(iv) => Some((
+    let (lo, hi, own) = match w {
+        Window::Rel(iv) => (
             t.checked_add(iv.lo)?,
             iv.hi.and_then(|h| t.checked_add(h)),
             None,
-        )),
-        Window::Abs { lo, hi } => Some((lo, hi, Some(n))),
+        ),
+        Window::Abs { lo, hi } => (lo, hi, Some(n)),
+    };
+    if lo <= t && lo != 0 {
+        return Some((0, hi, None));
     }
+    Some((lo, hi, own))
 }
 
 /// The atom with `var` replaced by `constant`; `None` when it does not mention `var`.

@@ -1,12 +1,16 @@
 //! AddTransformation, RemoveTransformation, AddTarget, RemoveTarget (seed Ch. 5.3) and their
 //! listings: `/transformations`, `/targets`.
 
+use std::collections::BTreeSet;
+use std::sync::PoisonError;
+
 use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
+use dyknow_engine::{Cid, Tid};
 use dyknow_lifecycle::Perturbation;
 use dyknow_store::oxigraph::io::RdfFormat;
 use dyknow_store::spec::{Port, Spec, SpecKind, Tag};
@@ -240,23 +244,32 @@ async fn post_specs(
     let kb = state.kb.clone();
     let groups = state.groups.clone();
     let lifecycle = state.lifecycle.clone();
-    let (report, changed_implementation) = in_turn(&state, move || {
-        // Transformations with running CUs whose spec now names another implementation:
-        // compared with the stored spec before it is replaced (only where CUs run: no read
-        // otherwise).
-        let changed = std::sync::Mutex::new(Vec::<String>::new());
+    let (report, stale) = in_turn(&state, move || {
+        // Transformations with CUs running since before start-up whose spec now names another
+        // implementation: compared with the stored spec before it is replaced (only where such
+        // CUs run: no read otherwise). Those spawned since are compared with what they were
+        // started with, after the write (`stale_after_post`).
+        let changed = std::sync::Mutex::new(BTreeSet::<Tid>::new());
+        let posted = std::sync::Mutex::new(Vec::new());
         let with_cus = lifecycle.transformations_with_cus();
         let refused = |spec: &Spec| {
-            if let Spec::Transformation(t) = spec
-                && with_cus.contains(&dyknow_engine::Tid::from(t.label.as_str()))
-                && let Ok(Some(Spec::Transformation(old))) =
-                    kb.spec(SpecKind::Transformation, &t.label)
-                && implementation(&old) != implementation(t)
-            {
-                changed
+            if let Spec::Transformation(t) = spec {
+                let tid = Tid::from(t.label.as_str());
+                let implementation = t.implementation();
+                if with_cus.contains(&tid)
+                    && let Ok(Some(Spec::Transformation(old))) =
+                        kb.spec(SpecKind::Transformation, &t.label)
+                    && old.implementation() != implementation
+                {
+                    changed
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .insert(tid.clone());
+                }
+                posted
                     .lock()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .push(t.label.clone());
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .push((tid, implementation));
             }
             reserved_label(spec).or_else(|| match spec {
                 Spec::Target(t) => groups.result_channel_user(&t.channel).map(|group| {
@@ -271,25 +284,23 @@ async fn post_specs(
             })
         };
         let report = kb.post_specs_checked(&body, format, kind, &refused)?;
-        Ok((
-            report,
-            changed
-                .into_inner()
-                .unwrap_or_else(std::sync::PoisonError::into_inner),
-        ))
+        let stale = lifecycle.stale_after_post(
+            &posted.into_inner().unwrap_or_else(PoisonError::into_inner),
+            &changed.into_inner().unwrap_or_else(PoisonError::into_inner),
+        );
+        Ok((report, stale))
     })
     .await?;
-    if !changed_implementation.is_empty() {
+    if !stale.is_empty() {
         // The spec is written: a failure to replace the CUs is logged, and the registration
         // below is reported all the same (a review follows the new spec).
         let s = state.clone();
-        let tids: Vec<_> = changed_implementation.iter().map(Into::into).collect();
-        if let Err(e) =
-            crate::app::blocking(move || Ok(s.lifecycle.implementation_changed(&tids)?)).await
-        {
+        let cus = stale.clone();
+        if let Err(e) = crate::app::blocking(move || Ok(s.lifecycle.replace_stale(&cus)?)).await {
+            let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
             tracing::warn!(
-                "the CUs of {} could not be replaced after their implementation changed: {}",
-                changed_implementation.join(", "),
+                "{} could not be replaced after their implementation changed: {}",
+                names.join(", "),
                 e.message
             );
         }
@@ -397,22 +408,6 @@ async fn get_spec(
     .await?
     .ok_or_else(missing)?;
     Ok(Json(value).into_response())
-}
-
-/// What an executor runs of a transformation: a CU of it runs this, and a spec that changes
-/// it replaces the CUs. Parameters by name: a stored spec gives them back in the store's
-/// order, not the document's.
-fn implementation(
-    t: &dyknow_store::spec::TransformationSpec,
-) -> (
-    &Option<String>,
-    &Option<String>,
-    Vec<&dyknow_store::spec::Param>,
-    &Option<String>,
-) {
-    let mut params: Vec<&dyknow_store::spec::Param> = t.params.iter().collect();
-    params.sort_by(|a, b| (&a.name, &a.value).cmp(&(&b.name, &b.value)));
-    (&t.exec_type, &t.source, params, &t.executor)
 }
 
 /// Why a posted spec may not be written: the labels of group targets (`symbol:…`) are the

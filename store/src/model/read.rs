@@ -39,6 +39,9 @@ pub struct Loaded {
     /// The transformation specs, for what the engine does not need (implementations,
     /// parameters).
     pub specs: Arc<BTreeMap<Tid, TransformationSpec>>,
+    /// [`KnowledgeBase::spec_generation`] read before the specs were: when it has moved
+    /// since, a spec may have changed after this was read.
+    pub spec_generation: u64,
 }
 
 pub(crate) fn literal(term: &Option<Term>) -> Option<String> {
@@ -157,6 +160,7 @@ impl SpecCache {
             None => self::learned(kb)?.apply(&mut loaded.env),
         }
         loaded.env.cus = self.cached_cus(kb, key, &loaded.env.library)?;
+        loaded.spec_generation = key.0;
         Ok(loaded)
     }
 

@@ -7,4 +7,6 @@ pub(crate) use extract::spec_from_graph;
 pub use extract::{
     DEFAULT_COST, ExtractedDocument, ExtractedSpec, MAX_PORTS, MAX_TAGS, SpecClasses, extract_specs,
 };
-pub use model::{Param, Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec};
+pub use model::{
+    Implementation, Param, Port, PortDirection, Spec, SpecKind, Tag, TargetSpec, TransformationSpec,
+};

@@ -88,6 +88,40 @@ pub struct TransformationSpec {
     pub executor: Option<String>,
 }
 
+impl TransformationSpec {
+    /// What an executor runs for it: type, source, parameters (in any order) and pinned
+    /// executor. Two specs with equal implementations run the same program the same way;
+    /// costs, ports and tags are not part of it.
+    pub fn implementation(&self) -> Implementation {
+        let mut params: Vec<Param> = self.params.clone();
+        params.sort_by(|a, b| {
+            (&a.name, &a.value, &a.datatype, &a.param_type).cmp(&(
+                &b.name,
+                &b.value,
+                &b.datatype,
+                &b.param_type,
+            ))
+        });
+        Implementation {
+            exec_type: self.exec_type.clone(),
+            source: self.source.clone(),
+            params,
+            executor: self.executor.clone(),
+        }
+    }
+}
+
+/// What an executor runs for a transformation ([`TransformationSpec::implementation`]): a
+/// CU started from one implementation does not run another (the seed, Ch. 4: a CU whose
+/// transformation changed behaves in no defined way and requires removal).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Implementation {
+    exec_type: Option<String>,
+    source: Option<String>,
+    params: Vec<Param>,
+    executor: Option<String>,
+}
+
 /// A parameter of a transformation (`dkros:hasParam`: `dyknow:hasName`, `dyknow:hasValue`,
 /// optional `dkros:hasType`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
