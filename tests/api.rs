@@ -44,7 +44,29 @@ async fn post_transformation_turtle_then_repost_replaces() {
     );
     assert_eq!(api.labels("/transformations").await, ["Undistort(cam1)"]);
 
-    // Several specs in one document, in document order; one of them replaces.
+    // Several specs in one document, sorted by label whatever their order in it (the
+    // contract's lists are sorted; they were in document order).
+    let reversed = "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+        @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+        [] a dyknow:Transformation ; rdfs:label \"zz\" ;
+           dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"Z\" ] ] .
+        [] a dyknow:Transformation ; rdfs:label \"Undistort(cam1)\" ;
+           dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"Z\" ] ] .
+        [] a dyknow:Transformation ; rdfs:label \"aa\" ;
+           dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"Z\" ] ] .";
+    let answer = api.post_turtle("/transformations", reversed).await;
+    answer.expect(201);
+    assert_eq!(
+        answer.json(),
+        json!({"labels": ["Undistort(cam1)", "aa", "zz"], "replaced": ["Undistort(cam1)"]})
+    );
+    api.delete("/transformations/aa").await.expect(204);
+    api.delete("/transformations/zz").await.expect(204);
+    api.post_turtle("/transformations", UNDISTORT)
+        .await
+        .expect(201);
+
+    // Several specs in one document; one of them replaces.
     let answer = api.post_turtle("/transformations", EX12).await;
     answer.expect(201);
     assert_eq!(

@@ -592,6 +592,16 @@ async fn bad_input_changes_nothing() {
     .expect_error(409);
     api.delete(&format!("/cus/{name}")).await.expect_error(409);
     assert_eq!(cus(&api).await.len(), 1);
+    // Nor is its transformation's spec removed under it (it read as an instance of an unknown
+    // transformation, lost its bindings, and the environment stayed invalid).
+    let refused = api.delete("/transformations/tid3").await;
+    let body = refused.json();
+    refused.expect_error(409);
+    assert!(
+        body["error"].as_str().unwrap_or("").contains(&name),
+        "{body}"
+    );
+    api.get("/transformations/tid3").await.expect(200);
     // One CU takes no query parameter (it was ignored): 400, as on the list.
     api.get(&format!("/cus/{name}")).await.expect(200);
     for query in ["?statistics=true", "?foo=1"] {

@@ -525,6 +525,22 @@ impl Manager {
             .unwrap_or_default()
     }
 
+    /// The protected CUs of `transformation` running now (as last published): a client
+    /// spawned them and only a client destroys them, so their transformation's spec may not
+    /// be removed under them. No read of the store.
+    pub fn protected_cus_of(&self, transformation: &Tid) -> Vec<Cid> {
+        self.specs
+            .last_published()
+            .map(|last| {
+                last.cus
+                    .values()
+                    .filter(|cu| cu.protected && cu.tid == *transformation)
+                    .map(|cu| cu.cid.clone())
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
     /// The unprotected CUs that run an implementation the transformation specs just
     /// `posted` no longer have (type, source, parameters or pinned executor): those spawned
     /// since start-up are compared with the implementation they were started with, the others

@@ -11,6 +11,8 @@ macro_rules! terms {
             pub const $name: oxrdf::NamedNodeRef<'static> =
                 oxrdf::NamedNodeRef::new_unchecked(concat!($ns, $local));
         )*
+        /// Every term above.
+        pub const ALL: &[oxrdf::NamedNodeRef<'static>] = &[$($name),*];
     };
 }
 

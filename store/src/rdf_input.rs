@@ -65,7 +65,16 @@ pub fn parse_triples(body: &[u8], format: InputFormat) -> Result<Vec<Triple>, Sp
             let (line, column) = e
                 .location()
                 .map_or((1, 1), |l| (l.start.line + 1, l.start.column + 1));
-            syntax(line, column, e.to_string())
+            let mut message = e.to_string();
+            // A relative IRI is resolved against the document's base, and a posted body has
+            // none: the parser only says the IRI lacks a scheme.
+            if message.contains("No scheme found") {
+                message.push_str(
+                    " (a relative IRI such as <thing>: a posted body has no base IRI; write \
+                     absolute IRIs, or declare one with @base)",
+                );
+            }
+            syntax(line, column, message)
         })?;
         if quad.graph_name != GraphName::DefaultGraph {
             return Err(syntax(1, 1, "named graphs are not accepted here".into()));

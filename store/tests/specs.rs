@@ -254,6 +254,110 @@ fn simple_tf(label: &str, extra: &str) -> String {
 // Transformation specs
 // ---------------------------------------------------------------------------------------------
 
+/// A misspelt term of the DyKnow namespaces is refused, naming the term it was likely meant
+/// to be: kept, `dyknow:hasInPorts` made the transformation a source (a user audit).
+#[test]
+fn terms_of_the_dyknow_namespaces_nothing_declares_are_refused() {
+    let typo = ttl(
+        "[] a dyknow:Transformation ; rdfs:label \"t\" ;
+           dyknow:hasInPorts [ dyknow:hasName \"in\" ; dyknow:hasTag [ dyknow:hasValue \"A\" ] ] ;
+           dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] .",
+    );
+    let v = assert_rejected(&typo, SpecKind::Transformation, "declared nowhere");
+    assert_eq!(v.len(), 1, "{v:#?}");
+    assert_eq!(v[0].subject, format!("{DYKNOW}hasInPorts"));
+    assert!(
+        v[0].constraint
+            .contains(&format!("did you mean <{DYKNOW}hasInPort>?")),
+        "{v:#?}"
+    );
+    // A class too, and one with no near term names none.
+    let v = assert_rejected(
+        &simple_tf("t", "; a dkros:Nodlet"),
+        SpecKind::Transformation,
+        "declared nowhere",
+    );
+    assert!(v[0].constraint.contains("dyknow-ros#Nodelet"), "{v:#?}");
+    let v = assert_rejected(
+        &simple_tf("t", "; dyknow:somethingElseEntirely 3"),
+        SpecKind::Transformation,
+        "declared nowhere",
+    );
+    assert!(!v[0].constraint.contains("did you mean"), "{v:#?}");
+    // Terms the built-in ontologies declare and the service's own additions are known.
+    let kb = kb();
+    post_tf(
+        &kb,
+        &simple_tf("a", "; a dkros:Nodelet ; dkros:hasExecutor \"x\""),
+    )
+    .unwrap();
+    // An extension may declare a term of the namespace; specs may then use it.
+    let extension = ttl("@prefix owl: <http://www.w3.org/2002/07/owl#> .
+         dyknow:hasVendor a owl:DatatypeProperty .");
+    assert_eq!(
+        violations(post_tf(&kb, &simple_tf("b", "; dyknow:hasVendor \"acme\""))).len(),
+        1
+    );
+    kb.post_extension(extension.as_bytes(), InputFormat::Turtle)
+        .unwrap();
+    post_tf(&kb, &simple_tf("b", "; dyknow:hasVendor \"acme\"")).unwrap();
+}
+
+/// A relative IRI is a syntax error that says why: a posted body has no base IRI.
+#[test]
+fn a_relative_iri_says_the_body_has_no_base() {
+    let kb = kb();
+    let body = ttl("<relT> a dyknow:Transformation ; rdfs:label \"t\" .");
+    let e = parse_error(kb.post_specs(
+        body.as_bytes(),
+        InputFormat::Turtle,
+        SpecKind::Transformation,
+    ));
+    assert_eq!(e.line, PREFIX_LINES + 1);
+    assert!(e.message.contains("no base IRI"), "{e:?}");
+    let based = format!("@base <http://example.org/> .\n{body}");
+    kb.post_specs(
+        based.as_bytes(),
+        InputFormat::Turtle,
+        SpecKind::Transformation,
+    )
+    .unwrap();
+}
+
+/// A literal XML 1.0 cannot carry is refused: accepted, it made every RDF/XML, OWL/XML and
+/// SPARQL XML answer malformed (a user audit).
+#[test]
+fn literals_xml_cannot_carry_are_refused() {
+    for value in ["pkg/\\u0001x", "esc\\u001b[0m", "nul\\u0000"] {
+        let v = assert_rejected(
+            &simple_tf("t", &format!("; dkros:hasSource \"{value}\"")),
+            SpecKind::Transformation,
+            "XML 1.0",
+        );
+        assert!(v[0].subject.contains("hasSource"), "{v:#?}");
+    }
+    // Tabs, line feeds and carriage returns are fine.
+    post_tf(&kb(), &simple_tf("t", "; dkros:hasSource \"a\\tb\\nc\\r\"")).unwrap();
+    // An extension too.
+    let kb = kb();
+    let bad = ttl("ex:a rdfs:comment \"bell\\u0007\" .");
+    violations(kb.post_extension(bad.as_bytes(), InputFormat::Turtle));
+}
+
+/// A label longer than a URL can carry is refused: accepted, the spec could never be read
+/// or deleted (414).
+#[test]
+fn labels_past_the_limit_are_refused() {
+    let long = "é".repeat(2049);
+    assert_rejected(
+        &simple_tf(&long, ""),
+        SpecKind::Transformation,
+        "at most 4096 bytes",
+    );
+    let kb = kb();
+    post_tf(&kb, &simple_tf(&"é".repeat(2048), "")).unwrap();
+}
+
 #[test]
 fn listing_5_3_is_read_as_the_contract_says() {
     let kb = kb();

@@ -325,14 +325,11 @@ async fn post_specs(
             .await?;
         }
     }
-    Ok((
-        StatusCode::CREATED,
-        Json(PostedJson {
-            labels: report.labels,
-            replaced: report.replaced,
-        }),
-    )
-        .into_response())
+    // Sorted by label, as every list of the API (http-api.md), whatever the document's order.
+    let (mut labels, mut replaced) = (report.labels, report.replaced);
+    labels.sort();
+    replaced.sort();
+    Ok((StatusCode::CREATED, Json(PostedJson { labels, replaced })).into_response())
 }
 
 async fn list_specs(
@@ -432,7 +429,26 @@ async fn delete_spec(
     let kb = state.kb.clone();
     let label2 = label.clone();
     let groups = state.groups.clone();
+    let lifecycle = state.lifecycle.clone();
     in_turn(&state, move || {
+        // A protected CU is never destroyed (`DELETE /cus` is 409): its transformation's spec
+        // stays while it runs (removed, the CU would read as an instance of an unknown transformation, lose
+        // its bindings, and leave the environment invalid with nothing allowed to repair it).
+        if kind == SpecKind::Transformation {
+            let protected = lifecycle.protected_cus_of(&Tid::from(label2.as_str()));
+            if !protected.is_empty() {
+                let names: Vec<&str> = protected.iter().map(Cid::as_str).collect();
+                return Err(ApiError::new(
+                    StatusCode::CONFLICT,
+                    format!(
+                        "transformation {label2:?} has protected CU(s) running: {}; a protected \
+                         CU leaves only when it ends (or is reported crashed: POST \
+                         /perturbations), and its spec stays until then",
+                        names.join(", ")
+                    ),
+                ));
+            }
+        }
         // A group's target goes when its groups no longer need it, not before.
         if kind == SpecKind::Target
             && let Some(users) = groups.target_users().get(&label2)

@@ -67,6 +67,28 @@ impl KnowledgeBase {
                 }
             }
         }
+        // The terms of the DyKnow namespaces the built-in ontologies and the extensions
+        // declare (subjects of their statements), beside the service's own vocabulary.
+        for graph in self.store.named_graphs() {
+            let oxigraph::model::NamedOrBlankNode::NamedNode(g) = graph? else {
+                continue;
+            };
+            if !is_extension_graph(g.as_str())
+                && !BUILTIN_ONTOLOGIES.iter().any(|(iri, _)| *iri == g.as_str())
+            {
+                continue;
+            }
+            for quad in self
+                .store
+                .quads_for_pattern(None, None, None, Some(g.as_ref().into()))
+            {
+                if let oxigraph::model::NamedOrBlankNode::NamedNode(s) = quad?.subject
+                    && crate::spec::in_dyknow_namespaces(s.as_str())
+                {
+                    classes.vocabulary.insert(s);
+                }
+            }
+        }
         *self
             .classes
             .write()

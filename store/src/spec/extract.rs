@@ -21,14 +21,25 @@ pub const MAX_TAGS: usize = 64;
 /// The labour and upkeep estimate of a spec that gives none (contract `specs.md`).
 pub const DEFAULT_COST: f64 = 1.0;
 
-/// The classes whose instances are spec roots: the transformation and target classes of the
-/// ontology, including sub-classes declared by extensions.
+/// The most bytes of a spec's label: it names the spec in URLs (`GET /targets/{label}`),
+/// percent-encoded up to three times as long, and servers refuse URLs past 64 KiB.
+pub const MAX_LABEL_BYTES: usize = 4096;
+
+/// What a posted document is checked against: the classes whose instances are spec roots
+/// (the transformation and target classes of the ontology, including sub-classes declared by
+/// extensions), and the terms of the `dyknow:` and `dkros:` namespaces that exist.
 #[derive(Debug, Clone)]
 pub struct SpecClasses {
     /// Classes whose instances are transformations.
     pub transformation: HashSet<NamedNode>,
     /// Classes whose instances are targets.
     pub target: HashSet<NamedNode>,
+    /// The terms of the `dyknow:` and `dkros:` namespaces the service knows: its vocabulary,
+    /// what the built-in ontologies and the extensions declare. A posted document using
+    /// another one as a property or a class has misspelt it (`dyknow:hasInPorts`), and is
+    /// refused: kept, it would change nothing and say nothing (a transformation whose in
+    /// port is written so would be a source).
+    pub vocabulary: HashSet<NamedNode>,
 }
 
 impl Default for SpecClasses {
@@ -47,7 +58,129 @@ impl Default for SpecClasses {
                 .into_iter()
                 .map(NamedNodeRef::into_owned)
                 .collect(),
+            vocabulary: dyknow::ALL
+                .iter()
+                .chain(dkros::ALL)
+                .map(|t| t.into_owned())
+                .collect(),
         }
+    }
+}
+
+/// Whether `iri` is in the `dyknow:` or `dkros:` namespace.
+pub fn in_dyknow_namespaces(iri: &str) -> bool {
+    iri.starts_with(dyknow::NAMESPACE) || iri.starts_with(dkros::NAMESPACE)
+}
+
+/// Whether XML 1.0 can carry `text` (RDF/XML, OWL/XML and SPARQL's XML results): no control
+/// character but tab, line feed and carriage return, and neither U+FFFE nor U+FFFF.
+pub fn xml_safe(text: &str) -> bool {
+    text.chars().all(|c| {
+        matches!(c, '\t' | '\n' | '\r') || (c >= ' ' && c != '\u{FFFE}' && c != '\u{FFFF}')
+    })
+}
+
+/// The character XML cannot carry, as `U+0001`.
+fn first_xml_unsafe(text: &str) -> String {
+    text.chars()
+        .find(|c| !xml_safe(c.encode_utf8(&mut [0; 4])))
+        .map_or_else(String::new, |c| format!("U+{:04X}", u32::from(c)))
+}
+
+/// The term of the vocabulary closest to a misspelt one, if one is close (at most two edits
+/// in its local name, same namespace).
+fn closest_term<'a>(term: &str, vocabulary: &'a HashSet<NamedNode>) -> Option<&'a NamedNode> {
+    let (ns, local) = term.split_at(term.rfind(['#', '/'])? + 1);
+    vocabulary
+        .iter()
+        .filter_map(|v| {
+            let l = v.as_str().strip_prefix(ns)?;
+            let d = edit_distance(&local.to_lowercase(), &l.to_lowercase());
+            (d <= 2).then_some((d, v))
+        })
+        .min_by(|a, b| a.0.cmp(&b.0).then_with(|| a.1.as_str().cmp(b.1.as_str())))
+        .map(|(_, v)| v)
+}
+
+/// Levenshtein's distance between two short names, by characters.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let above = row[j + 1];
+            row[j + 1] = (above + 1)
+                .min(row[j] + 1)
+                .min(diagonal + usize::from(ca != *cb));
+            diagonal = above;
+        }
+    }
+    row[b.len()]
+}
+
+/// What a posted document is checked for as a whole (not a stored graph read back: what was
+/// accepted once reads back whatever the rules became): terms of the DyKnow namespaces that
+/// nothing declares, and literals no XML export could carry.
+fn check_document(triples: &[Triple], classes: &SpecClasses, violations: &mut Vec<Violation>) {
+    // Terms the document declares itself (an extension's new property).
+    let declared_here: HashSet<&NamedNode> = triples
+        .iter()
+        .filter(|t| t.predicate == rdf::TYPE)
+        .filter_map(|t| match &t.subject {
+            NamedOrBlankNode::NamedNode(n) => Some(n),
+            NamedOrBlankNode::BlankNode(_) => None,
+        })
+        .collect();
+    let mut undeclared: Vec<&NamedNode> = Vec::new();
+    let mut unsafe_subjects: Vec<String> = Vec::new();
+    for t in triples {
+        let class = match &t.object {
+            Term::NamedNode(c) if t.predicate == rdf::TYPE => Some(c),
+            _ => None,
+        };
+        for term in std::iter::once(&t.predicate).chain(class) {
+            if in_dyknow_namespaces(term.as_str())
+                && !classes.vocabulary.contains(term)
+                && !declared_here.contains(term)
+                && !undeclared.contains(&term)
+            {
+                undeclared.push(term);
+            }
+        }
+        if let Term::Literal(l) = &t.object
+            && !xml_safe(l.value())
+        {
+            let d = format!(
+                "{} (a value of <{}> holds {})",
+                describe(&t.subject, &HashMap::default()),
+                t.predicate.as_str(),
+                first_xml_unsafe(l.value())
+            );
+            if !unsafe_subjects.contains(&d) {
+                unsafe_subjects.push(d);
+            }
+        }
+    }
+    for term in undeclared.into_iter().take(10) {
+        let hint = closest_term(term.as_str(), &classes.vocabulary).map_or_else(String::new, |c| {
+            format!(" (did you mean <{}>?)", c.as_str())
+        });
+        violations.push(Violation::new(
+            format!(
+                "the dyknow: and dkros: terms are those the ontology and its extensions declare; \
+                 this one is declared nowhere{hint}"
+            ),
+            term.as_str(),
+        ));
+    }
+    for subject in unsafe_subjects.into_iter().take(10) {
+        violations.push(Violation::new(
+            "literals hold no control character but tab, line feed and carriage return: XML \
+             1.0 (RDF/XML, OWL/XML, SPARQL's XML results) cannot carry one",
+            subject,
+        ));
     }
 }
 
@@ -187,6 +320,9 @@ fn extract(
 ) -> Result<ExtractedDocument, SpecValidationError> {
     let index = Index::new(triples);
     let mut violations = Vec::new();
+    if reject_rest {
+        check_document(triples, classes, &mut violations);
+    }
 
     // Roots, in document order.
     let mut roots: Vec<(Node, SpecKind)> = Vec::new();
@@ -283,6 +419,17 @@ fn extract(
                     kind.name()
                 ),
                 describe(root, &HashMap::default()),
+            ));
+            continue;
+        }
+        if reject_rest && label.len() > MAX_LABEL_BYTES {
+            violations.push(Violation::new(
+                format!(
+                    "a {} spec's rdfs:label is at most {MAX_LABEL_BYTES} bytes: it names the \
+                     spec in URLs",
+                    kind.name()
+                ),
+                format!("{}…", label.chars().take(40).collect::<String>()),
             ));
             continue;
         }
