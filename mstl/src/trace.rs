@@ -90,44 +90,72 @@ struct Reader<R> {
     buf: Vec<u8>,
 }
 
+/// The most lines one state may span (a pretty-printed state, as the contract's own example
+/// wraps one over two lines).
+const MAX_LINES_PER_STATE: usize = 1024;
+
 impl<R: BufRead> Reader<R> {
-    /// The next non-blank line as JSON, with its number.
+    /// The next line read, as text; `None` at the end of the input.
+    fn read_line(&mut self) -> Result<Option<String>, CheckError> {
+        self.buf.clear();
+        if self.input.read_until(b'\n', &mut self.buf)? == 0 {
+            return Ok(None);
+        }
+        self.line += 1;
+        match std::str::from_utf8(&self.buf) {
+            Ok(text) => Ok(Some(text.to_owned())),
+            Err(e) => {
+                let valid = std::str::from_utf8(&self.buf[..e.valid_up_to()]).unwrap_or("");
+                Err(CheckError::Trace {
+                    line: self.line,
+                    column: Some(valid.chars().count() + 1),
+                    message: "not UTF-8".to_owned(),
+                })
+            }
+        }
+    }
+
+    /// The next JSON object with the number of the line it begins on. One object per line
+    /// (JSON lines); one that a line leaves unfinished continues on the next lines (the
+    /// contract's example wraps a state over two), up to [`MAX_LINES_PER_STATE`].
     fn next(&mut self) -> Result<Option<Line>, CheckError> {
+        let first = loop {
+            match self.read_line()? {
+                None => return Ok(None),
+                Some(text) if text.trim().is_empty() => continue,
+                Some(text) => break text,
+            }
+        };
+        let start = self.line;
+        let mut text = first.trim_end().to_owned();
+        let mut lines = 1;
         loop {
-            self.buf.clear();
-            if self.input.read_until(b'\n', &mut self.buf)? == 0 {
-                return Ok(None);
-            }
-            self.line += 1;
-            let line = self.line;
-            let text = match std::str::from_utf8(&self.buf) {
-                Ok(text) => text,
-                Err(e) => {
-                    let valid = std::str::from_utf8(&self.buf[..e.valid_up_to()]).unwrap_or("");
-                    return Err(CheckError::Trace {
-                        line,
-                        column: Some(valid.chars().count() + 1),
-                        message: "not UTF-8".to_owned(),
-                    });
-                }
+            let error = match serde_json::from_str::<Json>(&text) {
+                Ok(Json::Object(map)) => return Ok(Some((start, map))),
+                Ok(_) => return Err(trace_error(start, "expected a JSON object")),
+                Err(e) => e,
             };
-            if text.trim().is_empty() {
-                continue;
-            }
-            return match serde_json::from_str::<Json>(text.trim_end()) {
-                Ok(Json::Object(map)) => Ok(Some((line, map))),
-                Ok(_) => Err(trace_error(line, "expected a JSON object")),
-                Err(e) => {
-                    // serde_json's message ends with its own " at line 1 column N".
-                    let text = e.to_string();
-                    let text = text.rfind(" at line ").map_or(&*text, |i| &text[..i]);
-                    Err(CheckError::Trace {
-                        line,
-                        column: Some(e.column()),
-                        message: format!("not JSON: {text}"),
-                    })
+            if error.is_eof() && lines < MAX_LINES_PER_STATE {
+                if let Some(more) = self.read_line()? {
+                    text.push('\n');
+                    text.push_str(more.trim_end());
+                    lines += 1;
+                    continue;
                 }
+            }
+            // serde_json's message ends with its own " at line L column N".
+            let message = error.to_string();
+            let message = message.rfind(" at line ").map_or(&*message, |i| &message[..i]);
+            let message = if error.is_eof() && lines > 1 {
+                format!("not JSON: {message} (a state spans at most {MAX_LINES_PER_STATE} lines)")
+            } else {
+                format!("not JSON: {message}")
             };
+            return Err(CheckError::Trace {
+                line: start + error.line().saturating_sub(1),
+                column: Some(error.column()),
+                message,
+            });
         }
     }
 }
@@ -498,6 +526,45 @@ mod tests {
         ] {
             assert_eq!(exact_number(&n(text)), None, "{text}");
         }
+    }
+
+    /// The contract's own example wraps a state over two lines: read as one state. A state
+    /// left unfinished at the end is an error at the line where the input ran out.
+    #[test]
+    fn a_state_may_span_lines() {
+        use super::{CheckError, Header, check};
+        let run = |trace: &str, formula: &str| {
+            let f = crate::parse(formula).unwrap();
+            let mut out = Vec::new();
+            check(&[f], trace.as_bytes(), Header::default(), &mut out)
+                .map(|_| String::from_utf8(out).unwrap())
+        };
+        let contract = r#"{"domains": {"UAV": ["uav1", "uav2"]}, "landmarks": ["office"], "static": ["office", "canteen", "desk"]}
+{"t": 0,   "state": {"p": true, "altitude(uav1)": 52.5, "InsideCircle(ball)": true},
+           "spatial": [["student", "office", ["NTPP"]], ["canteen", "office", ["DC"]]]}
+{"t": 100, "state": {"p": false}}
+"#;
+        assert_eq!(
+            run(contract, "always p").unwrap(),
+            "{\"formula\": 0, \"verdict\": \"false\", \"t\": 100}\n"
+        );
+        assert_eq!(
+            run(contract, "NTPP(student, office) && altitude(uav1) > 50").unwrap(),
+            "{\"formula\": 0, \"verdict\": \"true\", \"t\": 0}\n"
+        );
+        // The error is where the JSON goes wrong, counted in lines of the whole input.
+        let error = |trace: &str| match run(trace, "always p") {
+            Err(CheckError::Trace { line, column, .. }) => (line, column),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            error("{\"t\": 0, \"state\": {\"p\": true}\n{\"t\": 1}\n"),
+            (2, Some(1))
+        );
+        assert_eq!(
+            error("{\"t\": 0, \"state\": {\"p\": true}}\n\n{\"t\": 5, \"state\":\n"),
+            (3, Some(17))
+        );
     }
 
     #[test]
