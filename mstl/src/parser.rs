@@ -495,7 +495,12 @@ impl Parser {
                 "next" | "X" => {
                     self.bump();
                     let k = self.power()?;
-                    Ok(Formula::Next(k, Box::new(self.unary()?)))
+                    let body = self.unary()?;
+                    Ok(if k == 0 {
+                        body
+                    } else {
+                        Formula::Next(k, Box::new(body))
+                    })
                 }
                 "forall" | "exists" => {
                     self.bump();
@@ -530,19 +535,20 @@ impl Parser {
         }
     }
 
-    /// `("^" INT)?` after `next`/`prev`: k ≥ 1, default 1.
+    /// `("^" INT)?` after `next`/`prev`: k ≥ 0, default 1. The seed writes τ for ○⁰τ: `next^0`
+    /// is no step at all.
     fn power(&mut self) -> Result<u32, ParseError> {
         if self.peek() != &Tok::Caret {
             return Ok(1);
         }
         self.bump();
         match self.peek().clone() {
-            Tok::Number(n) if n.fract() == 0.0 && (1.0..=1e6).contains(&n) => {
+            Tok::Number(n) if n.fract() == 0.0 && (0.0..=1e6).contains(&n) => {
                 self.bump();
                 Ok(n as u32)
             }
             t => Err(self.error(format!(
-                "expected a whole number from 1 to 1000000 after '^', found {}",
+                "expected a whole number from 0 to 1000000 after '^', found {}",
                 describe(&t)
             ))),
         }
@@ -671,7 +677,9 @@ impl Parser {
         };
         let converse = match word.as_str() {
             "TPP" => Rcc8::Tppi,
-            "NTPP" => Rcc8::Ntppi,
+            // `NTTP`: the seed's own spelling of NTPP (rcc8.md), whose converse it writes
+            // `NTTP⁻¹` (Ch. 3.3.1).
+            "NTPP" | "NTTP" => Rcc8::Ntppi,
             _ => return Rcc8::from_name(word).map(|r| (1, r)),
         };
         let column = |k: usize| self.toks.get(self.pos + k).map(|t| t.1);

@@ -149,6 +149,19 @@ fn intervals_units_regions_and_comparisons() {
     );
 }
 
+/// `next^0` is no step (the seed writes τ for ○⁰τ), for formulas and regions alike.
+#[test]
+fn a_zeroth_power_of_next_is_no_step() {
+    assert_eq!(parse("X^0 p").unwrap(), p("p"));
+    assert_eq!(parse("next^0 (p && q)").unwrap(), parse("p && q").unwrap());
+    assert_eq!(parse("always X^0 X^2 p").unwrap(), parse("always X^2 p").unwrap());
+    assert_eq!(
+        parse("EQ(next^0 r, prev^0 s)").unwrap(),
+        parse("EQ(r, s)").unwrap()
+    );
+    assert!(parse("X^-1 p").is_err());
+}
+
 /// rcc8.md's spellings `TPP^-1` and `NTPP^-1` name TPPI and NTPPI in formulas too, written
 /// as one word; `TPP` alone and `^` elsewhere keep their meaning.
 #[test]
@@ -179,6 +192,12 @@ fn converse_spellings_name_the_inverse_relations() {
         parse("always TPP^-1(a, b) && next^2 p").unwrap(),
         parse("always TPPI(a, b) && next^2 p").unwrap()
     );
+    // The seed's own spelling, `NTTP` and its converse `NTTP^-1` (Ch. 3.3.1).
+    assert_eq!(parse("NTTP(a, b)").unwrap(), spatial(Rcc8::Ntpp, "a", "b"));
+    assert_eq!(
+        parse("NTTP^-1(a, b)").unwrap(),
+        spatial(Rcc8::Ntppi, "a", "b")
+    );
     // Printed in the canonical spelling, which reads back the same.
     assert_eq!(parse("NTPP^-1(a, b)").unwrap().to_string(), "NTPPI(a, b)");
     for (text, column) in [
@@ -202,7 +221,7 @@ fn errors_name_the_column() {
         ("p # q", 3),
         ("5", 1),
         ("\"open", 1),
-        ("next^0 p", 6),
+        ("next^1.5 p", 6),
         ("(p", 3),
         ("p q", 3),
         // Beyond what a double holds exactly: it would compare as 9007199254740992.
