@@ -135,17 +135,20 @@ impl<R: BufRead> Reader<R> {
                 Ok(_) => return Err(trace_error(start, "expected a JSON object")),
                 Err(e) => e,
             };
-            if error.is_eof() && lines < MAX_LINES_PER_STATE {
-                if let Some(more) = self.read_line()? {
-                    text.push('\n');
-                    text.push_str(more.trim_end());
-                    lines += 1;
-                    continue;
-                }
+            if error.is_eof()
+                && lines < MAX_LINES_PER_STATE
+                && let Some(more) = self.read_line()?
+            {
+                text.push('\n');
+                text.push_str(more.trim_end());
+                lines += 1;
+                continue;
             }
             // serde_json's message ends with its own " at line L column N".
             let message = error.to_string();
-            let message = message.rfind(" at line ").map_or(&*message, |i| &message[..i]);
+            let message = message
+                .rfind(" at line ")
+                .map_or(&*message, |i| &message[..i]);
             let message = if error.is_eof() && lines > 1 {
                 format!("not JSON: {message} (a state spans at most {MAX_LINES_PER_STATE} lines)")
             } else {

@@ -154,7 +154,10 @@ fn intervals_units_regions_and_comparisons() {
 fn a_zeroth_power_of_next_is_no_step() {
     assert_eq!(parse("X^0 p").unwrap(), p("p"));
     assert_eq!(parse("next^0 (p && q)").unwrap(), parse("p && q").unwrap());
-    assert_eq!(parse("always X^0 X^2 p").unwrap(), parse("always X^2 p").unwrap());
+    assert_eq!(
+        parse("always X^0 X^2 p").unwrap(),
+        parse("always X^2 p").unwrap()
+    );
     assert_eq!(
         parse("EQ(next^0 r, prev^0 s)").unwrap(),
         parse("EQ(r, s)").unwrap()

@@ -91,7 +91,8 @@ impl Relation {
     }
 
     /// Reads a base relation's name: the canonical spellings, `TPPi`, `NTPPi`, `TPP^-1`,
-    /// `NTPP^-1`, and the seed's `NTTP` (`rcc8.md`).
+    /// `NTPP^-1`, and the seed's `NTTP` with its inverse in the same forms, `NTTP^-1`, `NTTPi`
+    /// and `NTTPI` (`rcc8.md`).
     pub fn from_name(name: &str) -> Option<Self> {
         Some(match name {
             "DC" => Self::DC,
@@ -101,7 +102,7 @@ impl Relation {
             "TPP" => Self::TPP,
             "NTPP" | "NTTP" => Self::NTPP,
             "TPPI" | "TPPi" | "TPP^-1" => Self::TPPI,
-            "NTPPI" | "NTPPi" | "NTPP^-1" => Self::NTPPI,
+            "NTPPI" | "NTPPi" | "NTPP^-1" | "NTTPI" | "NTTPi" | "NTTP^-1" => Self::NTPPI,
             _ => return None,
         })
     }
@@ -282,3 +283,31 @@ static COMPOSITION: std::sync::LazyLock<Box<[u8]>> = std::sync::LazyLock::new(||
     }
     t.into_boxed_slice()
 });
+
+#[cfg(test)]
+mod tests {
+    use super::Relation;
+
+    /// Every spelling `rcc8.md` accepts, the seed's `NTTP` and its inverse included.
+    #[test]
+    fn names_and_their_aliases() {
+        for (names, relation) in [
+            (&["NTPP", "NTTP"][..], Relation::NTPP),
+            (&["TPPI", "TPPi", "TPP^-1"], Relation::TPPI),
+            (
+                &["NTPPI", "NTPPi", "NTPP^-1", "NTTPI", "NTTPi", "NTTP^-1"],
+                Relation::NTPPI,
+            ),
+        ] {
+            for name in names {
+                assert_eq!(Relation::from_name(name), Some(relation), "{name}");
+            }
+        }
+        for name in Relation::NAMES {
+            assert!(Relation::from_name(name).is_some(), "{name}");
+        }
+        for bad in ["ntpp", "NTTP^-2", "NTP", "TTP^-1", ""] {
+            assert_eq!(Relation::from_name(bad), None, "{bad}");
+        }
+    }
+}

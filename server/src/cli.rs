@@ -47,8 +47,8 @@ pub enum Command {
         /// Where the data plane is.
         #[command(flatten)]
         client: ClientArgs,
-        /// Stop after this many samples.
-        #[arg(long, value_name = "N")]
+        /// Stop after this many samples (at least 1).
+        #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
         count: Option<u64>,
         /// Print only each sample's value.
         #[arg(long)]
@@ -123,11 +123,12 @@ pub enum Command {
     /// chooses, as change set JSON. Exits 1 if no valid configuration exists (the change set
     /// then satisfies as many targets as possible and lists the others).
     Explore {
-        /// The horizon H in time units (seed Def. 34).
+        /// The horizon H in time units (seed Def. 34): positive, at most 1e12.
         #[arg(long, value_name = "H", default_value_t = 10.0)]
         horizon: f64,
         /// Stop the search after this many milliseconds and print the best change set found
-        /// (the any-time extension; `"optimal": false` unless the search had finished).
+        /// (the any-time extension; `"optimal": false` unless the search had finished). 0, as
+        /// no flag: search until optimality is proven.
         #[arg(long, value_name = "T")]
         timeout_ms: Option<u64>,
         /// A model exported by `GET /model` (or `dyknow export`), to replan a live situation
@@ -195,10 +196,11 @@ pub struct ServeArgs {
     /// The address to listen on. A non-loopback address requires a token.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7878")]
     pub bind: SocketAddr,
-    /// Bearer token required by mutating requests.
+    /// Bearer token required by mutating requests (not empty: an empty one is refused).
     #[arg(long, value_name = "T", env = "DYKNOW_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
-    /// The review horizon H in time units (seed Def. 34), used by the reconfiguration engine.
+    /// The review horizon H in time units (seed Def. 34), used by the reconfiguration engine:
+    /// positive, at most 1e12, and H × --time-unit at most 1e12 seconds.
     #[arg(long, value_name = "H", default_value_t = 10.0)]
     pub horizon: f64,
     /// The length of one time unit in seconds; the stable interval lasts H time units.
@@ -356,17 +358,42 @@ pub struct ExecutorArgs {
     pub zenoh_config: Option<PathBuf>,
 }
 
-/// A failure of a subcommand: the one-line message and the exit status.
+/// A failure of a subcommand: the exit status and the one-line message. Status 0 with no
+/// message is [`Failure::CLOSED_OUTPUT`].
 struct Failure(u8, String);
 
-/// Writes `text` to standard output: a closed pipe (`dyknow rcc8 f | head -1`) is an error
-/// to report, exit 2, not a panic as `print!` makes it.
+impl Failure {
+    /// Standard output is a closed pipe (`dyknow rcc8 f | head -1`): the reader has what it
+    /// wanted, so the subcommand stops quietly, exit 0, as a tool killed by SIGPIPE would
+    /// (without SIGPIPE's status, and without touching the signal, which `serve` ignores).
+    const CLOSED_OUTPUT: Self = Self(0, String::new());
+
+    /// A failure to write standard output: [`Failure::CLOSED_OUTPUT`] for a closed pipe, else
+    /// exit 2.
+    fn output(e: &std::io::Error) -> Self {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            Self::CLOSED_OUTPUT
+        } else {
+            Self(2, format!("writing the output: {e}"))
+        }
+    }
+}
+
+/// Writes `text` to standard output: a closed pipe stops quietly ([`Failure::output`]), not
+/// with a panic as `print!` does.
 fn write_stdout(text: &str) -> Result<(), Failure> {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes())
         .and_then(|()| out.flush())
-        .map_err(|e| Failure(2, format!("writing the output: {e}")))
+        .map_err(|e| Failure::output(&e))
+}
+
+/// Writes a line to standard error, which may be a closed pipe too (`2>&1 | head`): then the
+/// line is lost, never a panic as `eprintln!` makes it.
+fn warn(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 impl<E: std::fmt::Display> From<E> for Failure {
@@ -440,9 +467,10 @@ pub fn main() -> ExitCode {
         } => rcc8(&file, exact, timeout),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        // Standard output was closed by its reader ([`Failure::CLOSED_OUTPUT`]).
+        Ok(()) | Err(Failure(0, _)) => ExitCode::SUCCESS,
         Err(Failure(code, message)) => {
-            eprintln!("dyknow: {message}");
+            warn(&format!("dyknow: {message}"));
             ExitCode::from(code)
         }
     }
@@ -456,6 +484,9 @@ fn init_logging() {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        // A closed standard error loses the log lines; the default reports that with
+        // `eprintln!`, which panics on the same closed stream.
+        .log_internal_errors(false)
         .try_init();
 }
 
@@ -580,9 +611,9 @@ fn reason_unsupported(ontology: &[PathBuf], files: &[PathBuf]) -> Result<(), Fai
     let tbox = dyknow_reasoner::TBox::from_triples(&schema)?;
     let mut out = std::io::stdout().lock();
     for axiom in tbox.unsupported_axioms() {
-        writeln!(out, "{axiom}")?;
+        writeln!(out, "{axiom}").map_err(|e| Failure::output(&e))?;
     }
-    out.flush()?;
+    out.flush().map_err(|e| Failure::output(&e))?;
     Ok(())
 }
 
@@ -610,7 +641,7 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     let tbox = dyknow_reasoner::TBox::from_triples(&schema)?;
     for axiom in tbox.unsupported_axioms() {
         if !builtin_unsupported.contains(axiom) {
-            eprintln!("dyknow: unsupported axiom (ignored): {axiom}");
+            warn(&format!("dyknow: unsupported axiom (ignored): {axiom}"));
         }
     }
     let mut reasoner = dyknow_reasoner::Reasoner::new(tbox);
@@ -619,9 +650,9 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
     if check {
         let violations = reasoner.violations();
         for v in &violations {
-            writeln!(out, "{v}")?;
+            writeln!(out, "{v}").map_err(|e| Failure::output(&e))?;
         }
-        out.flush()?;
+        out.flush().map_err(|e| Failure::output(&e))?;
         return if violations.is_empty() {
             Ok(())
         } else {
@@ -640,9 +671,9 @@ fn reason(ontology: &[PathBuf], files: &[PathBuf], check: bool) -> Result<(), Fa
         .collect();
     lines.sort();
     for line in lines {
-        writeln!(out, "{line}")?;
+        writeln!(out, "{line}").map_err(|e| Failure::output(&e))?;
     }
-    out.flush()?;
+    out.flush().map_err(|e| Failure::output(&e))?;
     Ok(())
 }
 
@@ -674,18 +705,43 @@ fn stable_blank_nodes(
         .collect()
 }
 
+/// The largest horizon `serve` and `explore` take, in time units; `serve` takes a stable
+/// interval (H × time unit) of at most this many seconds too. Costs are at most
+/// [`dyknow_engine::MAX_COST`] each, so a change set's total (labour plus H × upkeep) stays
+/// far below `f64::MAX` (with H = 6e307 it was infinite, written `null`).
+const MAX_HORIZON: f64 = 1e12;
+
+/// `--horizon` of `serve` and `explore`: positive (H = 0 would make the stable interval 0,
+/// reviews back to back, and the upkeep worthless) and at most [`MAX_HORIZON`].
+fn check_horizon(horizon: f64) -> Result<(), Failure> {
+    if horizon.is_finite() && horizon > MAX_HORIZON {
+        return Err(Failure(
+            2,
+            format!(
+                "--horizon {horizon:e} is too large: at most {MAX_HORIZON:e} time units (costs \
+                 multiplied by it must stay representable)"
+            ),
+        ));
+    }
+    if !(horizon.is_finite() && horizon > 0.0) {
+        return Err(Failure(
+            2,
+            format!(
+                "--horizon must be a positive number of time units, at most {MAX_HORIZON:e} \
+                 (the stable interval between scheduled reviews lasts H time units), not {horizon}"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// `dyknow explore`: everything but computation units goes into an in-memory knowledge base
 /// like `dyknow load` would put it; CUs (and their subscriptions, publications and cost
 /// models) become the environment; then one review.
 fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(), Failure> {
     use dyknow_engine::{Cause, ChangeSet, ChangeSetId, ExploreOptions, Ids};
     use dyknow_store::{EnvironmentPart, model};
-    if !(horizon.is_finite() && horizon >= 0.0) {
-        return Err(Failure(
-            2,
-            format!("--horizon {horizon}: not a non-negative number"),
-        ));
-    }
+    check_horizon(horizon)?;
     let kb = KnowledgeBase::in_memory()?;
     let mut environment = Vec::new();
     for path in files {
@@ -705,7 +761,8 @@ fn explore(horizon: f64, timeout_ms: Option<u64>, files: &[PathBuf]) -> Result<(
     let loaded = model::load(&kb)?;
     let options = ExploreOptions {
         horizon,
-        timeout: timeout_ms.map(Duration::from_millis),
+        // 0 is no limit, as `serve --explore-timeout-ms 0` is.
+        timeout: timeout_ms.filter(|ms| *ms > 0).map(Duration::from_millis),
         ..ExploreOptions::default()
     };
     let reviewed = dyknow_engine::review(
@@ -784,16 +841,22 @@ fn check(
             2,
             format!("--formula {formula} {:?}: {source}", formulas[formula]),
         )),
-        Err(e @ CheckError::Output(_)) => Err(Failure(2, e.to_string())),
+        Err(CheckError::Output(e)) => Err(Failure::output(&e)),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),
     }
 }
 
-/// A positive, finite number of seconds.
+/// A positive number of seconds, at most what a `Duration` holds (`u64::MAX` seconds).
 fn seconds(text: &str) -> Result<std::time::Duration, String> {
     let value: f64 = text
         .parse()
         .map_err(|_| format!("'{text}' is not a number of seconds"))?;
+    if value > 0.0 && std::time::Duration::try_from_secs_f64(value).is_err() {
+        return Err(format!(
+            "'{text}': too large; a time limit is at most {} seconds",
+            u64::MAX
+        ));
+    }
     std::time::Duration::try_from_secs_f64(value)
         .ok()
         .filter(|d| !d.is_zero())
@@ -828,8 +891,9 @@ fn rcc8(file: &Path, exact: bool, timeout: Option<std::time::Duration>) -> Resul
             format!("{name}: line {line}, column {column}: not UTF-8"),
         )
     })?;
-    let networks =
-        dyknow_rcc8::gqr::parse(&text).map_err(|e| Failure(2, format!("{name}: {e}")))?;
+    // A byte order mark (editors on Windows write one) is no part of the network.
+    let networks = dyknow_rcc8::gqr::parse(text.strip_prefix('\u{feff}').unwrap_or(&text))
+        .map_err(|e| Failure(2, format!("{name}: {e}")))?;
     let (mut inconsistent, mut unknown) = (0, 0);
     for mut network in networks {
         let mut out = String::new();
@@ -858,7 +922,9 @@ fn rcc8(file: &Path, exact: bool, timeout: Option<std::time::Duration>) -> Resul
         write_stdout(&out)?;
     }
     if unknown > 0 {
-        eprintln!("dyknow: {unknown} instance(s) undecided within the time limit");
+        warn(&format!(
+            "dyknow: {unknown} instance(s) undecided within the time limit"
+        ));
     }
     if inconsistent > 0 {
         return Err(Failure(
@@ -886,7 +952,13 @@ fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
     }
     let kb = open_store(data)?;
     for file in files {
-        write_stdout(&format!("{}\n", load_file(&kb, &file)?))?;
+        let line = load_file(&kb, &file)?;
+        // The lines only report: a reader that closed the pipe (`| head -1`) does not stop
+        // the load halfway.
+        match write_stdout(&format!("{line}\n")) {
+            Err(Failure(0, _)) | Ok(()) => {}
+            Err(e) => return Err(e),
+        }
     }
     kb.flush()?;
     Ok(())
@@ -919,13 +991,22 @@ fn export(data: &Path, format: &str, inferred: bool) -> Result<(), Failure> {
         kb.export(format, inferred)?.body
     };
     let mut out = std::io::stdout().lock();
-    out.write_all(&body)?;
-    out.flush()?;
-    Ok(())
+    out.write_all(&body)
+        .and_then(|()| out.flush())
+        .map_err(|e| Failure::output(&e))
 }
 
 fn serve(args: ServeArgs) -> Result<(), Failure> {
     init_logging();
+    // An empty token (`DYKNOW_TOKEN=$UNSET`) would lock every mutating request for good.
+    if args.token.as_deref().is_some_and(|t| t.trim().is_empty()) {
+        return Err(Failure(
+            2,
+            "the token (--token or DYKNOW_TOKEN) is empty, which no request could give: give a \
+             token, or unset DYKNOW_TOKEN to run without one (loopback --bind only)"
+                .into(),
+        ));
+    }
     if !args.bind.ip().is_loopback() && args.token.is_none() {
         return Err(Failure(
             2,
@@ -957,19 +1038,23 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "--review-spacing-ms must be at most 10 s (10000)".into(),
         ));
     }
-    // H = 0 would make the stable interval 0: reviews back to back, for nothing.
-    if !(args.horizon.is_finite() && args.horizon > 0.0) {
-        return Err(Failure(
-            2,
-            "--horizon must be a positive number (the stable interval between scheduled reviews \
-             lasts H time units)"
-                .into(),
-        ));
-    }
+    check_horizon(args.horizon)?;
     if !(args.time_unit.is_finite() && args.time_unit > 0.0 && args.time_unit < 1e9) {
         return Err(Failure(
             2,
             "--time-unit must be a positive number of seconds".into(),
+        ));
+    }
+    // The stable interval is a `Duration` and a time to come: past what they hold the
+    // service would panic.
+    if args.horizon * args.time_unit > MAX_HORIZON {
+        return Err(Failure(
+            2,
+            format!(
+                "--horizon {:e} × --time-unit {}: the stable interval between scheduled reviews \
+                 must be at most {MAX_HORIZON:e} seconds",
+                args.horizon, args.time_unit
+            ),
         ));
     }
     if !(args.reconcile_grace.is_finite() && (0.0..1e6).contains(&args.reconcile_grace)) {
@@ -1314,15 +1399,23 @@ fn links(session: &dyknow_cu::zenoh::Session) -> usize {
 }
 
 /// `dyknow cu`: a builtin as a process CU; its exit status is the CU protocol's (0 stopped,
-/// 1 crashed, 2 orphaned, 64 usage).
+/// 1 crashed, 2 orphaned, 64 usage: an unknown builtin, or run by hand outside an executor,
+/// without `DYKNOW_CU`, which an executor always sets).
 fn cu(builtin: &str) -> ExitCode {
     let Some(factory) = dyknow_executor::builtins::builtin(builtin) else {
-        eprintln!(
+        warn(&format!(
             "dyknow cu: no builtin {builtin:?} (one of: {})",
             dyknow_executor::builtins::names().join(", ")
-        );
+        ));
         return ExitCode::from(64);
     };
+    if std::env::var_os("DYKNOW_CU").is_none_or(|v| v.is_empty()) {
+        warn(
+            "dyknow cu: DYKNOW_CU is not set: `dyknow cu` runs a CU for a DyKnow executor, which \
+             starts it (dkros:hasSource, docs/executors.md); it is not run by hand",
+        );
+        return ExitCode::from(64);
+    }
     dyknow_cu::run_process(|spec| factory.build(spec, dyknow_executor::builtins::Host::Process))
 }
 
@@ -1372,7 +1465,10 @@ fn listen(
             Ok(s) if values => serde_json::to_string(&s.value).unwrap_or_default(),
             Ok(s) => serde_json::to_string(&s).unwrap_or_default(),
             Err(e) => {
-                eprintln!("not a sample ({e}): {}", String::from_utf8_lossy(&payload));
+                warn(&format!(
+                    "not a sample ({e}): {}",
+                    String::from_utf8_lossy(&payload)
+                ));
                 continue;
             }
         };
