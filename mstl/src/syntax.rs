@@ -201,7 +201,7 @@ impl Rcc8 {
             "TPP" => Self::Tpp,
             "NTPP" | "NTTP" => Self::Ntpp,
             "TPPI" | "TPPi" => Self::Tppi,
-            "NTPPI" | "NTPPi" => Self::Ntppi,
+            "NTPPI" | "NTPPi" | "NTTPI" | "NTTPi" => Self::Ntppi,
             _ => return None,
         })
     }

@@ -197,10 +197,13 @@ fn converse_spellings_name_the_inverse_relations() {
     );
     // The seed's own spelling, `NTTP` and its converse `NTTP^-1` (Ch. 3.3.1).
     assert_eq!(parse("NTTP(a, b)").unwrap(), spatial(Rcc8::Ntpp, "a", "b"));
-    assert_eq!(
-        parse("NTTP^-1(a, b)").unwrap(),
-        spatial(Rcc8::Ntppi, "a", "b")
-    );
+    for text in ["NTTP^-1(a, b)", "NTTPI(a, b)", "NTTPi(a, b)"] {
+        assert_eq!(
+            parse(text).unwrap(),
+            spatial(Rcc8::Ntppi, "a", "b"),
+            "{text}"
+        );
+    }
     // Printed in the canonical spelling, which reads back the same.
     assert_eq!(parse("NTPP^-1(a, b)").unwrap().to_string(), "NTPPI(a, b)");
     for (text, column) in [
