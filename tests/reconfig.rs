@@ -964,7 +964,8 @@ async fn a_spec_posted_again_with_another_implementation_replaces_its_cus() {
              @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
              [] a dkros:ROSTransformation ; rdfs:label \"src\" ;
                 dkros:hasType \"builtin\" ; dkros:hasSource \"dyknow/signal\" ;
-                dkros:hasParam [ dyknow:hasName \"zeta\" ; dyknow:hasValue 1 ] ,
+                dkros:hasParam [ dyknow:hasName \"zeta\" ;
+                                 dyknow:hasValue \"1.0\"^^<http://www.w3.org/2001/XMLSchema#double> ] ,
                                [ dyknow:hasName \"period_ms\" ; dyknow:hasValue {period} ] ,
                                [ dyknow:hasName \"alpha\" ; dyknow:hasValue 2 ] ;
                 dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"S\" ] ] ;
@@ -989,7 +990,8 @@ async fn a_spec_posted_again_with_another_implementation_replaces_its_cus() {
     settle(&api, before + 1).await;
     let first = cu_of(&api, "src").await;
     // The same implementation (the same spec, three parameters whose stored order is not the
-    // document's; other costs): the CU stays.
+    // document's, one typed whose stored form is not the document's, `1` for `"1.0"`; other
+    // costs): the CU stays.
     for (period, upkeep) in [(100, 1.0), (100, 1.0), (100, 1.0), (100, 2.0)] {
         api.post_turtle("/transformations", source(period, upkeep))
             .await

@@ -161,7 +161,45 @@ pub fn ground(index: usize, text: &str, domains: &Domains) -> Result<Grounded, S
             message: e.to_string(),
         },
     })?;
+    // Each symbol becomes a target labelled `symbol:<key>` whose tag is the key: a spec the
+    // store must take (at most 4,096 bytes of label, nothing XML cannot carry), or every
+    // group's targets would fail to be posted with it.
+    for symbol in &symbols {
+        let key = symbol.key();
+        let why = if key.len() > MAX_SYMBOL_BYTES {
+            Some(format!(
+                "the ground symbol {}… is {} bytes long; a symbol names a target, at most \
+                 {MAX_SYMBOL_BYTES} bytes",
+                key.chars().take(40).collect::<String>(),
+                key.len()
+            ))
+        } else if !key.chars().all(xml_char) {
+            Some(format!(
+                "the ground symbol {key:?} holds a control character or a non-character, \
+                 which no target's tag can carry"
+            ))
+        } else {
+            None
+        };
+        if let Some(message) = why {
+            return Err(SpecError::Grounding {
+                index,
+                column: 1,
+                message,
+            });
+        }
+    }
     Ok(Grounded { formula, symbols })
+}
+
+/// The most bytes of a ground symbol: its target's label, `symbol:<key>`, is at most the
+/// store's 4,096.
+pub const MAX_SYMBOL_BYTES: usize = 4096 - "symbol:".len();
+
+/// Whether a tag or label may hold `c`: no control character and neither U+FFFE nor U+FFFF
+/// (XML 1.0, in which the model is exported, cannot carry them; the store refuses them).
+fn xml_char(c: char) -> bool {
+    !c.is_control() && c != '\u{FFFE}' && c != '\u{FFFF}'
 }
 
 /// The 1-based column (in characters) of domain `d` after `in` in `text`.
@@ -190,11 +228,12 @@ fn word_columns<'a>(text: &'a str, name: &'a str) -> impl Iterator<Item = usize>
 }
 
 /// Checks a label, channel or region name: 1 to 200 characters, none of them a control
-/// character.
+/// character or U+FFFE, U+FFFF.
 pub fn check_name(what: &str, name: &str) -> Result<(), SpecError> {
-    if name.is_empty() || name.chars().count() > 200 || name.chars().any(char::is_control) {
+    if name.is_empty() || name.chars().count() > 200 || !name.chars().all(xml_char) {
         return Err(SpecError::Invalid(format!(
-            "{what} must be 1 to 200 characters without control characters: {name:?}"
+            "{what} must be 1 to 200 characters without control characters (nor U+FFFE, \
+             U+FFFF): {name:?}"
         )));
     }
     Ok(())

@@ -509,11 +509,13 @@ impl Manager {
         Ok(())
     }
 
-    /// The transformations with unprotected CUs running now (as last published): those a new
-    /// spec has CUs to replace for when its implementation changes
-    /// ([`Manager::implementation_changed`]). No read of the store.
+    /// The transformations with unprotected CUs running now (as last published) or being
+    /// spawned (recorded, their change set not yet written): those a new spec has CUs to
+    /// replace for when its implementation changes ([`Manager::stale_after_post`]). No read
+    /// of the store.
     pub fn transformations_with_cus(&self) -> BTreeSet<Tid> {
-        self.specs
+        let mut tids: BTreeSet<Tid> = self
+            .specs
             .last_published()
             .map(|last| {
                 last.cus
@@ -522,7 +524,14 @@ impl Manager {
                     .map(|cu| cu.tid.clone())
                     .collect()
             })
-            .unwrap_or_default()
+            .unwrap_or_default();
+        // Those of CUs spawned whose change set is being recorded.
+        tids.extend(
+            lock(&self.spawned_with)
+                .values()
+                .map(|(tid, _)| tid.clone()),
+        );
+        tids
     }
 
     /// The protected CUs of `transformation` running now (as last published): a client
@@ -557,14 +566,24 @@ impl Manager {
             return Vec::new();
         }
         let posted: BTreeMap<&Tid, &Implementation> = posted.iter().map(|(t, i)| (t, i)).collect();
+        let last = self.specs.last_published();
         let spawned = lock(&self.spawned_with);
         let mut stale: BTreeSet<Cid> = spawned
             .iter()
-            .filter(|(_, (tid, was))| posted.get(tid).is_some_and(|now| *now != was))
+            .filter(|(cid, (tid, was))| {
+                // Not yet published (its change set is being recorded), or published as the
+                // unprotected CU of that transformation it was spawned as.
+                let as_spawned = last.as_ref().is_none_or(|last| {
+                    last.cus
+                        .get(*cid)
+                        .is_none_or(|cu| !cu.protected && cu.tid == *tid)
+                });
+                as_spawned && posted.get(tid).is_some_and(|now| *now != was)
+            })
             .map(|(cid, _)| cid.clone())
             .collect();
         if !changed.is_empty()
-            && let Some(last) = self.specs.last_published()
+            && let Some(last) = last
         {
             stale.extend(
                 last.cus
@@ -594,13 +613,16 @@ impl Manager {
 
     /// [`Manager::replace_stale`] under the configuration lock.
     fn replace_stale_locked(&self, stale: &[Cid]) -> Result<(), LifecycleError> {
+        // Replaced already (a spec write and a change set may both find them).
+        if self.remove_all_crashed_locked(stale)? == 0 {
+            return Ok(());
+        }
         let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
         tracing::info!(
             "{} run an implementation (type, source, parameters or executor) their \
              transformation's new spec no longer has: replaced",
             names.join(", ")
         );
-        self.remove_all_crashed_locked(stale)?;
         self.executor.abandon(stale);
         lock(&self.schedule).urgent();
         self.wake.notify_one();
@@ -668,6 +690,12 @@ impl Manager {
 
     /// [`Manager::remove_all_crashed`] under the configuration lock.
     fn remove_all_crashed_locked(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
+        {
+            let mut recorded = lock(&self.spawned_with);
+            for cid in cids {
+                recorded.remove(cid);
+            }
+        }
         let loaded = self.load()?;
         let mut after = loaded.env.clone();
         let removed: Vec<(Cid, Tid)> = cids
@@ -1059,34 +1087,36 @@ impl Manager {
         // recorded before the spec generation is read again below, so that a spec written
         // meanwhile is either seen moving here or finds them recorded
         // ([`Manager::stale_after_post`]).
-        let spawned: Vec<(Cid, Tid)> = change_set
+        let started: Vec<(&Cid, &Tid)> = change_set
             .actions
             .iter()
             .enumerate()
             .filter_map(|(i, action)| match action {
                 Action::Spawn { cu, transformation }
-                    if !applied.failures.iter().any(|f| f.action == i)
-                        && after.cus.get(cu).is_some_and(|c| !c.protected) =>
+                    if !applied.failures.iter().any(|f| f.action == i) =>
                 {
-                    Some((cu.clone(), transformation.clone()))
+                    Some((cu, transformation))
                 }
                 _ => None,
             })
             .collect();
+        let mut spawned: Vec<(Cid, Tid)> = Vec::new();
         {
             let mut recorded = lock(&self.spawned_with);
             recorded.retain(|cid, _| after.cus.contains_key(cid));
-            for (cid, tid) in &spawned {
-                if let Some(spec) = loaded.specs.get(tid) {
-                    recorded.insert(cid.clone(), (tid.clone(), spec.implementation()));
+            for (cid, tid) in started {
+                // A protected CU is never replaced: no record (nor an older one of its name).
+                match (after.cus.get(cid), loaded.specs.get(tid)) {
+                    (Some(cu), Some(spec)) if !cu.protected => {
+                        recorded.insert(cid.clone(), (tid.clone(), spec.implementation()));
+                        spawned.push((cid.clone(), tid.clone()));
+                    }
+                    _ => {
+                        recorded.remove(cid);
+                    }
                 }
             }
         }
-        let respec = if spawned.is_empty() || self.kb.spec_generation() == loaded.spec_generation {
-            None
-        } else {
-            Some(self.respecified(loaded, &spawned)?)
-        };
         let mut crashed: Vec<Cid> = Vec::new();
         let written = if applied.failures.is_empty() {
             change_set.status = ChangeSetStatus::Applied;
@@ -1182,7 +1212,23 @@ impl Manager {
         }
         // A spec written while this change set was planned and applied: what it spawned from
         // the spec read before is brought in step (ports renamed) or, run from another
-        // implementation, replaced. Best effort: the change set is recorded already.
+        // implementation, replaced. Read after the write above published the CUs, so that a
+        // spec write this does not see finds them published (its own `resync`), and after
+        // they were recorded (`stale_after_post`). Best effort: the change set is recorded.
+        let respec = if spawned.is_empty() || self.kb.spec_generation() == loaded.spec_generation {
+            None
+        } else {
+            match self.respecified(loaded, &spawned) {
+                Ok(respec) => Some(respec),
+                Err(e) => {
+                    tracing::warn!(
+                        "{}: specs written meanwhile not compared with what it spawned: {e}",
+                        change_set.id
+                    );
+                    None
+                }
+            }
+        };
         if let Some((stale, tids)) = respec {
             if let Err(e) = self.resync_locked(Some(&tids)) {
                 tracing::warn!(
@@ -1210,7 +1256,22 @@ impl Manager {
         loaded: &Loaded,
         spawned: &[(Cid, Tid)],
     ) -> Result<(Vec<Cid>, Vec<Tid>), LifecycleError> {
-        let tids: BTreeSet<Tid> = spawned.iter().map(|(_, tid)| tid.clone()).collect();
+        // The transformations spawned whose spec graphs were written since (all of them when
+        // the log no longer reaches back that far).
+        let (_, written) = self.kb.spec_changes_since(loaded.spec_generation);
+        let tids: BTreeSet<Tid> = spawned
+            .iter()
+            .map(|(_, tid)| tid)
+            .filter(|tid| {
+                written.as_ref().is_none_or(|graphs| {
+                    graphs.contains(&dyknow_store::graphs::spec_graph(
+                        SpecKind::Transformation,
+                        tid.as_str(),
+                    ))
+                })
+            })
+            .cloned()
+            .collect();
         let mut changed = BTreeSet::new();
         for tid in &tids {
             let now = match self

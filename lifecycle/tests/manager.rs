@@ -1105,3 +1105,44 @@ fn the_cu_graphs_a_review_writes_read_back_as_written() {
     let stale = dyknow_store::model::resync(&kb, &loaded.env, &loaded.iris, None).unwrap();
     assert!(stale.is_empty(), "{stale:?}");
 }
+
+#[test]
+fn a_protected_cu_is_never_stale_whatever_its_name_ran_before() {
+    // A CU spawned, crashed, and its name spawned again, protected, of another transformation:
+    // a spec posted for the first one's transformation names nothing (the record of the first
+    // stayed and removed the protected CU: a code review).
+    let kb = example_12();
+    let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    let foo = manager
+        .spawn(SpawnRequest::new("tid4").named("foo"))
+        .unwrap()
+        .cid;
+    manager
+        .report(Perturbation::CuCrashed { cu: foo.clone() })
+        .unwrap();
+    manager
+        .spawn(SpawnRequest::new("tid3").named("foo").protected(true))
+        .unwrap();
+    post_tid4_with_a_parameter(&kb);
+    let other = match kb.spec(SpecKind::Transformation, "tid4").unwrap() {
+        Some(Spec::Transformation(t)) => t.implementation(),
+        other => panic!("{other:?}"),
+    };
+    let none = BTreeSet::new();
+    assert!(
+        manager
+            .stale_after_post(&[("tid4".into(), other.clone())], &none)
+            .is_empty()
+    );
+    // Nor is a protected CU of the transformation itself.
+    let kept = manager
+        .spawn(SpawnRequest::new("tid4").named("kept").protected(true))
+        .unwrap()
+        .cid;
+    let changed: BTreeSet<dyknow_engine::Tid> = ["tid4".into()].into();
+    assert!(
+        !manager
+            .stale_after_post(&[("tid4".into(), other)], &changed)
+            .contains(&kept)
+    );
+}

@@ -81,7 +81,7 @@ const P: &str = "PREFIX dyknow: <http://www.dyknow.eu/ontology/dyknow#> \
 fn spec(i: usize) -> String {
     format!(
         "[] a dyknow:Transformation ; rdfs:label \"tf-{i:05}\" ;\n\
-         dyknow:hasParameter [ dyknow:hasName \"p\" ; dyknow:hasValue \"1\" ] ;\n\
+         <http://www.dyknow.eu/ontology/dyknow-ros#hasParam> [ dyknow:hasName \"p\" ; dyknow:hasValue \"1\" ] ;\n\
          dyknow:hasInPort [ dyknow:hasName \"in\" ; dyknow:hasTag [ dyknow:hasValue \"In{}\" ] ] ;\n\
          dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"Out{i}\" ] ] .\n",
         i % 50

@@ -32,6 +32,24 @@ pub struct Header {
     pub landmarks: BTreeSet<String>,
     /// Static regions (relations among them, once observed, hold in every later state).
     pub static_regions: BTreeSet<String>,
+    /// The formulas a formula group progressed over the trace, with the states each was
+    /// progressed over (`GET /groups/{label}/trace`): what [`check`] replays when it is given
+    /// no formula.
+    pub formulas: Vec<HeaderFormula>,
+}
+
+/// A formula a trace's header lists: a group's formula, added and perhaps removed while the
+/// group ran.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HeaderFormula {
+    /// Its index in the group (the verdicts' `formula`).
+    pub index: usize,
+    /// Its text.
+    pub formula: String,
+    /// The first state it was progressed over (states are numbered from 0).
+    pub from_state: u64,
+    /// The first state it was no longer progressed over (it was removed), if any.
+    pub until_state: Option<u64>,
 }
 
 impl Header {
@@ -48,6 +66,7 @@ impl Header {
         }
         self.landmarks.extend(other.landmarks);
         self.static_regions.extend(other.static_regions);
+        self.formulas.extend(other.formulas);
     }
 }
 
@@ -203,15 +222,76 @@ fn header(line: usize, map: &serde_json::Map<String, Json>) -> Result<Header, Ch
             }
             "landmarks" => h.landmarks.extend(strings(line, "landmarks", v)?),
             "static" => h.static_regions.extend(strings(line, "static", v)?),
+            "formulas" => h.formulas = header_formulas(line, v)?,
             other => {
                 return Err(trace_error(
                     line,
-                    format!("unknown header key '{other}' (expected domains, landmarks, static)"),
+                    format!(
+                        "unknown header key '{other}' (expected domains, landmarks, static, \
+                         formulas)"
+                    ),
                 ));
             }
         }
     }
     Ok(h)
+}
+
+/// The header's `formulas`: `[{"index", "formula", "from_state"?, "until_state"?}]`.
+fn header_formulas(line: usize, v: &Json) -> Result<Vec<HeaderFormula>, CheckError> {
+    const SHAPE: &str = "formulas must be an array of {\"index\", \"formula\", \"from_state\"?, \
+                         \"until_state\"?} (whole numbers and a string)";
+    let Json::Array(items) = v else {
+        return Err(trace_error(line, SHAPE));
+    };
+    let mut out: Vec<HeaderFormula> = Vec::new();
+    for item in items {
+        let Json::Object(o) = item else {
+            return Err(trace_error(line, SHAPE));
+        };
+        let number = |key: &str| match o.get(key) {
+            None | Some(Json::Null) => Ok(None),
+            Some(n) => n.as_u64().map(Some).ok_or_else(|| trace_error(line, SHAPE)),
+        };
+        let (Some(index), Some(Json::String(formula))) = (number("index")?, o.get("formula"))
+        else {
+            return Err(trace_error(line, SHAPE));
+        };
+        if let Some(key) = o
+            .keys()
+            .find(|k| !["index", "formula", "from_state", "until_state"].contains(&k.as_str()))
+        {
+            return Err(trace_error(line, format!("{SHAPE}; unknown key '{key}'")));
+        }
+        let index = usize::try_from(index).map_err(|_| trace_error(line, SHAPE))?;
+        let from_state = number("from_state")?.unwrap_or(0);
+        let until_state = number("until_state")?;
+        if until_state.is_some_and(|u| u < from_state) {
+            return Err(trace_error(
+                line,
+                format!("formula {index}: until_state comes before from_state"),
+            ));
+        }
+        if out.iter().any(|f| f.index == index) {
+            return Err(trace_error(line, format!("formula index {index} twice")));
+        }
+        out.push(HeaderFormula {
+            index,
+            formula: formula.clone(),
+            from_state,
+            until_state,
+        });
+    }
+    Ok(out)
+}
+
+/// A formula [`check`] progresses: its index in the output and the states it is progressed
+/// over.
+struct Planned {
+    id: usize,
+    formula: Formula,
+    from: u64,
+    until: Option<u64>,
 }
 
 /// A state line as a [`State`]: its timestamp, values and spatial constraints. Keys are read
@@ -337,6 +417,10 @@ fn is_header(map: &serde_json::Map<String, Json>) -> bool {
 /// `unknown` line at the end for each formula still undecided. `extra` adds to the trace's
 /// header (the command line's `--domain`, `--landmarks`, `--static`). Stops reading once every
 /// formula is decided. Returns the verdicts in the order written.
+///
+/// Given no formula, it replays those the header lists (a formula group's trace), each over
+/// the states the group progressed it over and with the group's index, so the verdicts are
+/// the group's (`groups.md`); a trace whose header lists none is an error.
 pub fn check<R: BufRead, W: Write>(
     formulas: &[Formula],
     input: R,
@@ -350,47 +434,135 @@ pub fn check<R: BufRead, W: Write>(
     };
     let mut first = reader.next()?;
     let mut h = Header::default();
+    let mut header_line = 1;
     if let Some((line, map)) = &first
         && is_header(map)
     {
         h = header(*line, map)?;
+        header_line = *line;
         first = reader.next()?;
     }
     h.extend(extra);
+    let mut planned: Vec<Planned> = if formulas.is_empty() {
+        if h.formulas.is_empty() {
+            return Err(trace_error(
+                header_line,
+                "no formula to check: give some, or a trace whose header lists formulas (a \
+                 formula group's trace)",
+            ));
+        }
+        h.formulas
+            .iter()
+            .map(|f| {
+                crate::parse(&f.formula)
+                    .map(|formula| Planned {
+                        id: f.index,
+                        formula,
+                        from: f.from_state,
+                        until: f.until_state,
+                    })
+                    .map_err(|e| {
+                        trace_error(
+                            header_line,
+                            format!("formula {} of the header, {:?}: {e}", f.index, f.formula),
+                        )
+                    })
+            })
+            .collect::<Result<_, _>>()?
+    } else {
+        formulas
+            .iter()
+            .enumerate()
+            .map(|(id, f)| Planned {
+                id,
+                formula: f.clone(),
+                from: 0,
+                until: None,
+            })
+            .collect()
+    };
+    // Added in the order the group added them (its indices grow with time).
+    planned.sort_by_key(|p| (p.from, p.id));
     let mut monitor = Monitor::with_domains(h.domains.clone());
-    for (i, f) in formulas.iter().enumerate() {
-        monitor
-            .add(f)
-            .map_err(|source| CheckError::Compile { formula: i, source })?;
-    }
+    // The output index of each formula the monitor has, by its own index.
+    let mut ids: Vec<usize> = Vec::new();
+    let mut added = 0;
+    let mut add_due = |monitor: &mut Monitor, ids: &mut Vec<usize>, k: u64| {
+        while let Some(p) = planned.get(added).filter(|p| p.from <= k) {
+            monitor
+                .add(&p.formula)
+                .map_err(|source| CheckError::Compile {
+                    formula: p.id,
+                    source,
+                })?;
+            ids.push(p.id);
+            added += 1;
+        }
+        Ok::<_, CheckError>(())
+    };
+    add_due(&mut monitor, &mut ids, 0)?;
+    let removals: Vec<(u64, usize)> = planned
+        .iter()
+        .filter_map(|p| p.until.map(|u| (u, p.id)))
+        .collect();
+    let total = planned.len();
     let mut stream = StateStream::new(&h.landmarks, &h.static_regions, monitor.history());
     // The lines of the states the stream keeps, by state number: a landmark conflict names
     // the earlier state's line.
     let mut lines = Lines::default();
     let mut all = Vec::new();
-    let mut pending = formulas.len();
+    // Formulas decided or removed.
+    let mut done: BTreeSet<usize> = BTreeSet::new();
     let mut next = first;
+    let mut k: u64 = 0;
     while let Some((line, map)) = next {
+        add_due(&mut monitor, &mut ids, k)?;
+        for (_, id) in removals.iter().filter(|(u, _)| *u == k) {
+            if let Some(m) = ids.iter().position(|i| i == id)
+                && done.insert(*id)
+            {
+                monitor.remove(m);
+            }
+        }
         let s = state(line, map)?;
         lines.push(stream.states(), line, stream.keep());
         let verdicts = stream
             .step(&mut monitor, s)
             .map_err(|e| lines.error(line, e))?;
         for v in verdicts {
-            write_verdict(out, v).map_err(CheckError::Output)?;
-            all.push(*v);
+            let v = Verdict {
+                formula: ids[v.formula],
+                ..*v
+            };
+            write_verdict(out, &v).map_err(CheckError::Output)?;
+            done.insert(v.formula);
+            all.push(v);
         }
         if !verdicts.is_empty() {
-            pending -= verdicts.len();
             out.flush().map_err(CheckError::Output)?;
         }
-        if pending == 0 {
+        if done.len() == total {
             // Every formula is decided: read no further (a live stream may never end).
             break;
         }
+        k += 1;
         next = reader.next()?;
     }
+    // Formulas added after the last state (and not removed) are undecided too.
+    add_due(&mut monitor, &mut ids, u64::MAX)?;
+    for (u, id) in &removals {
+        if *u <= k
+            && let Some(m) = ids.iter().position(|i| i == id)
+            && done.insert(*id)
+        {
+            monitor.remove(m);
+        }
+    }
     for v in monitor.finish() {
+        let v = Verdict {
+            formula: ids[v.formula],
+            ..v
+        };
         write_verdict(out, &v).map_err(CheckError::Output)?;
         all.push(v);
     }
@@ -568,6 +740,57 @@ mod tests {
             error("{\"t\": 0, \"state\": {\"p\": true}}\n\n{\"t\": 5, \"state\":\n"),
             (3, Some(17))
         );
+    }
+
+    /// Given no formula, the header's formulas are replayed, each over the states it lists,
+    /// with its own index: a group's formula added or removed while it ran decides as it did.
+    #[test]
+    fn the_formulas_of_the_header_are_replayed_over_their_states() {
+        use super::{CheckError, Header, check};
+        let run = |trace: &str| {
+            let mut out = Vec::new();
+            check(&[], trace.as_bytes(), Header::default(), &mut out)
+                .map(|_| String::from_utf8(out).unwrap())
+        };
+        let states = "{\"t\":0,\"state\":{\"p\":true,\"q\":true}}
+{\"t\":10,\"state\":{\"p\":true,\"q\":false}}
+{\"t\":20,\"state\":{\"p\":true,\"q\":false}}
+{\"t\":30,\"state\":{\"p\":false,\"q\":true}}
+";
+        let header = r#"{"formulas": [{"index": 0, "formula": "always p"},
+            {"index": 4, "formula": "p && !q", "from_state": 2},
+            {"index": 5, "formula": "eventually q", "from_state": 1, "until_state": 3},
+            {"index": 6, "formula": "q", "from_state": 4}]}"#
+            .replace('\n', " ");
+        assert_eq!(
+            run(&format!("{header}\n{states}")).unwrap(),
+            // 4 from the third state on: true at once (from the first: false). 5 was removed
+            // before it could see q (from the first state it is true at once): no verdict. 6
+            // was added after the last state: unknown at the end.
+            "{\"formula\": 4, \"verdict\": \"true\", \"t\": 20}\n\
+             {\"formula\": 0, \"verdict\": \"false\", \"t\": 30}\n\
+             {\"formula\": 6, \"verdict\": \"unknown\", \"t\": 30}\n"
+        );
+        // No formula anywhere, or a header that is not of that shape: errors.
+        assert!(matches!(
+            run(states),
+            Err(CheckError::Trace { line: 1, .. })
+        ));
+        for bad in [
+            r#"{"formulas": [{"index": 0}]}"#,
+            r#"{"formulas": [{"index": 0, "formula": "p", "from_state": 3, "until_state": 1}]}"#,
+            r#"{"formulas": [{"index": 0, "formula": "p"}, {"index": 0, "formula": "q"}]}"#,
+            r#"{"formulas": [{"index": 0, "formula": "p", "since": 1}]}"#,
+            r#"{"formulas": [{"index": 0, "formula": "p &&"}]}"#,
+        ] {
+            assert!(
+                matches!(
+                    run(&format!("{bad}\n{states}")),
+                    Err(CheckError::Trace { line: 1, .. })
+                ),
+                "{bad}"
+            );
+        }
     }
 
     #[test]

@@ -143,8 +143,10 @@ pub enum Command {
     /// verdict line per formula as soon as it is decided, then `unknown` for those the trace
     /// leaves undecided.
     Check {
-        /// A formula (repeat for several; verdicts name them by position, from 0).
-        #[arg(long = "formula", value_name = "F", required = true)]
+        /// A formula (repeat for several; verdicts name them by position, from 0). Without
+        /// one, the formulas the trace's header lists are replayed (a formula group's trace,
+        /// `dyknow group trace`), each over the states the group progressed it over.
+        #[arg(long = "formula", value_name = "F")]
         formulas: Vec<String>,
         /// The trace file; `-` reads standard input (verdicts are printed as states arrive).
         #[arg(long, value_name = "FILE")]
@@ -839,7 +841,10 @@ fn check(
         Ok(_) => Ok(()),
         Err(CheckError::Compile { formula, source }) => Err(Failure(
             2,
-            format!("--formula {formula} {:?}: {source}", formulas[formula]),
+            match formulas.get(formula) {
+                Some(text) => format!("--formula {formula} {text:?}: {source}"),
+                None => format!("{name}: formula {formula} of the header: {source}"),
+            },
         )),
         Err(CheckError::Output(e)) => Err(Failure::output(&e)),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),

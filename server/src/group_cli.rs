@@ -10,7 +10,7 @@ use serde_json::{Map, Value, json};
 pub struct HttpArgs {
     /// The service's URL, http://HOST:PORT or https://HOST:PORT (an empty DYKNOW_URL counts
     /// as unset). A request that takes longer than DYKNOW_CLIENT_TIMEOUT_S seconds (default
-    /// 60; connecting: at most 10) fails; `watch` waits as long as it takes.
+    /// 60; connecting: at most 10) fails; `watch` and `trace` take as long as they take.
     #[arg(
         long,
         value_name = "URL",
@@ -669,8 +669,9 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
         }
         GroupCommand::Trace { label } => {
             let path = format!("/groups/{}/trace", enc(&label));
-            let mut r = client
-                .agent
+            // A trace may be long: no limit on the whole request (connecting is still bounded),
+            // as `watch` has none.
+            let mut r = agent(None)
                 .get(client.url(&path))
                 .call()
                 .map_err(|e| client.unreachable(&e))?;

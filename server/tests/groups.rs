@@ -554,13 +554,18 @@ fn uav_battery_and_spatial_groups() {
         let (status, stopped) = send(&service, "POST", &format!("/groups/{label}/stop"), None);
         assert_eq!(status, 200);
         if label == "uav" {
-            // Formula 2 was added after the first state, so `dyknow check` (which starts every
-            // formula at the first state) is compared on formula 0 only.
+            // Formula 2 was added after the first state (and 1 added and removed): given
+            // formulas, `dyknow check` starts each at the first state, so it is compared on
+            // formula 0 only; given none, it replays those the trace's header lists, each over
+            // the states the group progressed it over, and gives every verdict the group gave.
             let live: BTreeSet<_> = verdicts(&stopped)
                 .into_iter()
                 .filter(|v| v.0 == 0)
                 .collect();
             assert_eq!(check(formulas, &trace(&service, label)), live);
+            let all = verdicts(&stopped);
+            assert!(all.iter().any(|v| v.0 == 2), "{all:?}");
+            assert_eq!(check(&[], &trace(&service, label)), all);
         } else {
             assert_eq!(
                 check(formulas, &trace(&service, label)),
@@ -615,6 +620,18 @@ fn bad_groups_are_refused_and_nothing_is_created() {
         ),
         (json!({"formulas": ["p"], "label": "a/b"}), 422, None),
         (json!({"formulas": ["p"], "colour": "red"}), 422, None),
+        // What no target could be posted with (a tag XML cannot carry, a symbol past a
+        // label's length): refused here; accepted, it failed every group's target post.
+        (
+            json!({"formulas": ["p"], "grounding": {"p": {"tag": "Q\u{ffff}"}}}),
+            422,
+            None,
+        ),
+        (
+            json!({"formulas": [format!("always p({})", vec!["a0000"; 800].join(","))]}),
+            422,
+            Some((0, 1)),
+        ),
     ];
     for (body, status, at) in cases {
         let (got, answer) = send(&service, "POST", "/groups", Some(body.clone()));

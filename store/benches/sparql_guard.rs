@@ -27,7 +27,7 @@ fn specs(n: usize) -> String {
     for i in 0..n {
         doc.push_str(&format!(
             "[] a dyknow:Transformation ; rdfs:label \"tf-{i:05}\" ;\n\
-             dyknow:hasParameter [ dyknow:hasName \"p\" ; dyknow:hasValue \"1\" ] ;\n\
+             <http://www.dyknow.eu/ontology/dyknow-ros#hasParam> [ dyknow:hasName \"p\" ; dyknow:hasValue \"1\" ] ;\n\
              dyknow:hasInPort [ dyknow:hasName \"in\" ; dyknow:hasTag [ dyknow:hasValue \"In{}\" ] ] ;\n\
              dyknow:hasOutPort [ dyknow:hasName \"out\" ; dyknow:hasTag [ dyknow:hasValue \"Out{i}\" ] ] .\n",
             i % 50

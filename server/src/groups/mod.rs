@@ -70,6 +70,34 @@ pub struct FormulaDef {
     pub removed_at: Option<u64>,
 }
 
+/// The header of a group's trace as served: domains, landmarks, static regions and the
+/// formulas, each with the states it was progressed over (`from_state`, and `until_state`
+/// once removed), which `dyknow check` replays when given no formula.
+fn replay_header(def: &GroupDef) -> String {
+    let formulas: Vec<serde_json::Value> = def
+        .formulas
+        .iter()
+        .map(|f| {
+            let mut v = serde_json::json!({
+                "index": f.index,
+                "formula": f.formula,
+                "from_state": f.added_at,
+            });
+            if let Some(until) = f.removed_at {
+                v["until_state"] = until.into();
+            }
+            v
+        })
+        .collect();
+    serde_json::json!({
+        "domains": def.header.domains,
+        "landmarks": def.header.landmarks,
+        "static": def.header.static_regions,
+        "formulas": formulas,
+    })
+    .to_string()
+}
+
 /// A restart of the service while the group ran.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Resumed {
@@ -1202,17 +1230,24 @@ impl Group {
         (recorded, rx, stopped)
     }
 
-    /// The recorded trace: the header line and one line per state.
+    /// The recorded trace: the header line and one line per state. The header lists the
+    /// formulas with the states each was progressed over (added or removed while the group
+    /// ran), so `dyknow check` on the trace alone replays the group's verdicts (`groups.md`).
     pub fn trace(&self, groups: &Groups) -> Result<String, GroupError> {
         let mut core = self.core();
-        if let Some(text) = core.writer.text() {
-            return Ok(text.to_owned());
-        }
-        core.writer.flush();
-        // Read under the lock: the thread appends only whole batches of lines under it.
-        match &groups.store {
-            Some(s) => s.trace(&self.label).map_err(GroupError::Internal),
-            None => Ok(String::new()),
-        }
+        let header = replay_header(&core.def);
+        let text = if let Some(text) = core.writer.text() {
+            text.to_owned()
+        } else {
+            core.writer.flush();
+            // Read under the lock: the thread appends only whole batches of lines under it.
+            match &groups.store {
+                Some(s) => s.trace(&self.label).map_err(GroupError::Internal)?,
+                None => String::new(),
+            }
+        };
+        // The header as recorded at creation is the first line; the states follow.
+        let states = text.split_once('\n').map_or("", |(_, rest)| rest);
+        Ok(format!("{header}\n{states}"))
     }
 }

@@ -1,7 +1,7 @@
 //! AddTransformation, RemoveTransformation, AddTarget, RemoveTarget (seed Ch. 5.3) and their
 //! listings: `/transformations`, `/targets`.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::PoisonError;
 
 use axum::body::Bytes;
@@ -13,7 +13,7 @@ use axum::{Json, Router};
 use dyknow_engine::{Cid, Tid};
 use dyknow_lifecycle::Perturbation;
 use dyknow_store::oxigraph::io::RdfFormat;
-use dyknow_store::spec::{Port, Spec, SpecKind, Tag};
+use dyknow_store::spec::{Implementation, Port, Spec, SpecKind, Tag};
 use dyknow_store::{InputFormat, KnowledgeBase, serialize};
 use serde::Serialize;
 use utoipa::ToSchema;
@@ -245,31 +245,31 @@ async fn post_specs(
     let groups = state.groups.clone();
     let lifecycle = state.lifecycle.clone();
     let (report, stale) = in_turn(&state, move || {
-        // Transformations with CUs running since before start-up whose spec now names another
-        // implementation: compared with the stored spec before it is replaced (only where such
-        // CUs run: no read otherwise). Those spawned since are compared with what they were
-        // started with, after the write (`stale_after_post`).
-        let changed = std::sync::Mutex::new(BTreeSet::<Tid>::new());
-        let posted = std::sync::Mutex::new(Vec::new());
+        // The CUs of a posted transformation whose implementation changed are replaced. What
+        // is compared is the stored spec (read back, with values in the store's canonical
+        // form: a parameter posted as `"1.0"^^xsd:double` reads back as `1`), before the write
+        // for CUs running from before start-up, after it for all (`stale_after_post`). Only
+        // transformations with CUs are read.
+        let before = std::sync::Mutex::new(BTreeMap::<Tid, Option<Implementation>>::new());
+        let posted = std::sync::Mutex::new(Vec::<Tid>::new());
         let with_cus = lifecycle.transformations_with_cus();
+        let stored = |label: &str| match kb.spec(SpecKind::Transformation, label) {
+            Ok(Some(Spec::Transformation(t))) => Some(t.implementation()),
+            _ => None,
+        };
         let refused = |spec: &Spec| {
             if let Spec::Transformation(t) = spec {
                 let tid = Tid::from(t.label.as_str());
-                let implementation = t.implementation();
-                if with_cus.contains(&tid)
-                    && let Ok(Some(Spec::Transformation(old))) =
-                        kb.spec(SpecKind::Transformation, &t.label)
-                    && old.implementation() != implementation
-                {
-                    changed
+                if with_cus.contains(&tid) {
+                    before
                         .lock()
                         .unwrap_or_else(PoisonError::into_inner)
-                        .insert(tid.clone());
+                        .insert(tid.clone(), stored(&t.label));
                 }
                 posted
                     .lock()
                     .unwrap_or_else(PoisonError::into_inner)
-                    .push((tid, implementation));
+                    .push(tid);
             }
             reserved_label(spec).or_else(|| match spec {
                 Spec::Target(t) => groups.result_channel_user(&t.channel).map(|group| {
@@ -284,10 +284,28 @@ async fn post_specs(
             })
         };
         let report = kb.post_specs_checked(&body, format, kind, &refused)?;
-        let stale = lifecycle.stale_after_post(
-            &posted.into_inner().unwrap_or_else(PoisonError::into_inner),
-            &changed.into_inner().unwrap_or_else(PoisonError::into_inner),
-        );
+        // After the write: a CU spawned meanwhile is either among these now, or its change
+        // set sees the write (`Manager::commit`).
+        let with_cus = lifecycle.transformations_with_cus();
+        let before = before.into_inner().unwrap_or_else(PoisonError::into_inner);
+        let mut changed = BTreeSet::new();
+        let mut now = Vec::new();
+        for tid in posted.into_inner().unwrap_or_else(PoisonError::into_inner) {
+            if !with_cus.contains(&tid) {
+                continue;
+            }
+            let Some(implementation) = stored(tid.as_str()) else {
+                continue;
+            };
+            if before
+                .get(&tid)
+                .is_some_and(|old| old.as_ref() != Some(&implementation))
+            {
+                changed.insert(tid.clone());
+            }
+            now.push((tid, implementation));
+        }
+        let stale = lifecycle.stale_after_post(&now, &changed);
         Ok((report, stale))
     })
     .await?;
