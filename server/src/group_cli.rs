@@ -10,7 +10,8 @@ use serde_json::{Map, Value, json};
 pub struct HttpArgs {
     /// The service's URL, http://HOST:PORT or https://HOST:PORT (an empty DYKNOW_URL counts
     /// as unset). A request that takes longer than DYKNOW_CLIENT_TIMEOUT_S seconds (default
-    /// 60; connecting: at most 10) fails; `watch` and `trace` take as long as they take.
+    /// 60; connecting: at most 10) fails; `watch` waits as long as it takes, and `trace`
+    /// reads the trace as long as it takes once its answer begins.
     #[arg(
         long,
         value_name = "URL",
@@ -237,6 +238,18 @@ fn agent(whole: Option<Duration>) -> ureq::Agent {
         .http_status_as_error(false)
         .timeout_connect(Some(connect))
         .timeout_global(whole)
+        .build()
+        .into()
+}
+
+/// An agent for a download (`trace`): connecting and the answer's head are bounded as a
+/// one-shot request is (`head`), the body takes as long as it takes.
+fn download_agent(head: Duration) -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_connect(Some(head.min(CONNECT_TIMEOUT)))
+        .timeout_send_request(Some(head))
+        .timeout_recv_response(Some(head))
         .build()
         .into()
 }
@@ -669,9 +682,9 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
         }
         GroupCommand::Trace { label } => {
             let path = format!("/groups/{}/trace", enc(&label));
-            // A trace may be long: no limit on the whole request (connecting is still bounded),
-            // as `watch` has none.
-            let mut r = agent(None)
+            // A trace may be long: its answer must begin within the limit, its body may take
+            // as long as it takes.
+            let mut r = download_agent(client.timeout)
                 .get(client.url(&path))
                 .call()
                 .map_err(|e| client.unreachable(&e))?;

@@ -80,6 +80,27 @@ pub fn xml_safe(text: &str) -> bool {
     })
 }
 
+/// Whether RDF/XML can write `iri` as a property: it must end with an XML name (a letter or
+/// `_`, then letters, digits, `-`, `.`, `_`), which becomes the element's local name. A
+/// property such as `<http://example.org/rel/>` or `<urn:p:1>` has none, and the export wrote
+/// an element no XML parser reads. (The split is Oxigraph's RDF/XML writer's.)
+pub fn has_xml_local_name(iri: &str) -> bool {
+    fn start(c: char) -> bool {
+        matches!(c,
+            'A'..='Z' | '_' | 'a'..='z'
+            | '\u{00C0}'..='\u{00D6}' | '\u{00D8}'..='\u{00F6}' | '\u{00F8}'..='\u{02FF}'
+            | '\u{0370}'..='\u{037D}' | '\u{037F}'..='\u{1FFF}' | '\u{200C}'..='\u{200D}'
+            | '\u{2070}'..='\u{218F}' | '\u{2C00}'..='\u{2FEF}' | '\u{3001}'..='\u{D7FF}'
+            | '\u{F900}'..='\u{FDCF}' | '\u{FDF0}'..='\u{FFFD}' | '\u{10000}'..='\u{EFFFF}')
+    }
+    fn name(c: char) -> bool {
+        start(c)
+            || matches!(c, '-' | '.' | '0'..='9' | '\u{B7}' | '\u{0300}'..='\u{036F}' | '\u{203F}'..='\u{2040}')
+    }
+    let tail = iri.rfind(|c: char| !name(c)).map_or(iri, |i| &iri[i..]);
+    tail.chars().any(start)
+}
+
 /// The character XML cannot carry, as `U+0001`.
 fn first_xml_unsafe(text: &str) -> String {
     text.chars()
@@ -135,7 +156,11 @@ fn check_document(triples: &[Triple], classes: &SpecClasses, violations: &mut Ve
         .collect();
     let mut undeclared: Vec<&NamedNode> = Vec::new();
     let mut unsafe_subjects: Vec<String> = Vec::new();
+    let mut unwritable: Vec<&NamedNode> = Vec::new();
     for t in triples {
+        if !has_xml_local_name(t.predicate.as_str()) && !unwritable.contains(&&t.predicate) {
+            unwritable.push(&t.predicate);
+        }
         let class = match &t.object {
             Term::NamedNode(c) if t.predicate == rdf::TYPE => Some(c),
             _ => None,
@@ -173,6 +198,14 @@ fn check_document(triples: &[Triple], classes: &SpecClasses, violations: &mut Ve
                  this one is declared nowhere{hint}"
             ),
             term.as_str(),
+        ));
+    }
+    for property in unwritable.into_iter().take(10) {
+        violations.push(Violation::new(
+            "a property's IRI ends with an XML name (a letter or '_', then letters, digits, \
+             '-', '.', '_'): the model is exported as RDF/XML, which writes a property as an \
+             element named so",
+            property.as_str(),
         ));
     }
     for subject in unsafe_subjects.into_iter().take(10) {
