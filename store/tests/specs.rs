@@ -407,6 +407,38 @@ proptest::proptest! {
     }
 }
 
+/// An extension adds vocabulary: restating a built-in term, or describing the service's own
+/// resources, is refused (a user audit made `dependsOn` symmetric, and stated a `dependsOn`
+/// between two CUs that shared no stream; both were accepted and answered by SPARQL).
+#[test]
+fn extensions_do_not_restate_built_in_terms_or_describe_the_services_resources() {
+    let kb = kb();
+    for (body, needle) in [
+        (
+            "@prefix owl: <http://www.w3.org/2002/07/owl#> .\ndyknow:dependsOn a owl:SymmetricProperty .",
+            "built-in",
+        ),
+        ("dkros:hasSource rdfs:comment \"mine now\" .", "built-in"),
+        (
+            "<urn:dyknow:cu:cu-1> dyknow:dependsOn <urn:dyknow:cu:cu-2> .",
+            "the service's own resources",
+        ),
+    ] {
+        let v = violations(kb.post_extension(ttl(body).as_bytes(), InputFormat::Turtle));
+        assert!(has_constraint(&v, needle), "{body}: {v:#?}");
+    }
+    assert!(kb.extensions().unwrap().is_empty());
+    // Sub-classes of built-in classes, new terms of the namespace, and re-posting them, are
+    // fine.
+    let own = ttl("@prefix owl: <http://www.w3.org/2002/07/owl#> .
+         ex:Camera rdfs:subClassOf dyknow:Transformation .
+         dyknow:hasVendor a owl:DatatypeProperty .");
+    kb.post_extension(own.as_bytes(), InputFormat::Turtle)
+        .unwrap();
+    kb.post_extension(own.as_bytes(), InputFormat::Turtle)
+        .unwrap();
+}
+
 /// A label longer than a URL can carry is refused: accepted, the spec could never be read
 /// or deleted (414).
 #[test]

@@ -85,6 +85,9 @@ impl KnowledgeBase {
                 if let oxigraph::model::NamedOrBlankNode::NamedNode(s) = quad?.subject
                     && crate::spec::in_dyknow_namespaces(s.as_str())
                 {
+                    if !is_extension_graph(g.as_str()) {
+                        classes.builtin.insert(s.clone());
+                    }
                     classes.vocabulary.insert(s);
                 }
             }
@@ -111,7 +114,34 @@ impl KnowledgeBase {
         format: InputFormat,
     ) -> Result<ExtensionReport, IngestError> {
         let triples = parse_triples(body, format)?;
-        let doc = extract_specs(&triples, &self.classes(), None)?;
+        let classes = self.classes();
+        let doc = extract_specs(&triples, &classes, None)?;
+        // An extension adds vocabulary: it does not restate the built-in terms (their axioms
+        // are the seed's, and `dyknow:dependsOn a owl:SymmetricProperty` made every CU depend
+        // on itself), nor describe the service's own resources (`urn:dyknow:`: CUs, channels,
+        // specs, change sets; a stated `dependsOn` between two CUs read as a real one).
+        let mut trespassing: Vec<Violation> = Vec::new();
+        for t in &triples {
+            let oxigraph::model::NamedOrBlankNode::NamedNode(subject) = &t.subject else {
+                continue;
+            };
+            let why = if classes.builtin.contains(subject) {
+                "ontology extensions add terms; they do not restate the built-in ones (the \
+                 seed's axioms): state a sub-class or sub-property of your own instead"
+            } else if subject.as_str().starts_with("urn:dyknow:") {
+                "ontology extensions hold vocabularies; the service's own resources (urn:dyknow: \
+                 CUs, channels, specs, change sets) are described by the service"
+            } else {
+                continue;
+            };
+            if !trespassing.iter().any(|v| v.subject == subject.as_str()) {
+                trespassing.push(Violation::new(why, subject.as_str()));
+            }
+        }
+        if !trespassing.is_empty() {
+            trespassing.truncate(10);
+            return Err(SpecValidationError(trespassing).into());
+        }
         if !doc.specs.is_empty() {
             let violations = doc
                 .specs

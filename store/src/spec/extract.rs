@@ -40,6 +40,10 @@ pub struct SpecClasses {
     /// refused: kept, it would change nothing and say nothing (a transformation whose in
     /// port is written so would be a source).
     pub vocabulary: HashSet<NamedNode>,
+    /// The built-in terms: the service's vocabulary and what the built-in ontologies declare
+    /// (no extension's). An extension may not restate them (`dyknow:dependsOn a
+    /// owl:SymmetricProperty` made every CU depend on itself).
+    pub builtin: HashSet<NamedNode>,
 }
 
 impl Default for SpecClasses {
@@ -59,6 +63,11 @@ impl Default for SpecClasses {
                 .map(NamedNodeRef::into_owned)
                 .collect(),
             vocabulary: dyknow::ALL
+                .iter()
+                .chain(dkros::ALL)
+                .map(|t| t.into_owned())
+                .collect(),
+            builtin: dyknow::ALL
                 .iter()
                 .chain(dkros::ALL)
                 .map(|t| t.into_owned())
