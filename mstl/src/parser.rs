@@ -294,7 +294,7 @@ fn parse_here(input: &str) -> Result<Formula, ParseError> {
         return Err(ParseError {
             column: 1,
             message: format!(
-                "the formula nests deeper than {MAX_TREE_DEPTH} operators (chains such as a && b && ... count one level per operator)"
+                "the formula nests deeper than {MAX_TREE_DEPTH} levels (each operator and the atom under it count one; chains such as a && b && ... count one level per operator)"
             ),
         });
     }

@@ -264,7 +264,7 @@ fn deep_or_huge_formulas_are_refused_not_overflowed() {
         parse(&longer)
             .unwrap_err()
             .message
-            .contains("1000 operators")
+            .contains("1000 levels")
     );
 }
 

@@ -813,7 +813,8 @@ fn check(
         .iter()
         .enumerate()
         .map(|(i, f)| {
-            dyknow_mstl::parse(f).map_err(|e| Failure(2, format!("--formula {i} {f:?}: {e}")))
+            dyknow_mstl::parse(f)
+                .map_err(|e| Failure(2, format!("--formula {i} {}: {e}", quoted(f))))
         })
         .collect::<Result<Vec<_>, _>>()?;
     let mut extra = Header {
@@ -842,12 +843,23 @@ fn check(
         Err(CheckError::Compile { formula, source }) => Err(Failure(
             2,
             match formulas.get(formula) {
-                Some(text) => format!("--formula {formula} {text:?}: {source}"),
+                Some(text) => format!("--formula {formula} {}: {source}", quoted(text)),
                 None => format!("{name}: formula {formula} of the header: {source}"),
             },
         )),
         Err(CheckError::Output(e)) => Err(Failure::output(&e)),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),
+    }
+}
+
+/// A formula quoted in a message: at most its first 80 characters (a 25 KB formula was
+/// echoed whole in its one-line error).
+fn quoted(formula: &str) -> String {
+    if formula.chars().count() <= 80 {
+        format!("{formula:?}")
+    } else {
+        let head: String = formula.chars().take(80).collect();
+        format!("{head:?}…")
     }
 }
 

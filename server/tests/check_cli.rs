@@ -161,6 +161,15 @@ fn bad_input_is_a_usage_error_naming_the_place() {
     let (code, lines, stderr) = check(&["always (p"], &t, &[]);
     assert_eq!((code, lines.len()), (2, 0));
     assert!(stderr.contains("column 10"), "{stderr}");
+    // A long formula is quoted by its beginning (a 25 KB one was echoed whole), and the depth
+    // limit says what it counts: 999 operators over an atom are taken, 1,000 are not.
+    let deep = format!("{}p", "always ".repeat(1000));
+    let (code, _, stderr) = check(&[deep.as_str()], &t, &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.len() < 400, "{stderr}");
+    assert!(stderr.contains("deeper than 1000 levels"), "{stderr}");
+    let (code, _, stderr) = check(&[&deep["always ".len()..]], &t, &[]);
+    assert_eq!(code, 0, "{stderr}");
     let (code, _, stderr) = check(&["forall x in Robots: P(x)"], &t, &[]);
     assert_eq!(code, 2);
     assert!(stderr.contains("unknown domain 'Robots'"), "{stderr}");
