@@ -878,6 +878,30 @@ fn a_change_set_that_repairs_no_kept_crash_is_not_named_after_one() {
     assert!(manager.review().unwrap().is_none());
 }
 
+/// Reports target qid1 added.
+fn add_qid1(manager: &Manager) {
+    manager
+        .report(Perturbation::TargetAdded {
+            target: "qid1".into(),
+        })
+        .unwrap();
+}
+
+/// Every CU graph of `kb` (`cus` of them) says what the model says of its CU: nothing left
+/// for the start-up pass to rewrite.
+fn assert_in_step(kb: &KnowledgeBase, cus: usize) {
+    let loaded = dyknow_store::model::load(kb).unwrap();
+    assert_eq!(loaded.env.cus.len(), cus);
+    let stale = dyknow_store::model::resync(kb, &loaded.env, &loaded.iris, None).unwrap();
+    for (part, should) in &stale {
+        let stored = kb.graph_triples(part.graph().as_ref()).unwrap();
+        let extra: Vec<_> = stored.iter().filter(|t| !should.contains(t)).collect();
+        let missing: Vec<_> = should.iter().filter(|t| !stored.contains(t)).collect();
+        eprintln!("{part:?}: extra {extra:#?} missing {missing:#?}");
+    }
+    assert!(stale.is_empty(), "{stale:?}");
+}
+
 /// tid4 (a source, `f4()`) posted again with a parameter: another implementation.
 const TID4_WITH_A_PARAMETER: &str = r#"
 @prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
@@ -960,11 +984,7 @@ fn a_cu_spawned_from_a_spec_replaced_meanwhile_is_replaced() {
     let kb = example_12();
     let executor = RespecifiesWhileSpawning::new(&kb, "tid4", TID4_WITH_A_PARAMETER);
     let manager = Manager::new(kb, executor.clone(), Settings::default()).unwrap();
-    manager
-        .report(Perturbation::TargetAdded {
-            target: "qid1".into(),
-        })
-        .unwrap();
+    add_qid1(&manager);
     let first = manager.review().unwrap().expect("a change set");
     assert_eq!(first.status, ChangeSetStatus::Applied);
     let spawns = executor.spawns.lock().unwrap().clone();
@@ -992,11 +1012,7 @@ fn a_cu_spawned_from_a_spec_replaced_meanwhile_is_replaced() {
 fn a_spec_posted_after_a_spawn_names_the_cus_it_makes_stale() {
     let kb = example_12();
     let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
-    manager
-        .report(Perturbation::TargetAdded {
-            target: "qid1".into(),
-        })
-        .unwrap();
+    add_qid1(&manager);
     manager.review().unwrap().expect("a change set");
     let cu = cu_of(&manager, "tid4").expect("tid4 runs");
     let spec = |kb: &KnowledgeBase| match kb.spec(SpecKind::Transformation, "tid4").unwrap() {
@@ -1064,26 +1080,14 @@ fn a_cu_spawned_from_a_spec_whose_port_was_renamed_meanwhile_is_brought_in_step(
     let kb = example_12();
     let executor = RespecifiesWhileSpawning::new(&kb, "tid1", TID1_RENAMED);
     let manager = Manager::new(kb.clone(), executor.clone(), Settings::default()).unwrap();
-    manager
-        .report(Perturbation::TargetAdded {
-            target: "qid1".into(),
-        })
-        .unwrap();
+    add_qid1(&manager);
     let first = manager.review().unwrap().expect("a change set");
     assert_eq!(first.status, ChangeSetStatus::Applied);
     assert!(executor.posted.load(std::sync::atomic::Ordering::SeqCst));
     let cu = cu_of(&manager, "tid1").expect("tid1 stays: its implementation is the same");
     assert_eq!(executor.spawns.lock().unwrap()[0].0, cu);
     // Every CU graph says what the model says of its CU: nothing left for a repair.
-    let loaded = dyknow_store::model::load(&kb).unwrap();
-    let stale = dyknow_store::model::resync(&kb, &loaded.env, &loaded.iris, None).unwrap();
-    for (part, should) in &stale {
-        let stored = kb.graph_triples(part.graph().as_ref()).unwrap();
-        let extra: Vec<_> = stored.iter().filter(|t| !should.contains(t)).collect();
-        let missing: Vec<_> = should.iter().filter(|t| !stored.contains(t)).collect();
-        eprintln!("{part:?}: extra {extra:#?} missing {missing:#?}");
-    }
-    assert!(stale.is_empty(), "{stale:?}");
+    assert_in_step(&kb, 3);
 }
 
 #[test]
@@ -1094,16 +1098,9 @@ fn the_cu_graphs_a_review_writes_read_back_as_written() {
     // rewritten at every start.
     let kb = example_12();
     let manager = Manager::new(kb.clone(), Arc::new(ModelOnly), Settings::default()).unwrap();
-    manager
-        .report(Perturbation::TargetAdded {
-            target: "qid1".into(),
-        })
-        .unwrap();
+    add_qid1(&manager);
     manager.review().unwrap().expect("a change set");
-    let loaded = dyknow_store::model::load(&kb).unwrap();
-    assert_eq!(loaded.env.cus.len(), 3);
-    let stale = dyknow_store::model::resync(&kb, &loaded.env, &loaded.iris, None).unwrap();
-    assert!(stale.is_empty(), "{stale:?}");
+    assert_in_step(&kb, 3);
 }
 
 #[test]

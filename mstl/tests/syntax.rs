@@ -260,12 +260,7 @@ fn deep_or_huge_formulas_are_refused_not_overflowed() {
     let long = "p && ".repeat(MAX_TREE_DEPTH - 1) + "p";
     assert!(parse(&long).is_ok());
     let longer = "p && ".repeat(10_000) + "p";
-    assert!(
-        parse(&longer)
-            .unwrap_err()
-            .message
-            .contains("1000 levels")
-    );
+    assert!(parse(&longer).unwrap_err().message.contains("1000 levels"));
 }
 
 // --- Round trip --------------------------------------------------------------------------

@@ -389,15 +389,14 @@ impl Client {
         )
     }
 
-    /// Reads an answer: an HTTP error is [`http_failure`]; a success that is not `expect` is an
-    /// unusable answer (exit 2).
-    fn answer(
+    /// An answer's status, content type and body; a body that cannot be read is a timeout
+    /// or an unusable answer (`expected` says what was expected).
+    fn read(
         &self,
         path: &str,
-        r: Result<ureq::http::Response<ureq::Body>, ureq::Error>,
-        expect: Expect,
-    ) -> Result<Value, Failure> {
-        let mut r = r.map_err(|e| self.unreachable(&e))?;
+        mut r: ureq::http::Response<ureq::Body>,
+        expected: &str,
+    ) -> Result<(u16, String, String), Failure> {
         let status = r.status().as_u16();
         let content_type = content_type(&r);
         let text = r
@@ -412,9 +411,22 @@ impl Client {
                     status,
                     &content_type,
                     &format!("reading it: {e}"),
-                    expect.what(),
+                    expected,
                 ),
             })?;
+        Ok((status, content_type, text))
+    }
+
+    /// Reads an answer: an HTTP error is [`http_failure`]; a success that is not `expect` is an
+    /// unusable answer (exit 2).
+    fn answer(
+        &self,
+        path: &str,
+        r: Result<ureq::http::Response<ureq::Body>, ureq::Error>,
+        expect: Expect,
+    ) -> Result<Value, Failure> {
+        let r = r.map_err(|e| self.unreachable(&e))?;
+        let (status, content_type, text) = self.read(path, r, expect.what())?;
         if status >= 400 {
             return Err(http_failure(status, &text));
         }
@@ -684,28 +696,12 @@ pub fn run(http: &HttpArgs, cmd: GroupCommand) -> Result<(), Failure> {
             let path = format!("/groups/{}/trace", enc(&label));
             // A trace may be long: its answer must begin within the limit, its body may take
             // as long as it takes.
-            let mut r = download_agent(client.timeout)
+            let r = download_agent(client.timeout)
                 .get(client.url(&path))
                 .call()
                 .map_err(|e| client.unreachable(&e))?;
-            let status = r.status().as_u16();
-            let content_type = content_type(&r);
             let expected = "a trace as JSON lines (application/x-ndjson)";
-            let text = r
-                .body_mut()
-                .with_config()
-                .limit(u64::MAX)
-                .read_to_string()
-                .map_err(|e| match e {
-                    ureq::Error::Timeout(_) => client.unreachable(&e),
-                    e => client.unusable(
-                        &path,
-                        status,
-                        &content_type,
-                        &format!("reading it: {e}"),
-                        expected,
-                    ),
-                })?;
+            let (status, content_type, text) = client.read(&path, r, expected)?;
             if status >= 400 {
                 return Err(http_failure(status, &text));
             }
