@@ -292,9 +292,21 @@ pub fn check_groundings(
             Grounding::Tag { tag } => check_name(&format!("the grounding tag of {symbol}"), tag)
                 .err()
                 .map(|e| e.to_string()),
-            Grounding::Description { description } => (!is_iri(description)).then(|| {
-                format!("the grounding of {symbol}: {description:?} is not an absolute IRI")
-            }),
+            Grounding::Description { description } => {
+                if !is_iri(description) {
+                    Some(format!(
+                        "the grounding of {symbol}: {description:?} is not an absolute IRI"
+                    ))
+                } else if description.len() > MAX_SYMBOL_BYTES {
+                    Some(format!(
+                        "the grounding of {symbol}: the IRI is {} bytes long; it names a \
+                         target, at most {MAX_SYMBOL_BYTES} bytes",
+                        description.len()
+                    ))
+                } else {
+                    None
+                }
+            }
         };
         let Some(message) = wrong else { continue };
         let Some(index) = grounded
@@ -332,9 +344,16 @@ fn is_iri(s: &str) -> bool {
         && scheme
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
-        && !s
-            .chars()
-            .any(|c| c.is_whitespace() || "<>\"{}|\\^`".contains(c))
+        && !s.chars().any(|c| {
+            c.is_whitespace()
+                || "<>\"{}|\\^`".contains(c)
+                // What no IRI holds (RFC 3987: controls, and U+FFFE, U+FFFF are no `ucschar`);
+                // accepted, the group's target could not be written, and with it no other
+                // group's (a code review).
+                || c.is_control()
+                || c == '\u{FFFE}'
+                || c == '\u{FFFF}'
+        })
 }
 
 /// The tag a symbol's target asks for.

@@ -690,12 +690,6 @@ impl Manager {
 
     /// [`Manager::remove_all_crashed`] under the configuration lock.
     fn remove_all_crashed_locked(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
-        {
-            let mut recorded = lock(&self.spawned_with);
-            for cid in cids {
-                recorded.remove(cid);
-            }
-        }
         let loaded = self.load()?;
         let mut after = loaded.env.clone();
         let removed: Vec<(Cid, Tid)> = cids
@@ -707,6 +701,14 @@ impl Manager {
         }
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
         self.set_environment(&delta.parts)?;
+        // Their records go once they are gone from the model (kept, should the write fail:
+        // a spec posted again would still find them stale).
+        {
+            let mut recorded = lock(&self.spawned_with);
+            for (cid, _) in &removed {
+                recorded.remove(cid);
+            }
+        }
         let mut schedule = lock(&self.schedule);
         for (cid, tid) in &removed {
             schedule.prefer(tid.clone());

@@ -182,6 +182,17 @@ impl<R: BufRead> Reader<R> {
     }
 }
 
+/// A formula quoted in a message: at most its first 80 characters (a 25 KB formula was
+/// echoed whole in a one-line error).
+pub fn quoted(formula: &str) -> String {
+    if formula.chars().count() <= 80 {
+        format!("{formula:?}")
+    } else {
+        let head: String = formula.chars().take(80).collect();
+        format!("{head:?}…")
+    }
+}
+
 fn trace_error(line: usize, message: impl Into<String>) -> CheckError {
     CheckError::Trace {
         line,
@@ -464,7 +475,11 @@ pub fn check<R: BufRead, W: Write>(
                     .map_err(|e| {
                         trace_error(
                             header_line,
-                            format!("formula {} of the header, {:?}: {e}", f.index, f.formula),
+                            format!(
+                                "formula {} of the header, {}: {e}",
+                                f.index,
+                                quoted(&f.formula)
+                            ),
                         )
                     })
             })

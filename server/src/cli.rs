@@ -808,7 +808,7 @@ fn check(
     static_regions: Vec<String>,
     domains: &[String],
 ) -> Result<(), Failure> {
-    use dyknow_mstl::trace::{CheckError, Header, check, parse_domain};
+    use dyknow_mstl::trace::{CheckError, Header, check, parse_domain, quoted};
     let parsed = formulas
         .iter()
         .enumerate()
@@ -849,17 +849,6 @@ fn check(
         )),
         Err(CheckError::Output(e)) => Err(Failure::output(&e)),
         Err(e) => Err(Failure(2, format!("{name}: {e}"))),
-    }
-}
-
-/// A formula quoted in a message: at most its first 80 characters (a 25 KB formula was
-/// echoed whole in its one-line error).
-fn quoted(formula: &str) -> String {
-    if formula.chars().count() <= 80 {
-        format!("{formula:?}")
-    } else {
-        let head: String = formula.chars().take(80).collect();
-        format!("{head:?}…")
     }
 }
 
@@ -911,6 +900,17 @@ fn rcc8(file: &Path, exact: bool, timeout: Option<std::time::Duration>) -> Resul
     // A byte order mark (editors on Windows write one) is no part of the network.
     let networks = dyknow_rcc8::gqr::parse(text.strip_prefix('\u{feff}').unwrap_or(&text))
         .map_err(|e| Failure(2, format!("{name}: {e}")))?;
+    // Nothing to answer is no answer: an empty file (or comments only) printed nothing and
+    // exited 0, as if every instance were consistent.
+    if networks.is_empty() {
+        return Err(Failure(
+            2,
+            format!(
+                "{name}: no RCC-8 instance (GQR's format: the largest region index, then \
+                 constraints `i j ( R ... )`, then `.`; docs/rcc8.md)"
+            ),
+        ));
+    }
     let (mut inconsistent, mut unknown) = (0, 0);
     for mut network in networks {
         let mut out = String::new();

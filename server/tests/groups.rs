@@ -627,6 +627,24 @@ fn bad_groups_are_refused_and_nothing_is_created() {
             422,
             None,
         ),
+        // Descriptions too: an IRI with a control character or a non-character, or longer
+        // than a target's label takes (each was a 500 that left the group, after which every
+        // group's targets failed, and an on-disk service no longer started).
+        (
+            json!({"formulas": ["p"], "grounding": {"p": {"description": "http://example.org/\u{1}x"}}}),
+            422,
+            Some((0, 1)),
+        ),
+        (
+            json!({"formulas": ["p"], "grounding": {"p": {"description": "http://example.org/\u{ffff}"}}}),
+            422,
+            Some((0, 1)),
+        ),
+        (
+            json!({"formulas": ["p"], "grounding": {"p": {"description": format!("http://example.org/{}", "x".repeat(5000))}}}),
+            422,
+            Some((0, 1)),
+        ),
         (
             json!({"formulas": [format!("always p({})", vec!["a0000"; 800].join(","))]}),
             422,
@@ -717,6 +735,21 @@ fn bad_groups_are_refused_and_nothing_is_created() {
         send(&service, "DELETE", "/groups/g/formulas/7", None).0,
         404
     );
+    // Once stopped, the formulas and their verdicts are final: no removal (it took the final
+    // `unknown` back from replays and restarts).
+    let (status, _) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "done", "formulas": ["eventually q"], "start": true})),
+    );
+    assert_eq!(status, 201);
+    assert_eq!(send(&service, "POST", "/groups/done/stop", None).0, 200);
+    assert_eq!(
+        send(&service, "DELETE", "/groups/done/formulas/0", None).0,
+        409
+    );
+    assert_eq!(send(&service, "DELETE", "/groups/done", None).0, 204);
     assert_eq!(
         group(&service, "g")["formulas"].as_array().unwrap().len(),
         1

@@ -152,6 +152,17 @@ fn a_byte_order_mark_is_skipped() {
     );
 }
 
+/// A file with no instance (empty, or comments only) is bad input, not an answer: it printed
+/// nothing and exited 0, as if every instance were consistent.
+#[test]
+fn a_file_without_an_instance_is_refused() {
+    for text in ["", "# only a comment\n", "\n\n"] {
+        let (code, out, stderr) = rcc8(text, &[]);
+        assert_eq!((code, out.as_str()), (2, ""), "{text:?}: {stderr}");
+        assert!(stderr.contains("no RCC-8 instance"), "{stderr}");
+    }
+}
+
 /// `--exact --timeout`: an instance the search has not decided in time is `unknown`, followed
 /// by its closure, and does not count as inconsistent (exit 0); given time, the same instance
 /// is decided. `--timeout` needs `--exact` and a positive number (exit 2).

@@ -418,7 +418,7 @@ fn extensions_do_not_restate_built_in_terms_or_describe_the_services_resources()
             "@prefix owl: <http://www.w3.org/2002/07/owl#> .\ndyknow:dependsOn a owl:SymmetricProperty .",
             "built-in",
         ),
-        ("dkros:hasSource rdfs:comment \"mine now\" .", "built-in"),
+        ("dkros:hasSource rdfs:subPropertyOf ex:mine .", "built-in"),
         (
             "<urn:dyknow:cu:cu-1> dyknow:dependsOn <urn:dyknow:cu:cu-2> .",
             "the service's own resources",
@@ -430,8 +430,11 @@ fn extensions_do_not_restate_built_in_terms_or_describe_the_services_resources()
     assert!(kb.extensions().unwrap().is_empty());
     // Sub-classes of built-in classes, new terms of the namespace, and re-posting them, are
     // fine.
+    // Equivalences either way round, labels and comments of built-in terms are fine too.
     let own = ttl("@prefix owl: <http://www.w3.org/2002/07/owl#> .
          ex:Camera rdfs:subClassOf dyknow:Transformation .
+         dyknow:Target owl:equivalentClass ex:Query .
+         dkros:hasSource rdfs:label \"Quelle\"@de .
          dyknow:hasVendor a owl:DatatypeProperty .");
     kb.post_extension(own.as_bytes(), InputFormat::Turtle)
         .unwrap();

@@ -303,7 +303,11 @@ impl Groups {
                 Err(e) => tracing::error!("group {label}: cannot restore it: {e}"),
             }
         }
-        self.sync_targets()?;
+        // A group whose targets cannot be written (accepted by an older version) must not keep
+        // the service from starting: it runs without them, and says so.
+        if let Err(e) = self.sync_targets() {
+            tracing::error!("the groups' targets could not be brought in step: {e}");
+        }
         let running: Vec<Arc<Group>> = self
             .map()
             .values()
@@ -753,6 +757,13 @@ impl Groups {
         let g = self.get(label)?;
         {
             let mut core = g.core();
+            // A stopped group's verdicts are final (undecided formulas got `unknown`): a removal
+            // now would take that verdict back from replays and restarts (a code review).
+            if core.def.phase == Phase::Stopped {
+                return Err(GroupError::Conflict(format!(
+                    "group {label:?} was stopped; its formulas and verdicts are final"
+                )));
+            }
             let states = core.prog.states();
             let Some(f) = core
                 .def

@@ -4,7 +4,7 @@
 
 use dyknow_ontology::BUILTIN_ONTOLOGIES;
 use dyknow_ontology::vocab::{dyknow, owl, rdf, rdfs};
-use oxigraph::model::{NamedNode, Term};
+use oxigraph::model::{NamedNode, Term, Triple};
 use oxigraph::sparql::{QueryResults, SparqlEvaluator};
 use oxigraph::store::StorageError;
 use serde::Serialize;
@@ -33,6 +33,70 @@ pub struct ExtensionInfo {
     pub ontology: Option<String>,
     /// How many triples it holds.
     pub triples: usize,
+}
+
+/// What an ontology extension may say, whether posted (`POST /ontology`) or loaded with specs
+/// (`dyknow load`, `serve --specs`). It adds vocabulary: it does not restate the built-in
+/// terms (their axioms are the seed's, and `dyknow:dependsOn a owl:SymmetricProperty` made
+/// every CU depend on itself), nor describe the service's own resources (`urn:dyknow:`: CUs,
+/// channels, specs, change sets; a stated `dependsOn` between two CUs read as a real one).
+/// Only what is said *of* those terms is refused (equivalences, labels and comments aside): an
+/// axiom of the extension's own terms that entails something of them (`ex:p
+/// owl:equivalentProperty dyknow:dependsOn ; a owl:SymmetricProperty`) is the reasoner's to
+/// check for consistency, and is not refused here. And `dyknow:similarTo` relates tag concepts:
+/// a literal is no concept, and the candidate table would have ignored the statement.
+pub(super) fn check_vocabulary(
+    triples: &[Triple],
+    classes: &SpecClasses,
+) -> Result<(), SpecValidationError> {
+    let mut violations: Vec<Violation> = Vec::new();
+    for t in triples {
+        let oxigraph::model::NamedOrBlankNode::NamedNode(subject) = &t.subject else {
+            continue;
+        };
+        // Equivalences read the same either way round (`dyknow:Transformation
+        // owl:equivalentClass ex:Job` defines `ex:Job`), and labels and comments say nothing
+        // of meaning: those are taken of built-in terms.
+        let harmless = [
+            owl::EQUIVALENT_CLASS,
+            owl::EQUIVALENT_PROPERTY,
+            rdfs::LABEL,
+            rdfs::COMMENT,
+        ]
+        .contains(&t.predicate.as_ref());
+        let why = if classes.builtin.contains(subject) && !harmless {
+            "ontology extensions add terms; they do not restate the built-in ones (the seed's \
+             axioms): state a sub-class or sub-property of your own instead"
+        } else if subject.as_str().starts_with("urn:dyknow:") {
+            "ontology extensions hold vocabularies; the service's own resources (urn:dyknow: CUs, \
+             channels, specs, change sets) are described by the service"
+        } else {
+            continue;
+        };
+        if !violations.iter().any(|v| v.subject == subject.as_str()) {
+            violations.push(Violation::new(why, subject.as_str()));
+        }
+    }
+    violations.truncate(10);
+    violations.extend(
+        triples
+            .iter()
+            .filter(|t| {
+                t.predicate.as_ref() == dyknow::SIMILAR_TO && matches!(t.object, Term::Literal(_))
+            })
+            .map(|t| {
+                Violation::new(
+                    "dyknow:similarTo relates tag concepts (IRIs), not literals",
+                    t.to_string(),
+                )
+            })
+            .take(10),
+    );
+    if violations.is_empty() {
+        Ok(())
+    } else {
+        Err(SpecValidationError(violations))
+    }
 }
 
 impl KnowledgeBase {
@@ -116,32 +180,7 @@ impl KnowledgeBase {
         let triples = parse_triples(body, format)?;
         let classes = self.classes();
         let doc = extract_specs(&triples, &classes, None)?;
-        // An extension adds vocabulary: it does not restate the built-in terms (their axioms
-        // are the seed's, and `dyknow:dependsOn a owl:SymmetricProperty` made every CU depend
-        // on itself), nor describe the service's own resources (`urn:dyknow:`: CUs, channels,
-        // specs, change sets; a stated `dependsOn` between two CUs read as a real one).
-        let mut trespassing: Vec<Violation> = Vec::new();
-        for t in &triples {
-            let oxigraph::model::NamedOrBlankNode::NamedNode(subject) = &t.subject else {
-                continue;
-            };
-            let why = if classes.builtin.contains(subject) {
-                "ontology extensions add terms; they do not restate the built-in ones (the \
-                 seed's axioms): state a sub-class or sub-property of your own instead"
-            } else if subject.as_str().starts_with("urn:dyknow:") {
-                "ontology extensions hold vocabularies; the service's own resources (urn:dyknow: \
-                 CUs, channels, specs, change sets) are described by the service"
-            } else {
-                continue;
-            };
-            if !trespassing.iter().any(|v| v.subject == subject.as_str()) {
-                trespassing.push(Violation::new(why, subject.as_str()));
-            }
-        }
-        if !trespassing.is_empty() {
-            trespassing.truncate(10);
-            return Err(SpecValidationError(trespassing).into());
-        }
+        check_vocabulary(&triples, &classes)?;
         if !doc.specs.is_empty() {
             let violations = doc
                 .specs
@@ -165,23 +204,6 @@ impl KnowledgeBase {
                 "the request body",
             )])
             .into());
-        }
-        // `dyknow:similarTo` relates tag concepts: a literal is no concept, and the candidate
-        // table would have ignored the statement without a word.
-        let literal_similar: Vec<Violation> = triples
-            .iter()
-            .filter(|t| {
-                t.predicate.as_ref() == dyknow::SIMILAR_TO && matches!(t.object, Term::Literal(_))
-            })
-            .map(|t| {
-                Violation::new(
-                    "dyknow:similarTo relates tag concepts (IRIs), not literals",
-                    t.to_string(),
-                )
-            })
-            .collect();
-        if !literal_similar.is_empty() {
-            return Err(SpecValidationError(literal_similar).into());
         }
         let graph = extension_graph(graph_hash(&triples));
         let mut reasoner = self.lock();

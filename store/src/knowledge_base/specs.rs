@@ -98,6 +98,10 @@ impl KnowledgeBase {
         format: InputFormat,
     ) -> Result<LoadReport, IngestError> {
         let triples = parse_triples(body, format)?;
+        // What becomes an extension is not checked as `POST /ontology` checks an extension
+        // (`check_vocabulary`): this is the offline, trusted path, and a model export (which
+        // restates the built-in ontologies and describes the service's resources) loads back
+        // whole.
         let doc = extract_specs(&triples, &self.classes(), None)?;
         // Hashed before the lock: a long list takes a round of refinement per member.
         let extension = (!doc.rest.is_empty()).then(|| {
