@@ -338,7 +338,7 @@ impl Groups {
     }
 
     /// Rebuilds a group from its definition and recorded trace.
-    fn restore(&self, def: GroupDef, lines: &[String]) -> Result<Arc<Group>, GroupError> {
+    fn restore(&self, mut def: GroupDef, lines: &[String]) -> Result<Arc<Group>, GroupError> {
         let mut prog = Progression::new(def.header.clone());
         let mut grounded = Vec::new();
         let parsed: Vec<Grounded> = def
@@ -371,9 +371,21 @@ impl Groups {
             verdicts.extend(prog.take_recorded(state).verdicts);
         }
         apply(&mut prog, &mut next);
-        // Removals recorded after states a torn trace lost.
-        for &i in removals.range(prog.states() + 1..).flat_map(|(_, v)| v) {
+        // Additions and removals recorded after states a torn trace lost (the definition is
+        // written at once, the trace up to a second later): done now, as of the states the
+        // trace has, and the definition says so, so that the trace's header tells `dyknow
+        // check` what the group did. Added first: a removal needs its formula.
+        let states = prog.states();
+        while next < parsed.len() {
+            let _ = prog.add(&parsed[next].formula);
+            next += 1;
+        }
+        for &i in removals.range(states + 1..).flat_map(|(_, v)| v) {
             prog.remove(i);
+        }
+        for f in &mut def.formulas {
+            f.added_at = f.added_at.min(states);
+            f.removed_at = f.removed_at.map(|r| r.min(states));
         }
         if def.phase == Phase::Stopped {
             verdicts.extend(prog.finish());
