@@ -1231,7 +1231,8 @@ impl Manager {
                 }
             }
         };
-        if let Some((stale, tids)) = respec {
+        // No spec of what it spawned written meanwhile (another was): nothing to bring in step.
+        if let Some((stale, tids)) = respec.filter(|(_, tids)| !tids.is_empty()) {
             if let Err(e) = self.resync_locked(Some(&tids)) {
                 tracing::warn!(
                     "{}: CU graphs not brought in step with specs written meanwhile: {e}",

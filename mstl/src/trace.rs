@@ -516,10 +516,21 @@ pub fn check<R: BufRead, W: Write>(
         Ok::<_, CheckError>(())
     };
     add_due(&mut monitor, &mut ids, 0)?;
-    let removals: Vec<(u64, usize)> = planned
-        .iter()
-        .filter_map(|p| p.until.map(|u| (u, p.id)))
-        .collect();
+    // Output indices by the state they are removed before.
+    let mut removals: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
+    for p in &planned {
+        if let Some(u) = p.until {
+            removals.entry(u).or_default().push(p.id);
+        }
+    }
+    // Stops progressing formula `id` unless it was decided (or removed) already.
+    let remove = |monitor: &mut Monitor, ids: &[usize], done: &mut BTreeSet<usize>, id: usize| {
+        if let Some(m) = ids.iter().position(|i| *i == id)
+            && done.insert(id)
+        {
+            monitor.remove(m);
+        }
+    };
     let total = planned.len();
     let mut stream = StateStream::new(&h.landmarks, &h.static_regions, monitor.history());
     // The lines of the states the stream keeps, by state number: a landmark conflict names
@@ -532,12 +543,8 @@ pub fn check<R: BufRead, W: Write>(
     let mut k: u64 = 0;
     while let Some((line, map)) = next {
         add_due(&mut monitor, &mut ids, k)?;
-        for (_, id) in removals.iter().filter(|(u, _)| *u == k) {
-            if let Some(m) = ids.iter().position(|i| i == id)
-                && done.insert(*id)
-            {
-                monitor.remove(m);
-            }
+        for id in removals.get(&k).into_iter().flatten() {
+            remove(&mut monitor, &ids, &mut done, *id);
         }
         let s = state(line, map)?;
         lines.push(stream.states(), line, stream.keep());
@@ -565,13 +572,8 @@ pub fn check<R: BufRead, W: Write>(
     }
     // Formulas added after the last state (and not removed) are undecided too.
     add_due(&mut monitor, &mut ids, u64::MAX)?;
-    for (u, id) in &removals {
-        if *u <= k
-            && let Some(m) = ids.iter().position(|i| i == id)
-            && done.insert(*id)
-        {
-            monitor.remove(m);
-        }
+    for id in removals.range(..=k).flat_map(|(_, ids)| ids) {
+        remove(&mut monitor, &ids, &mut done, *id);
     }
     for v in monitor.finish() {
         let v = Verdict {
