@@ -1066,6 +1066,78 @@ fn groups_survive_a_restart() {
     assert_eq!(check(&formulas, &text), verdicts(&stopped));
 }
 
+/// A crash can leave `group.json` ahead of the trace: the definition is written at once, the
+/// trace up to a second later. A formula added, or removed, after the last state the trace kept
+/// is restored as added (removed) as of that state; the group shows it, the served trace's
+/// header says so, and `dyknow check` on that trace gives the group's verdicts.
+#[test]
+fn a_formula_changed_after_the_last_state_a_torn_trace_kept_is_restored_as_of_that_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let service = start();
+    let (status, g) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "torn", "formulas": ["always p", "eventually q"]})),
+    );
+    assert_eq!(status, 201, "{g}");
+    drop(service);
+    // What a crash leaves: three states written whole and a fourth torn, while the definition
+    // already holds formula 1's removal at state 5 and formula 2's addition at state 7.
+    let record = data.join("groups").join("torn");
+    let def_path = record.join("group.json");
+    let mut def: Value =
+        serde_json::from_str(&std::fs::read_to_string(&def_path).unwrap()).unwrap();
+    def["phase"] = json!("stopped");
+    def["formulas"][1]["removed_at"] = json!(5);
+    def["formulas"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"index": 2, "formula": "always (p and not q)", "added_at": 7}));
+    std::fs::write(&def_path, def.to_string()).unwrap();
+    let trace_path = record.join("trace.jsonl");
+    let mut text = std::fs::read_to_string(&trace_path).unwrap();
+    for t in [0, 100, 200] {
+        text.push_str(&format!(
+            "{{\"t\":{t},\"state\":{{\"p\":true,\"q\":false}}}}\n"
+        ));
+    }
+    text.push_str("{\"t\":300,\"state\":{\"p\":fal");
+    std::fs::write(&trace_path, text).unwrap();
+
+    let service = start();
+    let g = group(&service, "torn");
+    assert_eq!(g["state"], "stopped", "{g}");
+    assert_eq!(g["states"], 3, "the torn state is cut: {g}");
+    let served = trace(&service, "torn");
+    let header: Value = serde_json::from_str(served.lines().next().unwrap()).unwrap();
+    assert_eq!(
+        header["formulas"],
+        json!([
+            {"index": 0, "formula": "always p", "from_state": 0},
+            {"index": 1, "formula": "eventually q", "from_state": 0, "until_state": 3},
+            {"index": 2, "formula": "always (p and not q)", "from_state": 3},
+        ]),
+        "{served}"
+    );
+    // Formula 2 was added when the group stopped: progressed over no state, it is decided by
+    // the end of the trace, as `dyknow check` decides it.
+    let shown = verdicts(&g);
+    assert!(
+        shown.iter().any(|(i, _, _)| *i == 2),
+        "formula 2 is decided: {g}"
+    );
+    assert_eq!(check(&[], &served), shown, "{served}");
+    // And the definition on disk now says what was done, so a second restart agrees.
+    drop(service);
+    let service = start();
+    assert_eq!(verdicts(&group(&service, "torn")), shown);
+    assert_eq!(trace(&service, "torn"), served);
+}
+
 /// A group whose `group.json` cannot be read at start-up is not loaded, and its directory is
 /// not overwritten by a new group of its label: that is 409, and the old trace stays (a user
 /// audit lost a trace of 9,459 lines this way).
