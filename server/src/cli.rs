@@ -5,7 +5,7 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use std::sync::Arc;
 
@@ -1457,6 +1457,9 @@ fn publish(channel: &str, value: &str, client: &ClientArgs) -> Result<(), Failur
     Ok(())
 }
 
+/// How often `dyknow listen` looks whether it is still linked to the service's router.
+const LINK_CHECK: Duration = Duration::from_millis(500);
+
 /// `dyknow listen`.
 fn listen(
     channel: &str,
@@ -1475,8 +1478,36 @@ fn listen(
         })?;
     let mut seen = 0u64;
     let stdout = std::io::stdout();
+    // The service's router going away is said on standard error, and so is its return (the
+    // client session reconnects by itself): samples published meanwhile are not received, and
+    // a listener that waited in silence looked like a quiet channel.
+    let mut linked = true;
+    let mut checked = Instant::now();
     while count.is_none_or(|n| seen < n) {
-        let Ok(sample) = subscriber.recv() else { break };
+        let sample = match subscriber.recv_timeout(LINK_CHECK) {
+            Ok(Some(sample)) => sample,
+            Ok(None) => {
+                if checked.elapsed() >= LINK_CHECK {
+                    checked = Instant::now();
+                    let now = links(&session) > 0;
+                    if now != linked {
+                        linked = now;
+                        warn(&if now {
+                            format!("dyknow listen: linked to {} again", client.connect)
+                        } else {
+                            format!(
+                                "dyknow listen: lost the link to {} (is `dyknow serve` still \
+                                 running?); waiting for it to come back, samples published \
+                                 meanwhile are not received",
+                                client.connect
+                            )
+                        });
+                    }
+                }
+                continue;
+            }
+            Err(_) => break,
+        };
         let payload = sample.payload().to_bytes();
         let line = match dyknow_cu::Sample::from_slice(&payload) {
             Ok(s) if values => serde_json::to_string(&s.value).unwrap_or_default(),

@@ -1140,3 +1140,60 @@ fn an_executor_says_when_its_links_come_and_go() {
     router.close().wait().unwrap();
     heard("executor says lost its links to the data plane");
 }
+
+/// `dyknow listen` says on its standard error when the service's router goes away and when it
+/// is back, and receives again after (it waited in silence: a quiet channel and a dead service
+/// looked the same).
+#[test]
+fn listen_says_when_the_service_goes_and_when_it_is_back() {
+    use std::io::{BufRead, BufReader};
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let start = || Service::start_with(&["--in-memory"], &zenoh, &["--no-executor"]);
+    let service = start();
+    let mut child = Command::new(BIN)
+        .args(["listen", "/x", "--values", "--connect", &zenoh])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let lines = |stream: Box<dyn std::io::Read + Send>| {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stream).lines().map_while(Result::ok) {
+                let _ = tx.send(line);
+            }
+        });
+        rx
+    };
+    let out = lines(Box::new(child.stdout.take().unwrap()));
+    let err = lines(Box::new(child.stderr.take().unwrap()));
+    let _listen = Killed(child);
+    // Published until received: the subscription is declared some time after the start.
+    let received = |value: &str| {
+        eventually(
+            &format!("listen receives {value}"),
+            Duration::from_secs(30),
+            || {
+                let status = Command::new(BIN)
+                    .args(["publish", "/x", value, "--connect", &zenoh])
+                    .status()
+                    .unwrap();
+                assert!(status.success());
+                out.recv_timeout(Duration::from_millis(200))
+                    .ok()
+                    .filter(|l| l == value)
+            },
+        )
+    };
+    received("1");
+    drop(service);
+    let said = err.recv_timeout(Duration::from_secs(30)).unwrap();
+    assert!(
+        said.contains("lost the link") && said.contains(&zenoh),
+        "{said}"
+    );
+    let _service = start();
+    let said = err.recv_timeout(Duration::from_secs(30)).unwrap();
+    assert!(said.contains("linked to") && said.contains("again"), "{said}");
+    received("2");
+}
