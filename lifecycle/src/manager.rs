@@ -189,6 +189,20 @@ pub struct Manager {
     /// implementation they were started with: what a spec posted meanwhile is compared with
     /// ([`Manager::stale_after_post`]), whether or not the spawn's write has been published.
     spawned_with: Mutex<BTreeMap<Cid, (Tid, Implementation)>>,
+    /// The CUs the change set being applied spawns, from the moment the executors are asked
+    /// until its write is published: [`Manager::cus`] shows them, `starting` until their
+    /// executor says they run (a process CU can take seconds to start, and was missing from
+    /// every read meanwhile).
+    applying: Mutex<Arc<BTreeMap<Cid, ComputationUnit>>>,
+}
+
+/// Clears [`Manager::applying`] when a change set's application ends, however it ends.
+struct Applying<'a>(&'a Mutex<Arc<BTreeMap<Cid, ComputationUnit>>>);
+
+impl Drop for Applying<'_> {
+    fn drop(&mut self) {
+        *lock(self.0) = Arc::default();
+    }
 }
 
 impl std::fmt::Debug for Manager {
@@ -275,6 +289,7 @@ impl Manager {
             starting: std::sync::atomic::AtomicBool::new(false),
             started: Notify::new(),
             spawned_with: Mutex::default(),
+            applying: Mutex::default(),
             kb,
         };
         // A store written before CU graphs were kept in step with spec writes may hold
@@ -361,6 +376,17 @@ impl Manager {
         };
         self.learned().apply(&mut env);
         env.cus = snapshot.cus.clone();
+        // The CUs a change set is spawning, not in the model yet (an applied change set's
+        // write is published before they are cleared: never both, never neither).
+        let applying = lock(&self.applying).clone();
+        for (cid, cu) in applying.iter() {
+            env.cus.entry(cid.clone()).or_insert_with(|| cu.clone());
+            if let Some(t) = snapshot.library.get(&cu.tid) {
+                env.library
+                    .entry(cu.tid.clone())
+                    .or_insert_with(|| t.clone());
+            }
+        }
         env
     }
 
@@ -404,12 +430,17 @@ impl Manager {
     /// Until the start-up reconciliation, a CU of the model that no executor hosts is not
     /// known to have crashed: its executor may not have reported yet, and if none does the
     /// reconciliation respawns it. It is `starting` (with no executor), not `crashed`.
+    ///
+    /// So is a CU that the change set being applied spawns, which its executor may not host
+    /// yet.
     fn until_reconciled(&self, mut views: BTreeMap<Cid, CuView>) -> BTreeMap<Cid, CuView> {
-        if self.starting() {
-            for view in views.values_mut() {
-                if view.executor.is_none() && view.state == "crashed" {
-                    "starting".clone_into(&mut view.state);
-                }
+        let starting = self.starting();
+        let applying = lock(&self.applying).clone();
+        for (cid, view) in &mut views {
+            if view.state == "crashed"
+                && ((starting && view.executor.is_none()) || applying.contains_key(cid))
+            {
+                "starting".clone_into(&mut view.state);
             }
         }
         views
@@ -1069,6 +1100,19 @@ impl Manager {
         };
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
+        let spawning: BTreeMap<Cid, ComputationUnit> = change_set
+            .actions
+            .iter()
+            .skip(reconciled.done)
+            .filter_map(|action| match action {
+                Action::Spawn { cu, .. } => Some((cu.clone(), after.cus.get(cu)?.clone())),
+                _ => None,
+            })
+            .collect();
+        let _applying = (!spawning.is_empty()).then(|| {
+            *lock(&self.applying) = Arc::new(spawning);
+            Applying(&self.applying)
+        });
         // The first `reconciled.done` actions (reconciliation's stops) were carried out
         // already; the executor applies the rest.
         let mut applied = if reconciled.done == 0 {

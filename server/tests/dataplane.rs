@@ -1194,6 +1194,77 @@ fn listen_says_when_the_service_goes_and_when_it_is_back() {
     );
     let _service = start();
     let said = err.recv_timeout(Duration::from_secs(30)).unwrap();
-    assert!(said.contains("linked to") && said.contains("again"), "{said}");
+    assert!(
+        said.contains("linked to") && said.contains("again"),
+        "{said}"
+    );
     received("2");
+}
+
+/// A CU that a change set spawns is listed as `starting` while its executor starts it, in
+/// `GET /cus` and `GET /cus/{name}`, before the change set is applied (it was missing from
+/// every read until its process reported, which takes seconds for some).
+#[test]
+fn a_cu_being_spawned_is_listed_as_starting() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let gate = dir.path().join("go");
+    let script = dir.path().join("slow-map.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nwhile [ ! -e '{}' ]; do sleep 0.02; done\nexec '{BIN}' cu dyknow/map\n",
+            gate.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let service = Service::start(&[]);
+    let source = script.to_str().unwrap();
+    for spec in [counter(&[("period_ms", "20")]), tenfold(source)] {
+        service.post("/transformations", &spec.turtle());
+    }
+    let session = service.session();
+    let out = Listener::new(&session, "/tenfold");
+    service.post("/targets", &target("tenfold-q", "/tenfold", "Tenfold"));
+    let listed = eventually("the process CU listed", Duration::from_secs(30), || {
+        service.cu_of("tenfold")
+    });
+    assert_eq!(listed["state"], "starting", "{listed}");
+    assert_eq!(listed["executor"], "local", "{listed}");
+    let name = listed["name"].as_str().unwrap().to_owned();
+    let detail = service.get(&format!("/cus/{name}"));
+    assert_eq!(detail["state"], "starting", "{detail}");
+    let detailed = service.get("/cus?statistics=true");
+    let entry = detailed
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == name.as_str())
+        .cloned();
+    assert_eq!(entry.map(|c| c["state"].clone()), Some(json!("starting")));
+    // No change set records it yet: its application is under way.
+    assert!(
+        !service
+            .change_sets()
+            .iter()
+            .any(|cs| cs.to_string().contains(&name)),
+        "{:?}",
+        service.change_sets()
+    );
+    std::fs::write(&gate, "").unwrap();
+    let (_, first) = out.next();
+    assert_eq!(first.value.as_i64().unwrap() % 10, 0);
+    let running = eventually("the CU running", Duration::from_secs(30), || {
+        let cu = service.cu_of("tenfold")?;
+        (cu["state"] == "running").then_some(cu)
+    });
+    assert_eq!(running["name"], name.as_str());
+    assert!(
+        service
+            .change_sets()
+            .iter()
+            .any(|cs| cs.to_string().contains(&name)),
+        "recorded once applied"
+    );
 }
