@@ -42,7 +42,8 @@ pub use error::{CuError, KeyError, zenoh_message};
 pub use keys::Namespace;
 pub use pins::{KEPT as KEPT_KEYS, pinned_key};
 pub use process::{
-    ProcessEnv, client_config, client_config_file, process_identity, router_config, run_process,
+    ProcessEnv, USAGE_EXIT, client_config, client_config_file, process_identity, router_config,
+    run_process,
 };
 pub use sample::{Sample, SampleError, now_ms};
 pub use timers::{Fire, Timers};

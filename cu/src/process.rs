@@ -234,6 +234,10 @@ mod erased {
     }
 }
 
+/// The exit status of a process CU run wrongly (by hand, without the environment an executor
+/// always sets): a usage error (`EX_USAGE`), not the protocol's 1 for a crash.
+pub const USAGE_EXIT: u8 = 64;
+
 enum Exit {
     Stop,
     Crash(String),
@@ -242,10 +246,18 @@ enum Exit {
 
 /// The `main` of a process CU: reads [`ProcessEnv`], connects, starts the transformation
 /// `make` builds and serves the executor until stopped (exit 0), crashed (exit 1) or orphaned
-/// (exit 2).
+/// (exit 2). Run by hand, without the `DYKNOW_CU` an executor always sets, it is a usage error
+/// (exit 64, [`USAGE_EXIT`]): not a crash.
 pub fn run_process<T: Transformation>(
     make: impl FnOnce(&UnitSpec) -> Result<T, CuError>,
 ) -> ExitCode {
+    if std::env::var_os("DYKNOW_CU").is_none_or(|v| v.is_empty()) {
+        eprintln!(
+            "DYKNOW_CU is not set: a process CU is started by a DyKnow executor, which sets its \
+             environment (dkros:hasSource, docs/executors.md); it is not run by hand"
+        );
+        return ExitCode::from(USAGE_EXIT);
+    }
     match serve(make) {
         Ok(Exit::Stop) => ExitCode::SUCCESS,
         Ok(Exit::Crash(reason)) => {

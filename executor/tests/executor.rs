@@ -953,3 +953,25 @@ fn stopping_a_process_cu_stops_what_it_started() {
     executor.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `dyknow-cu` run by hand, without the `DYKNOW_CU` an executor sets, is a usage error (exit
+/// 64, as `dyknow cu`), not the protocol's crash status 1 it exited with; an unknown builtin
+/// and no argument are too.
+#[test]
+fn dyknow_cu_run_by_hand_is_a_usage_error() {
+    let program = env!("CARGO_BIN_EXE_dyknow-cu");
+    for (args, says) in [
+        (&["dyknow/relay"][..], "DYKNOW_CU"),
+        (&["dyknow/nothing"][..], "no builtin"),
+        (&[][..], "usage"),
+    ] {
+        let out = std::process::Command::new(program)
+            .args(args)
+            .env_remove("DYKNOW_CU")
+            .output()
+            .expect("dyknow-cu runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(64), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+}

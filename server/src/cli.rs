@@ -1424,15 +1424,9 @@ fn cu(builtin: &str) -> ExitCode {
             "dyknow cu: no builtin {builtin:?} (one of: {})",
             dyknow_executor::builtins::names().join(", ")
         ));
-        return ExitCode::from(64);
+        return ExitCode::from(dyknow_cu::USAGE_EXIT);
     };
-    if std::env::var_os("DYKNOW_CU").is_none_or(|v| v.is_empty()) {
-        warn(
-            "dyknow cu: DYKNOW_CU is not set: `dyknow cu` runs a CU for a DyKnow executor, which \
-             starts it (dkros:hasSource, docs/executors.md); it is not run by hand",
-        );
-        return ExitCode::from(64);
-    }
+    // Without an executor's `DYKNOW_CU`, `run_process` says so and exits 64.
     dyknow_cu::run_process(|spec| factory.build(spec, dyknow_executor::builtins::Host::Process))
 }
 

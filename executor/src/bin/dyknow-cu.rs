@@ -19,7 +19,7 @@ fn usage() -> String {
 fn main() -> ExitCode {
     let Some(name) = std::env::args().nth(1) else {
         eprintln!("{}", usage());
-        return ExitCode::from(64);
+        return ExitCode::from(dyknow_cu::USAGE_EXIT);
     };
     if name == "--help" || name == "-h" {
         println!("{}", usage());
@@ -30,7 +30,7 @@ fn main() -> ExitCode {
             "no builtin {name:?} (one of: {})",
             builtins::names().join(", ")
         );
-        return ExitCode::from(64);
+        return ExitCode::from(dyknow_cu::USAGE_EXIT);
     };
     dyknow_cu::run_process(|spec| factory.build(spec, Host::Process))
 }
