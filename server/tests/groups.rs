@@ -1197,6 +1197,68 @@ fn a_group_that_cannot_be_loaded_is_not_overwritten() {
     assert_eq!(status, 201, "{g}");
 }
 
+/// A creation cut short by a crash (the trace's header written, `group.json` not yet) leaves
+/// remains that start-up removes, saying so: the label can be created again (it was 409 for
+/// good, and the log said nothing). A directory without `group.json` that holds recorded
+/// states is kept, and the log names it.
+#[test]
+fn the_remains_of_a_creation_cut_short_are_removed_at_start_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let service = start();
+    for label in ["cut", "kept"] {
+        let (status, g) = send(
+            &service,
+            "POST",
+            "/groups",
+            Some(json!({"label": label, "formulas": ["p"]})),
+        );
+        assert_eq!(status, 201, "{g}");
+    }
+    drop(service);
+    let cut = data.join("groups").join("cut");
+    std::fs::rename(cut.join("group.json"), cut.join("group.json.tmp")).unwrap();
+    let kept = data.join("groups").join("kept");
+    std::fs::remove_file(kept.join("group.json")).unwrap();
+    let mut trace = std::fs::read_to_string(kept.join("trace.jsonl")).unwrap();
+    trace.push_str("{\"t\":0,\"state\":{\"p\":true}}\n");
+    std::fs::write(kept.join("trace.jsonl"), &trace).unwrap();
+
+    let service = start();
+    assert!(!cut.exists(), "the remains are removed");
+    let (status, g) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "cut", "formulas": ["q"]})),
+    );
+    assert_eq!(status, 201, "{g}");
+    let (status, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "kept", "formulas": ["q"]})),
+    );
+    assert_eq!(status, 409, "{answer}");
+    assert_eq!(
+        std::fs::read_to_string(kept.join("trace.jsonl")).unwrap(),
+        trace
+    );
+    let said: Vec<String> = service.tail.lock().unwrap().iter().cloned().collect();
+    assert!(
+        said.iter()
+            .any(|l| l.contains("kept") && l.contains("no group.json")),
+        "{said:#?}"
+    );
+    assert!(
+        said.iter()
+            .any(|l| l.contains("cut") && l.contains("removed the remains")),
+        "{said:#?}"
+    );
+}
+
 /// `dyknow group`: create, list, show, add, remove, watch, trace, stop, destroy.
 #[test]
 fn the_group_command_line() {

@@ -210,6 +210,7 @@ impl GroupStore {
             let dir = entry.map_err(|e| e.to_string())?.path();
             let def_path = dir.join("group.json");
             if !def_path.is_file() {
+                forget_unfinished(&dir);
                 continue;
             }
             let def: GroupDef = match fs::read(&def_path)
@@ -227,6 +228,52 @@ impl GroupStore {
         }
         out.sort_by(|a, b| a.0.label.cmp(&b.0.label));
         Ok(out)
+    }
+}
+
+/// A group directory without `group.json`. A creation writes the trace's header, then the
+/// definition (atomically), then answers: one cut short by a crash left a directory no group
+/// is loaded from, whose label every later creation was refused (409) with no word in the
+/// log. Such remains (a header at most, perhaps `group.json.tmp`) are removed, and said; a
+/// directory holding more (recorded states) is kept, and said.
+fn forget_unfinished(dir: &Path) {
+    if !dir.is_dir() {
+        return;
+    }
+    let trace = dir.join("trace.jsonl");
+    let states = fs::read(&trace).map_or(0, |bytes| {
+        bytes
+            .split(|&b| b == b'\n')
+            .filter(|l| !l.is_empty())
+            .count()
+            .saturating_sub(1)
+    });
+    let only_ours = fs::read_dir(dir).is_ok_and(|entries| {
+        entries.filter_map(Result::ok).all(|e| {
+            matches!(
+                e.file_name().to_str(),
+                Some("trace.jsonl" | "group.json.tmp")
+            )
+        })
+    });
+    if states == 0 && only_ours {
+        match fs::remove_dir_all(dir) {
+            Ok(()) => tracing::warn!(
+                "{}: removed the remains of a group creation a stop cut short (no group.json; it \
+                 was never answered)",
+                dir.display()
+            ),
+            Err(e) => tracing::error!(
+                "{}: the remains of a group creation a stop cut short could not be removed: {e}",
+                dir.display()
+            ),
+        }
+    } else {
+        tracing::error!(
+            "{}: no group.json, so no group is loaded from it and its label cannot be created \
+             again; restore group.json or remove the directory",
+            dir.display()
+        );
     }
 }
 
