@@ -1004,8 +1004,10 @@ async fn a_spec_posted_again_with_another_implementation_replaces_its_cus() {
         );
     }
     let sets = change_sets(&api).await.len();
-    // Another parameter: the CU is replaced, by a review caused by its removal.
+    // Another parameter: the CU is replaced, by a review caused by the spec change (not a
+    // crash: the crash count does not move).
     let before = reviews(&api).await;
+    let crashes = environment(&api).await["crashes"].clone();
     api.post_turtle("/transformations", source(250, 2.0))
         .await
         .expect(201);
@@ -1016,9 +1018,10 @@ async fn a_spec_posted_again_with_another_implementation_replaces_its_cus() {
     let all = change_sets(&api).await;
     assert_eq!(all.len(), sets + 1, "{all:?}");
     let last = all.last().expect("a change set");
-    assert_eq!(last["cause"]["kind"], "cu-crashed", "{last}");
-    assert_eq!(last["cause"]["cu"], first.as_str(), "{last}");
+    assert_eq!(last["cause"]["kind"], "spec-changed", "{last}");
+    assert_eq!(last["cause"]["cus"], json!([first.as_str()]), "{last}");
     assert_eq!(spawned(last), ["src"], "{last}");
+    assert_eq!(environment(&api).await["crashes"], crashes);
     // A protected CU of it is left as it runs.
     api.post(
         "/cus",

@@ -43,6 +43,13 @@ pub enum Cause {
     },
     /// A client asked for it (Spawn, Destroy).
     Manual,
+    /// Transformation specs were posted again with another implementation (type, source,
+    /// parameters or executor): the CUs running the old one left the model (they "require
+    /// removal", seed Ch. 4), and this change set replaces them. Not a crash.
+    SpecChanged {
+        /// The CUs that were removed.
+        cus: Vec<Cid>,
+    },
     /// The manager reconciled its model with what the executors report (at start-up, or when
     /// an executor reappears): CUs it knows adopted, CUs it does not know stopped, CUs that
     /// should run and run nowhere respawned.
@@ -63,6 +70,7 @@ impl Cause {
             Self::TargetReleased { .. } => "target-released",
             Self::CuCrashed { .. } => "cu-crashed",
             Self::Manual => "manual",
+            Self::SpecChanged { .. } => "spec-changed",
             Self::Reconcile { .. } => "reconcile",
         }
     }

@@ -644,18 +644,25 @@ impl Manager {
 
     /// [`Manager::replace_stale`] under the configuration lock.
     fn replace_stale_locked(&self, stale: &[Cid]) -> Result<(), LifecycleError> {
+        let removed = self.remove_from_model_locked(stale)?;
         // Replaced already (a spec write and a change set may both find them).
-        if self.remove_all_crashed_locked(stale)? == 0 {
+        if removed.is_empty() {
             return Ok(());
         }
-        let names: Vec<&str> = stale.iter().map(Cid::as_str).collect();
+        let names: Vec<&str> = removed.iter().map(|(cid, _)| cid.as_str()).collect();
         tracing::info!(
             "{} run an implementation (type, source, parameters or executor) their \
              transformation's new spec no longer has: replaced",
             names.join(", ")
         );
         self.executor.abandon(stale);
-        lock(&self.schedule).urgent();
+        {
+            let mut schedule = lock(&self.schedule);
+            for (_, tid) in &removed {
+                schedule.prefer(tid.clone());
+            }
+            schedule.spec_changed(removed.into_iter().map(|(cid, _)| cid).collect());
+        }
         self.wake.notify_one();
         Ok(())
     }
@@ -721,6 +728,18 @@ impl Manager {
 
     /// [`Manager::remove_all_crashed`] under the configuration lock.
     fn remove_all_crashed_locked(&self, cids: &[Cid]) -> Result<usize, LifecycleError> {
+        let removed = self.remove_from_model_locked(cids)?;
+        let mut schedule = lock(&self.schedule);
+        for (cid, tid) in &removed {
+            schedule.prefer(tid.clone());
+            schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
+        }
+        Ok(removed.len())
+    }
+
+    /// Removes the CUs `cids` the model has from it, in one write, and forgets what they were
+    /// started with; returns them with their transformations.
+    fn remove_from_model_locked(&self, cids: &[Cid]) -> Result<Vec<(Cid, Tid)>, LifecycleError> {
         let loaded = self.load()?;
         let mut after = loaded.env.clone();
         let removed: Vec<(Cid, Tid)> = cids
@@ -728,7 +747,7 @@ impl Manager {
             .filter_map(|cid| after.cus.remove(cid).map(|cu| (cid.clone(), cu.tid)))
             .collect();
         if removed.is_empty() {
-            return Ok(0);
+            return Ok(removed);
         }
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
         self.set_environment(&delta.parts)?;
@@ -740,12 +759,7 @@ impl Manager {
                 recorded.remove(cid);
             }
         }
-        let mut schedule = lock(&self.schedule);
-        for (cid, tid) in &removed {
-            schedule.prefer(tid.clone());
-            schedule.perturbed(&Perturbation::CuCrashed { cu: cid.clone() });
-        }
-        Ok(removed.len())
+        Ok(removed)
     }
 
     /// Spawn: a CU of a transformation with its ports unbound, recorded as a change set

@@ -144,6 +144,20 @@ impl Schedule {
         self.urgent = true;
     }
 
+    /// CUs left the model because their transformation's spec changed implementation: a
+    /// review replaces them at once, with that as its cause (not a crash: the crash count is
+    /// what shows a lost one).
+    pub(crate) fn spec_changed(&mut self, cus: Vec<dyknow_engine::Cid>) {
+        match self.causes.iter_mut().find_map(|c| match c {
+            Cause::SpecChanged { cus } => Some(cus),
+            _ => None,
+        }) {
+            Some(earlier) => earlier.extend(cus),
+            None => self.causes.push(Cause::SpecChanged { cus }),
+        }
+        self.urgent = true;
+    }
+
     /// A review is due at once (a CU destroyed on request).
     pub(crate) fn urgent(&mut self) {
         self.urgent = true;

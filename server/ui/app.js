@@ -473,6 +473,8 @@
     cs.fresh = fresh;
     ui.changeSets.push(cs);
     for (const a of cs.actions || []) if (a.action === "destroy" && a.cu) { ui.destroyed.add(a.cu); ui.crashed.delete(a.cu); }
+    // CUs replaced because their transformation's spec changed left the model first: not crashes.
+    if (cs.cause && cs.cause.kind === "spec-changed") for (const cu of cs.cause.cus || []) { ui.destroyed.add(cu); ui.crashed.delete(cu); }
     if (cs.cause && cs.cause.kind === "cu-crashed" && cs.cause.cu && ui.known.has(cs.cause.cu) && !ui.crashed.has(cs.cause.cu)) {
       const k = ui.known.get(cs.cause.cu);
       ui.crashed.set(cs.cause.cu, { transformation: k.transformation, executor: k.executor, at: Date.now() });
