@@ -298,6 +298,19 @@ pub struct CuReport {
     pub generation: u64,
 }
 
+/// What an `info` query may ask (its payload; an empty payload asks everything).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InfoRequest {
+    /// With `false`, no process CU is asked for its statistics: each is reported with those
+    /// it gave last (the manager's sweep asks only what runs, every few seconds).
+    #[serde(default = "yes")]
+    pub statistics: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
 /// An executor's description (its `info` service).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ExecutorInfo {

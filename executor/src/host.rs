@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use dyknow_cu::keys::{InstanceId, InstanceKey};
 use dyknow_cu::protocol::{
     ApplyReply, ApplyRequest, CheckReply, CuAction, CuReport, Event, ExecutorInfo, Failure,
-    Implementation, Kind,
+    Implementation, InfoRequest, Kind,
 };
 use dyknow_cu::zenoh::bytes::Encoding;
 use dyknow_cu::zenoh::liveliness::LivelinessToken;
@@ -226,9 +226,13 @@ impl Executor {
                 )));
             }
         }
+        // Events wait for room rather than being dropped (Zenoh's default for a put): a lost
+        // crash event left a crashed CU in the model as running (the manager's sweep finds
+        // such a CU, seconds later; `docs/reliability.md`, crash storms).
         let events = session
             .declare_publisher(ns.executor_events(&config.name))
             .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
             .wait()?;
         let (jobs, rx) = mpsc::channel::<Job>();
         let inner = Arc::new(Inner {
@@ -554,7 +558,11 @@ impl Inner {
             "check" => serde_json::from_slice::<Implementation>(&payload)
                 .map_err(|e| format!("not an implementation: {e}"))
                 .map(|i| serde_json::to_vec(&check(&i)).unwrap_or_default()),
-            _ => Ok(serde_json::to_vec(&self.info()).unwrap_or_default()),
+            _ => {
+                let statistics =
+                    serde_json::from_slice::<InfoRequest>(&payload).map_or(true, |r| r.statistics);
+                Ok(serde_json::to_vec(&self.info_with(statistics)).unwrap_or_default())
+            }
         };
         let sent = match reply {
             Ok(bytes) => query.reply(query.key_expr().clone(), bytes).wait(),
@@ -569,6 +577,12 @@ impl Inner {
     }
 
     fn info(&self) -> ExecutorInfo {
+        self.info_with(true)
+    }
+
+    /// The `info` answer; without `statistics`, process CUs are not asked (reported with the
+    /// statistics they gave last).
+    fn info_with(&self, statistics: bool) -> ExecutorInfo {
         ExecutorInfo {
             name: self.config.name.clone(),
             builtins: builtins::names(),
@@ -585,14 +599,17 @@ impl Inner {
                     let asked: Vec<_> = hosted
                         .iter()
                         .map(|hosted| match hosted {
-                            Hosted::Process(_) => Err(scope.spawn(|| hosted.report())),
-                            Hosted::Builtin(_) => Ok(hosted),
+                            Hosted::Process(_) if statistics => {
+                                Err(scope.spawn(|| hosted.report()))
+                            }
+                            Hosted::Process(p) => Ok(p.report_last()),
+                            Hosted::Builtin(_) => Ok(hosted.report()),
                         })
                         .collect();
                     asked
                         .into_iter()
                         .filter_map(|a| match a {
-                            Ok(builtin) => Some(builtin.report()),
+                            Ok(report) => Some(report),
                             Err(thread) => thread.join().ok(),
                         })
                         .collect()

@@ -438,11 +438,21 @@ impl ProcessCu {
 
     /// Its report; statistics from the process when it answers within the timeout.
     pub fn report(&self) -> CuReport {
+        self.report_asking(true)
+    }
+
+    /// Its report with the statistics it gave last, asking the process nothing.
+    pub fn report_last(&self) -> CuReport {
+        self.report_asking(false)
+    }
+
+    fn report_asking(&self, ask: bool) -> CuReport {
         // A process that does not answer within STATISTICS_WAIT (hung, stopped) is shown with
         // the statistics it last gave: the executor's `info` reports every CU it hosts, and
         // one hung process held it up for the control timeout (5 s), so that every CU of the
         // executor was shown as last heard, without statistics.
         let mut statistics = match self.state() {
+            CuState::Running if !ask => lock(&self.last_statistics).clone(),
             CuState::Running => {
                 let asked = self
                     .control_within(&ControlRequest::Statistics, STATISTICS_WAIT)

@@ -25,6 +25,7 @@ use tokio::sync::mpsc;
 use crate::executor::{Applied, CuView, Executor, ReportedCu};
 
 mod membership;
+mod sweep;
 use membership::Token;
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -116,6 +117,11 @@ struct Inner {
     /// they were and the CUs placed on them then ([`membership::Grace`]). Locked after
     /// `tokens`, before `executors`, `placement` and `running`.
     graces: Mutex<BTreeMap<String, membership::Grace>>,
+    /// The CUs the change set being applied acts on: the sweep leaves them alone
+    /// ([`sweep`]). Locked after `placement` and `running`.
+    applying: Mutex<BTreeSet<Cid>>,
+    /// Set by [`Fleet::stop_watching`]: the sweep ends.
+    swept: Mutex<bool>,
 }
 
 /// The executors as the manager sees them.
@@ -183,8 +189,11 @@ impl Fleet {
             events: tx,
             pulse: membership::Pulse::default(),
             graces: Mutex::default(),
+            applying: Mutex::default(),
+            swept: Mutex::new(false),
         });
         membership::Pulse::start(&inner);
+        sweep::start(&inner);
         let [instances, tokens] = membership::watch(&inner, session, &namespace)?;
         let reporter = inner.clone();
         let events = session
@@ -245,6 +254,7 @@ impl Fleet {
     /// Stops watching the executors' tokens and events (the service is stopping): its own
     /// executor stopping next is not an executor vanishing.
     pub fn stop_watching(&self) {
+        *lock(&self.inner.swept) = true;
         for subscriber in std::mem::take(&mut *lock(&self.subscribers)) {
             let _ = subscriber.undeclare().wait();
         }
@@ -525,6 +535,14 @@ impl Executor for Fleet {
 
     fn apply(&self, change_set: &ChangeSet, specs: &BTreeMap<Tid, TransformationSpec>) -> Applied {
         let inner = &self.inner;
+        // The sweep leaves the CUs it acts on alone until it is done.
+        *lock(&inner.applying) = change_set
+            .actions
+            .iter()
+            .filter_map(Action::cu)
+            .cloned()
+            .collect();
+        let _applying = Cleared(&inner.applying);
         let mut failures: Vec<ActionFailure> = Vec::new();
         // Per executor, in order of first appearance: (index in the change set, action). The
         // destroys come after every other batch: a change set makes before it breaks (COMPILE
@@ -850,6 +868,15 @@ impl Executor for Fleet {
             }
         }
         views
+    }
+}
+
+/// Empties [`Inner::applying`] when a change set's application ends.
+struct Cleared<'a>(&'a Mutex<BTreeSet<Cid>>);
+
+impl Drop for Cleared<'_> {
+    fn drop(&mut self) {
+        lock(self.0).clear();
     }
 }
 

@@ -638,3 +638,108 @@ fn an_earlier_instance_takes_the_name_and_only_its_answer_counts() {
         std::thread::sleep(Duration::from_millis(5));
     }
 }
+
+/// A crash whose event never arrives (an executor's event is sent once) is found by the
+/// sweep: a CU placed on an executor and known to run that the executor no longer hosts, in two
+/// answers in a row, is reported crashed. One it hosts is not, however long it runs. (A crash
+/// storm audit saw such a CU stay `running` in the model, its target satisfied and silent.)
+#[test]
+fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
+    use dyknow_cu::protocol::{ApplyReply, InfoRequest};
+    use dyknow_engine::Action;
+
+    let (router, client) = sessions();
+    let namespace = Namespace::new("sweep").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    // What x hosts, as its `info` says; and whether the sweep asked without statistics.
+    let hosted = Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let quick = Arc::new(AtomicU64::new(0));
+    let (listed, asked_quick) = (hosted.clone(), quick.clone());
+    let _info = client
+        .declare_queryable(namespace.executor_service("x", "info"))
+        .callback(move |query| {
+            let payload = query.payload().map(|p| p.to_bytes().into_owned());
+            if payload
+                .and_then(|p| serde_json::from_slice::<InfoRequest>(&p).ok())
+                .is_some_and(|r| !r.statistics)
+            {
+                asked_quick.fetch_add(1, Ordering::SeqCst);
+            }
+            let mut info = info_of_x(None, 0);
+            info.builtins = vec!["dyknow/relay".into()];
+            info.cus = (listed.lock().expect("the list").iter())
+                .map(|cu| {
+                    let mut report = info_of_x(None, 1).cus.remove(0);
+                    report.cu.clone_from(cu);
+                    report
+                })
+                .collect();
+            reply_json(&query, &info);
+        })
+        .wait()
+        .expect("a queryable");
+    let spawned = hosted.clone();
+    let _apply = client
+        .declare_queryable(namespace.executor_service("x", "apply"))
+        .callback(move |query| {
+            spawned.lock().expect("the list").push("c1".into());
+            let reply = ApplyReply {
+                failures: Vec::new(),
+            };
+            reply_json(&query, &reply);
+        })
+        .wait()
+        .expect("a queryable");
+    let _token = client
+        .liveliness()
+        .declare_token(namespace.executor_token("x"))
+        .wait()
+        .expect("a token");
+    until_appeared(&mut events, "x", 0);
+    let specs = BTreeMap::from([(dyknow_engine::Tid::from("t"), relay_spec())]);
+    let spawn = change_set(
+        1,
+        vec![Action::Spawn {
+            cu: "c1".into(),
+            transformation: "t".into(),
+        }],
+    );
+    assert!(fleet.apply(&spawn, &specs).failures.is_empty());
+    until_heard(&fleet, "c1", Some("x"), "running");
+    // Hosted: three sweeps and more, no crash.
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(7) {
+        if let Ok(event) = events.try_recv() {
+            assert!(
+                !matches!(event, FleetEvent::Crashed { .. }),
+                "a hosted CU reported crashed: {event:?}"
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        quick.load(Ordering::SeqCst) >= 2,
+        "the sweep asks without statistics"
+    );
+    // Gone without a word: crashed, within two sweeps or three.
+    hosted.lock().expect("the list").clear();
+    let gone = Instant::now();
+    let reason = loop {
+        match events.try_recv() {
+            Ok(FleetEvent::Crashed { cu, reason }) => {
+                assert_eq!(cu.as_str(), "c1");
+                break reason;
+            }
+            Ok(_) => {}
+            Err(_) => {
+                assert!(
+                    gone.elapsed() < Duration::from_secs(30),
+                    "the lost crash was never found"
+                );
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+    };
+    assert!(reason.contains("no longer hosts it"), "{reason}");
+    until_heard(&fleet, "c1", None, "crashed");
+}
