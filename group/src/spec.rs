@@ -289,6 +289,12 @@ pub fn check_groundings(
 ) -> Result<(), SpecError> {
     for (symbol, g) in grounding {
         let wrong = match g {
+            // A value written as an IRI would name the target of that IRI as a description.
+            Grounding::Tag { tag } if tag.starts_with('<') => Some(format!(
+                "the grounding tag of {symbol}: {tag:?} begins with '<', as an IRI is written; \
+                 a tag description IRI is given as {{\"description\": \"<IRI>\"}}, without \
+                 the brackets"
+            )),
             Grounding::Tag { tag } => check_name(&format!("the grounding tag of {symbol}"), tag)
                 .err()
                 .map(|e| e.to_string()),
@@ -297,11 +303,12 @@ pub fn check_groundings(
                     Some(format!(
                         "the grounding of {symbol}: {description:?} is not an absolute IRI"
                     ))
-                } else if description.len() > MAX_SYMBOL_BYTES {
+                } else if description.len() + 2 > MAX_SYMBOL_BYTES {
                     Some(format!(
                         "the grounding of {symbol}: the IRI is {} bytes long; it names a \
-                         target, at most {MAX_SYMBOL_BYTES} bytes",
-                        description.len()
+                         target, at most {} bytes",
+                        description.len(),
+                        MAX_SYMBOL_BYTES - 2
                     ))
                 } else {
                     None
@@ -366,10 +373,19 @@ pub enum TargetTag {
 }
 
 impl TargetTag {
-    /// The target's label: `symbol:<tag value>` or `symbol:<IRI>`.
+    /// The target's label: `symbol:` followed by the tag value, or by the description IRI
+    /// in angle brackets (`symbol:<urn:x:Foo>`), so that a value spelled as an IRI
+    /// (`urn:x:Foo`) and the IRI never share a target (they did: the second group was fed the
+    /// first one's stream). A tag value may not begin with `<` ([`check_groundings`]).
     pub fn label(&self) -> String {
+        format!("symbol:{}", self.written())
+    }
+
+    /// The tag as the label writes it: the value, or `<IRI>`.
+    fn written(&self) -> String {
         match self {
-            Self::Value(v) | Self::Description(v) => format!("symbol:{v}"),
+            Self::Value(v) => v.clone(),
+            Self::Description(iri) => format!("<{iri}>"),
         }
     }
 
@@ -397,11 +413,9 @@ impl TargetTag {
         } else {
             clean
         };
-        let whole = match self {
-            Self::Value(v) | Self::Description(v) => v,
-        };
-        if force || clean != *whole {
-            format!("/dyknow/symbols/{clean}-{:08x}", fnv(whole) as u32)
+        let whole = self.written();
+        if force || clean != whole {
+            format!("/dyknow/symbols/{clean}-{:08x}", fnv(&whole) as u32)
         } else {
             format!("/dyknow/symbols/{clean}")
         }
@@ -451,6 +465,32 @@ pub fn unused_groundings<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A tag value spelled as an IRI and that IRI as a description are two tags: two targets,
+    /// two channels (they shared one target, and one group was fed the other's stream).
+    #[test]
+    fn a_value_spelled_as_an_iri_and_the_iri_name_two_targets() {
+        let value = TargetTag::Value("urn:x:Foo".into());
+        let description = TargetTag::Description("urn:x:Foo".into());
+        assert_eq!(value.label(), "symbol:urn:x:Foo");
+        assert_eq!(description.label(), "symbol:<urn:x:Foo>");
+        assert_ne!(value.channel(), description.channel());
+        // A value written with the brackets is refused, so no value can take the IRI's label.
+        let grounding = BTreeMap::from([(
+            "p".to_owned(),
+            Grounding::Tag {
+                tag: "<urn:x:Foo>".into(),
+            },
+        )]);
+        let formulas = ["p".to_owned()];
+        let grounded = [ground(0, "p", &Domains::new()).unwrap()];
+        match check_groundings(&grounding, &formulas, &grounded) {
+            Err(SpecError::Grounding { message, .. }) => {
+                assert!(message.contains("description"), "{message}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 
     #[test]
     fn a_formula_that_grounds_to_too_many_atoms_is_refused_before_it_is_expanded() {
