@@ -573,7 +573,7 @@ fn read_input(path: &Path) -> Result<(InputFormat, Vec<u8>), Failure> {
         Failure(
             2,
             format!(
-                "{}: unknown file type (use .ttl, .nt or .jsonld)",
+                "{}: unknown file type (use .ttl or .turtle, .nt, .jsonld or .json)",
                 path.display()
             ),
         )
@@ -961,7 +961,7 @@ fn load(data: &Path, files: &[PathBuf]) -> Result<(), Failure> {
             return Err(Failure(
                 2,
                 format!(
-                    "{}: unknown file type (use .ttl, .nt or .jsonld)",
+                    "{}: unknown file type (use .ttl or .turtle, .nt, .jsonld or .json)",
                     file.display()
                 ),
             ));

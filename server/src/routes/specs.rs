@@ -543,7 +543,7 @@ pub async fn get_transformation(
 /// RemoveTransformation (a perturbation: deregister).
 #[utoipa::path(delete, path = "/transformations/{label}", tag = "specs",
     params(("label" = String, Path, description = "the label, percent-encoded")),
-    responses((status = 204), (status = 404, body = ErrorBody)))]
+    responses((status = 204), (status = 404, body = ErrorBody), (status = 409, body = ErrorBody)))]
 pub async fn delete_transformation(
     State(s): State<AppState>,
     Path(label): Path<String>,
