@@ -123,6 +123,23 @@ fn verdicts(group: &Value) -> BTreeSet<(u64, String, u64)> {
         .collect()
 }
 
+/// A service on an on-disk store under `dir`: the store's directory, and a start that each
+/// call makes on the same store and Zenoh endpoint.
+fn on_disk(dir: &Path) -> (std::path::PathBuf, impl Fn() -> Service) {
+    let data = dir.join("data");
+    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+    let store = data.to_str().unwrap().to_owned();
+    (data, move || {
+        Service::start_with(&["--data", &store], &zenoh, &[])
+    })
+}
+
+/// `POST /groups` of `body`, which must be 201.
+fn create(service: &Service, body: Value) {
+    let (status, g) = send(service, "POST", "/groups", Some(body));
+    assert_eq!(status, 201, "{g}");
+}
+
 fn group(service: &Service, label: &str) -> Value {
     service.get(&format!("/groups/{label}"))
 }
@@ -1073,17 +1090,12 @@ fn groups_survive_a_restart() {
 #[test]
 fn a_formula_changed_after_the_last_state_a_torn_trace_kept_is_restored_as_of_that_state() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let (data, start) = on_disk(dir.path());
     let service = start();
-    let (status, g) = send(
+    create(
         &service,
-        "POST",
-        "/groups",
-        Some(json!({"label": "torn", "formulas": ["always p", "eventually q"]})),
+        json!({"label": "torn", "formulas": ["always p", "eventually q"]}),
     );
-    assert_eq!(status, 201, "{g}");
     drop(service);
     // What a crash leaves: three states written whole and a fourth torn, while the definition
     // already holds formula 1's removal at state 5 and formula 2's addition at state 7.
@@ -1144,17 +1156,9 @@ fn a_formula_changed_after_the_last_state_a_torn_trace_kept_is_restored_as_of_th
 #[test]
 fn a_group_that_cannot_be_loaded_is_not_overwritten() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let (data, start) = on_disk(dir.path());
     let service = start();
-    let (status, g) = send(
-        &service,
-        "POST",
-        "/groups",
-        Some(json!({"label": "kept", "formulas": ["p"]})),
-    );
-    assert_eq!(status, 201, "{g}");
+    create(&service, json!({"label": "kept", "formulas": ["p"]}));
     drop(service);
     let record = data.join("groups").join("kept");
     let trace_before = std::fs::read_to_string(record.join("trace.jsonl")).unwrap();
@@ -1204,18 +1208,10 @@ fn a_group_that_cannot_be_loaded_is_not_overwritten() {
 #[test]
 fn the_remains_of_a_creation_cut_short_are_removed_at_start_up() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let zenoh = format!("tcp/127.0.0.1:{}", free_port());
-    let start = || Service::start_with(&["--data", data.to_str().unwrap()], &zenoh, &[]);
+    let (data, start) = on_disk(dir.path());
     let service = start();
     for label in ["cut", "kept"] {
-        let (status, g) = send(
-            &service,
-            "POST",
-            "/groups",
-            Some(json!({"label": label, "formulas": ["p"]})),
-        );
-        assert_eq!(status, 201, "{g}");
+        create(&service, json!({"label": label, "formulas": ["p"]}));
     }
     drop(service);
     let cut = data.join("groups").join("cut");
@@ -1228,13 +1224,7 @@ fn the_remains_of_a_creation_cut_short_are_removed_at_start_up() {
 
     let service = start();
     assert!(!cut.exists(), "the remains are removed");
-    let (status, g) = send(
-        &service,
-        "POST",
-        "/groups",
-        Some(json!({"label": "cut", "formulas": ["q"]})),
-    );
-    assert_eq!(status, 201, "{g}");
+    create(&service, json!({"label": "cut", "formulas": ["q"]}));
     let (status, answer) = send(
         &service,
         "POST",
