@@ -2030,3 +2030,43 @@ async fn reads_with_one_representation_refuse_an_accept_that_excludes_it() {
         .await;
     answer.expect(201);
 }
+
+/// A query parameter an endpoint does not take is 400, naming it and those the endpoint takes
+/// (a misspelt one was ignored: `/changesets?sinc=cs-12` gave the whole history, and
+/// `/model?fromat=nt` Turtle). The SPARQL endpoint's parameters are the SPARQL protocol's, and
+/// are not checked here.
+#[tokio::test]
+async fn an_unknown_query_parameter_is_refused() {
+    let api = api_with_undistort().await;
+    for (uri, names) in [
+        ("/changesets?sinc=cs-12", ["\"sinc\"", "since"]),
+        ("/model?fromat=nt", ["\"fromat\"", "format, inferred"]),
+        ("/targets?x=1", ["\"x\"", "no query parameter"]),
+        (
+            "/environment?since=cs-1",
+            ["\"since\"", "no query parameter"],
+        ),
+    ] {
+        let answer = api.get(uri).await;
+        answer.expect_error(400);
+        let error = answer.json()["error"]
+            .as_str()
+            .unwrap_or_default()
+            .to_owned();
+        assert!(names.iter().all(|n| error.contains(n)), "{uri}: {error}");
+    }
+    let one = format!("/transformations/{}", encode("Undistort(cam1)"));
+    api.get(&format!("{one}?x")).await.expect_error(400);
+    api.delete(&format!("{one}?force=true"))
+        .await
+        .expect_error(400);
+    api.get(&one).await.expect(200);
+    // What the endpoints take still works; an empty query is no parameter.
+    api.get("/changesets?since=cs-1").await.expect(200);
+    api.get("/model?format=ntriples&inferred=false")
+        .await
+        .expect(200);
+    api.get("/targets?").await.expect(200);
+    let query = format!("/sparql?query={}&timeout=5", encode(LABEL_QUERY));
+    api.get(&query).await.expect(200);
+}
