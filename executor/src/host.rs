@@ -140,6 +140,9 @@ struct Inner {
     /// CPU time at the last upkeep report, per CU.
     reported: Mutex<BTreeMap<String, (Duration, Instant)>>,
     events: Publisher<'static>,
+    /// The same key, for measured costs (`Upkeep`), which may be dropped when the link is
+    /// congested.
+    costs: Publisher<'static>,
     jobs: mpsc::Sender<Job>,
 }
 
@@ -226,13 +229,19 @@ impl Executor {
                 )));
             }
         }
-        // Events wait for room rather than being dropped (Zenoh's default for a put): a lost
-        // crash event left a crashed CU in the model as running (the manager's sweep finds
-        // such a CU, seconds later; `docs/reliability.md`, crash storms).
+        // A CU's start and crash wait for room rather than being dropped (Zenoh's default for
+        // a put): a lost crash event left a crashed CU in the model as running (the manager's
+        // sweep finds such a CU, seconds later; `docs/reliability.md`, crash storms). Measured
+        // costs, sent every interval, may be dropped: the next interval's comes.
         let events = session
             .declare_publisher(ns.executor_events(&config.name))
             .encoding(Encoding::APPLICATION_JSON)
             .congestion_control(zenoh::qos::CongestionControl::Block)
+            .wait()?;
+        let costs = session
+            .declare_publisher(ns.executor_events(&config.name))
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(zenoh::qos::CongestionControl::Drop)
             .wait()?;
         let (jobs, rx) = mpsc::channel::<Job>();
         let inner = Arc::new(Inner {
@@ -244,6 +253,7 @@ impl Executor {
             generations: Mutex::default(),
             reported: Mutex::default(),
             events,
+            costs,
             jobs,
         });
         let worker_inner = inner.clone();
@@ -628,7 +638,11 @@ impl Inner {
 
     fn publish(&self, event: &Event) {
         let payload = serde_json::to_vec(event).unwrap_or_default();
-        if let Err(e) = self.events.put(payload).wait() {
+        let publisher = match event {
+            Event::Upkeep { .. } => &self.costs,
+            _ => &self.events,
+        };
+        if let Err(e) = publisher.put(payload).wait() {
             tracing::warn!(
                 "executor {}: cannot publish an event: {e}",
                 self.config.name

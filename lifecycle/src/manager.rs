@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use dyknow_engine::{
     Action, Cause, ChangeSet, ChangeSetStatus, Channel, Cid, Compiled, ComputationUnit, CostKind,
     CostSummary, CuOutcome, CuOutcomeState, Environment, ExploreOptions, Ids, Invalidity, Learned,
-    ProbeOptions, Tid,
+    NTriplesDelta, ProbeOptions, Tid, Transformation,
 };
 use dyknow_store::model::{self, CuSnapshot, Loaded, SpecCache};
 use dyknow_store::spec::{Implementation, SpecKind, TransformationSpec};
@@ -193,11 +193,19 @@ pub struct Manager {
     /// until its write is published: [`Manager::cus`] shows them, `starting` until their
     /// executor says they run (a process CU can take seconds to start, and was missing from
     /// every read meanwhile).
-    applying: Mutex<Arc<BTreeMap<Cid, ComputationUnit>>>,
+    applying: Mutex<Arc<Spawning>>,
+    /// What was written to the model outside change sets since the last one was recorded
+    /// (CUs removed because they crashed or their spec changed): the next change set's delta
+    /// begins with it, so that applying every change set's delta in turn gives the model.
+    unrecorded: Mutex<NTriplesDelta>,
 }
 
+/// The CUs a change set spawns, with their transformation as the change set was planned with
+/// (its learned estimates).
+type Spawning = BTreeMap<Cid, (ComputationUnit, Option<Transformation>)>;
+
 /// Clears [`Manager::applying`] when a change set's application ends, however it ends.
-struct Applying<'a>(&'a Mutex<Arc<BTreeMap<Cid, ComputationUnit>>>);
+struct Applying<'a>(&'a Mutex<Arc<Spawning>>);
 
 impl Drop for Applying<'_> {
     fn drop(&mut self) {
@@ -290,6 +298,7 @@ impl Manager {
             started: Notify::new(),
             spawned_with: Mutex::default(),
             applying: Mutex::default(),
+            unrecorded: Mutex::default(),
             kb,
         };
         // A store written before CU graphs were kept in step with spec writes may hold
@@ -379,9 +388,9 @@ impl Manager {
         // The CUs a change set is spawning, not in the model yet (an applied change set's
         // write is published before they are cleared: never both, never neither).
         let applying = lock(&self.applying).clone();
-        for (cid, cu) in applying.iter() {
+        for (cid, (cu, transformation)) in applying.iter() {
             env.cus.entry(cid.clone()).or_insert_with(|| cu.clone());
-            if let Some(t) = snapshot.library.get(&cu.tid) {
+            if let Some(t) = transformation {
                 env.library
                     .entry(cu.tid.clone())
                     .or_insert_with(|| t.clone());
@@ -751,6 +760,10 @@ impl Manager {
         }
         let delta = model::delta(&loaded.env, &after, &loaded.iris);
         self.set_environment(&delta.parts)?;
+        {
+            let mut unrecorded = lock(&self.unrecorded);
+            *unrecorded = unrecorded.then(&delta.ntriples());
+        }
         // Their records go once they are gone from the model (kept, should the write fail:
         // a spec posted again would still find them stale).
         {
@@ -1114,16 +1127,22 @@ impl Manager {
         };
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
-        let spawning: BTreeMap<Cid, ComputationUnit> = change_set
+        let spawning: Spawning = change_set
             .actions
             .iter()
             .skip(reconciled.done)
             .filter_map(|action| match action {
-                Action::Spawn { cu, .. } => Some((cu.clone(), after.cus.get(cu)?.clone())),
+                Action::Spawn { cu, transformation } => Some((
+                    cu.clone(),
+                    (
+                        after.cus.get(cu)?.clone(),
+                        loaded.env.library.get(transformation).cloned(),
+                    ),
+                )),
                 _ => None,
             })
             .collect();
-        let _applying = (!spawning.is_empty()).then(|| {
+        let applying = (!spawning.is_empty()).then(|| {
             *lock(&self.applying) = Arc::new(spawning);
             Applying(&self.applying)
         });
@@ -1200,6 +1219,11 @@ impl Manager {
             change_set.delta = written.ntriples();
             written
         };
+        // The model's changes since the last change set that no change set made (crashes,
+        // replaced specs) come first in its delta: a client applying the deltas in turn (the
+        // SSE stream) gets the model, CUs that crashed included.
+        let unrecorded = std::mem::take(&mut *lock(&self.unrecorded));
+        change_set.delta = unrecorded.then(&change_set.delta);
         let mut parts = written.parts;
         parts.push((
             EnvironmentPart::ChangeSet(id),
@@ -1239,12 +1263,20 @@ impl Manager {
             ));
         }
         if let Err(e) = self.set_environment(&parts) {
+            // Not recorded: what came before it is the next one's to tell.
+            {
+                let mut pending = lock(&self.unrecorded);
+                *pending = unrecorded.then(&pending);
+            }
             // The executor may have applied what the model now lacks: replan from the model.
             tracing::error!("{}: applied but not recorded: {e}", change_set.id);
             lock(&self.schedule).urgent();
             self.wake.notify_one();
             return Err(e);
         }
+        // Written and published: the model shows its CUs now (and no longer those that
+        // failed, nor, below, those found stale).
+        drop(applying);
         if let Some(learned) = learned {
             *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
         }

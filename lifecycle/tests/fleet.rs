@@ -352,6 +352,12 @@ fn fake_executor(
     let info = client
         .declare_queryable(namespace.executor_service(name, "info"))
         .callback(move |query| {
+            // The sweep's question (no statistics) goes unanswered: this fake hosts nothing,
+            // and its CUs, adopted or acknowledged, must not be swept as crashed while a test
+            // runs.
+            if query.payload().is_some_and(|p| !p.to_bytes().is_empty()) {
+                return;
+            }
             let info = ExecutorInfo {
                 instance: None,
                 name: name.into(),
@@ -639,13 +645,29 @@ fn an_earlier_instance_takes_the_name_and_only_its_answer_counts() {
     }
 }
 
+/// The crashes a fleet reports within `wait`.
+fn crashes_within(events: &mut UnboundedReceiver<FleetEvent>, wait: Duration) -> Vec<String> {
+    let started = Instant::now();
+    let mut seen = Vec::new();
+    while started.elapsed() < wait {
+        match events.try_recv() {
+            Ok(FleetEvent::Crashed { cu, .. }) => seen.push(cu.to_string()),
+            Ok(_) => {}
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+    seen
+}
+
 /// A crash whose event never arrives (an executor's event is sent once) is found by the
 /// sweep: a CU placed on an executor and known to run that the executor no longer hosts, in two
-/// answers in a row, is reported crashed. One it hosts is not, however long it runs. (A crash
-/// storm audit saw such a CU stay `running` in the model, its target satisfied and silent.)
+/// answers in a row (so not before a sweep interval has passed), is reported crashed. One it
+/// hosts is not, however long it runs, and neither is one a change set being applied destroys.
+/// (A crash storm audit saw such a CU stay `running` in the model, its target satisfied and
+/// silent.)
 #[test]
 fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
-    use dyknow_cu::protocol::{ApplyReply, InfoRequest};
+    use dyknow_cu::protocol::{ApplyReply, ApplyRequest, CuAction, InfoRequest};
     use dyknow_engine::Action;
 
     let (router, client) = sessions();
@@ -678,15 +700,36 @@ fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
         })
         .wait()
         .expect("a queryable");
-    let spawned = hosted.clone();
+    // `apply` carries out spawns and destroys on the list at once, and answers after the
+    // delay the test set (none by default).
+    let delay = Arc::new(AtomicU64::new(0));
+    let (applied_to, held) = (hosted.clone(), delay.clone());
     let _apply = client
         .declare_queryable(namespace.executor_service("x", "apply"))
         .callback(move |query| {
-            spawned.lock().expect("the list").push("c1".into());
-            let reply = ApplyReply {
-                failures: Vec::new(),
-            };
-            reply_json(&query, &reply);
+            let payload = query.payload().map(|p| p.to_bytes().into_owned());
+            let request: ApplyRequest =
+                serde_json::from_slice(&payload.unwrap_or_default()).expect("a request");
+            {
+                let mut list = applied_to.lock().expect("the list");
+                for action in &request.actions {
+                    match action {
+                        CuAction::Spawn { cu, .. } => list.push(cu.clone()),
+                        CuAction::Destroy { cu } => list.retain(|c| c != cu),
+                        _ => {}
+                    }
+                }
+            }
+            // Answered from a thread of its own: a callback that waited would hold up the
+            // session's other answers (the sweep's `info`).
+            let wait = Duration::from_millis(held.load(Ordering::SeqCst));
+            std::thread::spawn(move || {
+                std::thread::sleep(wait);
+                let reply = ApplyReply {
+                    failures: Vec::new(),
+                };
+                reply_json(&query, &reply);
+            });
         })
         .wait()
         .expect("a queryable");
@@ -699,29 +742,52 @@ fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
     let specs = BTreeMap::from([(dyknow_engine::Tid::from("t"), relay_spec())]);
     let spawn = change_set(
         1,
-        vec![Action::Spawn {
-            cu: "c1".into(),
-            transformation: "t".into(),
-        }],
+        ["c1", "c2"]
+            .into_iter()
+            .map(|cu| Action::Spawn {
+                cu: cu.into(),
+                transformation: "t".into(),
+            })
+            .collect(),
     );
     assert!(fleet.apply(&spawn, &specs).failures.is_empty());
     until_heard(&fleet, "c1", Some("x"), "running");
     // Hosted: three sweeps and more, no crash.
-    let started = Instant::now();
-    while started.elapsed() < Duration::from_secs(7) {
-        if let Ok(event) = events.try_recv() {
-            assert!(
-                !matches!(event, FleetEvent::Crashed { .. }),
-                "a hosted CU reported crashed: {event:?}"
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    assert_eq!(
+        crashes_within(&mut events, Duration::from_secs(7)),
+        Vec::<String>::new()
+    );
     assert!(
         quick.load(Ordering::SeqCst) >= 2,
         "the sweep asks without statistics"
     );
-    // Gone without a word: crashed, within two sweeps or three.
+    // Destroyed by a change set that takes 4.5 s to be acknowledged (two sweeps and more; the
+    // fleet waits 5 s): gone from x at once, but the change set acts on it: no crash, then or
+    // after.
+    delay.store(4_500, Ordering::SeqCst);
+    let destroy = change_set(2, vec![Action::Destroy { cu: "c2".into() }]);
+    let fleet = Arc::new(fleet);
+    let destroying = {
+        let (fleet, specs) = (fleet.clone(), specs.clone());
+        std::thread::spawn(move || fleet.apply(&destroy, &specs))
+    };
+    assert_eq!(
+        crashes_within(&mut events, Duration::from_secs(4)),
+        Vec::<String>::new()
+    );
+    assert!(
+        destroying
+            .join()
+            .expect("apply returns")
+            .failures
+            .is_empty()
+    );
+    delay.store(0, Ordering::SeqCst);
+    assert_eq!(
+        crashes_within(&mut events, Duration::from_secs(5)),
+        Vec::<String>::new()
+    );
+    // Gone without a word: crashed, after two answers, so not before a sweep interval.
     hosted.lock().expect("the list").clear();
     let gone = Instant::now();
     let reason = loop {
@@ -740,6 +806,11 @@ fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
             }
         }
     };
+    assert!(
+        gone.elapsed() >= Duration::from_millis(1_900),
+        "concluded from one answer: {:?}",
+        gone.elapsed()
+    );
     assert!(reason.contains("no longer hosts it"), "{reason}");
     until_heard(&fleet, "c1", None, "crashed");
 }

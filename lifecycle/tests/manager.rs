@@ -626,6 +626,52 @@ fn the_cus_of_a_vanished_executor_crash_together_and_one_review_names_them_all()
     assert_eq!(manager.change_sets(None).len(), before);
 }
 
+/// Applying every change set's delta in turn gives the model, crashes included: the CUs a
+/// crash (or a spec change) removed, outside any change set, leave with the next change set's
+/// delta (a client mirroring the model from the change sets kept crashed CUs for ever).
+#[test]
+fn the_change_sets_deltas_in_turn_give_the_model_crashes_included() {
+    let manager = Manager::new(example_12(), Arc::new(ModelOnly), Settings::default()).unwrap();
+    manager.review().unwrap();
+    let cus: Vec<Cid> = manager.load().unwrap().env.cus.keys().cloned().collect();
+    assert!(cus.len() >= 2, "{cus:?}");
+    let vanished = FleetEvent::Vanished {
+        executor: "x".into(),
+        cus: cus[..1].to_vec(),
+    };
+    manager.handle(vanished).unwrap();
+    manager.review().unwrap().expect("a repair");
+    manager
+        .report(Perturbation::CuCrashed { cu: cus[1].clone() })
+        .unwrap();
+    let repair = manager.review().unwrap().expect("a repair");
+    assert!(
+        repair.delta.delete.contains(cus[1].as_str()),
+        "the repair's delta deletes the crashed CU: {}",
+        repair.delta.delete
+    );
+    let mut mirror: BTreeSet<String> = BTreeSet::new();
+    for cs in manager.change_sets(None) {
+        for line in cs.delta.delete.lines() {
+            mirror.remove(line);
+        }
+        mirror.extend(cs.delta.insert.lines().map(str::to_owned));
+    }
+    let loaded = manager.load().unwrap();
+    let model: BTreeSet<String> = dyknow_store::model::delta(
+        &dyknow_engine::Environment::default(),
+        &loaded.env,
+        &loaded.iris,
+    )
+    .ntriples()
+    .insert
+    .lines()
+    .map(str::to_owned)
+    .collect();
+    assert!(!model.is_empty());
+    assert_eq!(mirror, model);
+}
+
 #[test]
 fn what_executors_send_is_handled_without_trusting_it() {
     use dyknow_lifecycle::{FleetEvent, Observation};

@@ -981,20 +981,62 @@ impl Groups {
                 continue;
             }
             for s in core.streams.iter().filter(|s| s.active) {
-                needed.insert(s.tag.label(), s.tag.clone());
+                let label = s.tag.label();
+                // Restored from before labels told descriptions apart, or too long for a
+                // label since: said, and left out (one such target refused the whole post).
+                if label.len() > dyknow_store::spec::MAX_LABEL_BYTES {
+                    tracing::error!(
+                        "group {:?}: the target of {label:.80}… would have a label over {} bytes; \
+                         it is not posted",
+                        g.label,
+                        dyknow_store::spec::MAX_LABEL_BYTES
+                    );
+                    continue;
+                }
+                match needed.get(&label) {
+                    Some(other) if *other != s.tag => tracing::error!(
+                        "group {:?}: {label:?} names two tags ({other:?} and {:?}, a tag value \
+                         beginning with '<' restored from before it was refused): the first is \
+                         kept",
+                        g.label,
+                        s.tag
+                    ),
+                    Some(_) => {}
+                    None => {
+                        needed.insert(label, s.tag.clone());
+                    }
+                }
             }
         }
         let internal = |e: &dyn std::fmt::Display| GroupError::Internal(e.to_string());
-        let existing: BTreeSet<String> = self
-            .kb
-            .specs(SpecKind::Target)
-            .map_err(|e| internal(&e))?
-            .into_iter()
-            .filter_map(|s| match s {
-                Spec::Target(t) if t.label.starts_with(TARGET_PREFIX) => Some(t.label),
-                _ => None,
-            })
-            .collect();
+        // A stored target that asks for something else than its label's tag now does (a
+        // description and a value spelled alike shared one until 2026-11-29) is replaced.
+        let mut existing: BTreeSet<String> = BTreeSet::new();
+        let mut outdated: Vec<String> = Vec::new();
+        for spec in self.kb.specs(SpecKind::Target).map_err(|e| internal(&e))? {
+            let Spec::Target(t) = spec else { continue };
+            if !t.label.starts_with(TARGET_PREFIX) {
+                continue;
+            }
+            if let Some(tag) = needed.get(&t.label)
+                && !asks_for(&t, tag)
+            {
+                outdated.push(t.label.clone());
+            }
+            existing.insert(t.label);
+        }
+        for label in &outdated {
+            tracing::warn!("target {label:?} asked for another tag or channel: replaced");
+            self.kb
+                .remove_spec(SpecKind::Target, label)
+                .map_err(|e| internal(&e))?;
+            existing.remove(label);
+            self.lifecycle
+                .report(Perturbation::TargetReleased {
+                    target: label.clone().into(),
+                })
+                .map_err(|e| internal(&e))?;
+        }
         let missing: Vec<&TargetTag> = needed
             .iter()
             .filter(|(l, _)| !existing.contains(*l))
@@ -1063,6 +1105,21 @@ impl Groups {
 }
 
 /// The Turtle of group targets.
+/// Whether a stored target asks for `tag` on the channel the service gives it.
+fn asks_for(target: &dyknow_store::spec::TargetSpec, tag: &TargetTag) -> bool {
+    let asked = match tag {
+        TargetTag::Value(v) => dyknow_store::spec::Tag {
+            value: Some(v.clone()),
+            description: None,
+        },
+        TargetTag::Description(iri) => dyknow_store::spec::Tag {
+            value: None,
+            description: Some(iri.clone()),
+        },
+    };
+    target.tags == [asked] && target.channel == tag.channel()
+}
+
 fn target_turtle(tags: &[&TargetTag]) -> String {
     let lit = |s: &str| serde_json::to_string(s).unwrap_or_default();
     let mut doc = String::from(
