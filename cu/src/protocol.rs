@@ -443,6 +443,20 @@ mod tests {
             ["python3", "cu.py", "--x", "1"]
         );
         assert_eq!(split_command(r#"a "b c" """#), ["a", "b c", ""]);
+        // The examples of docs/executors.md ("In any language").
+        assert_eq!(
+            split_command(r#"python3 "/opt/my cus/filter.py" --threshold 0.5"#),
+            ["python3", "/opt/my cus/filter.py", "--threshold", "0.5"]
+        );
+        assert_eq!(
+            split_command(r#"sh -c "exec python3 cu.py 2>>/tmp/cu.log""#),
+            ["sh", "-c", "exec python3 cu.py 2>>/tmp/cu.log"]
+        );
+        assert_eq!(
+            split_command(r#"a "b c"#),
+            ["a", "b c"],
+            "an open quote runs to the end"
+        );
         assert!(split_command("   ").is_empty());
     }
 
