@@ -297,7 +297,9 @@ impl ProcessCu {
                 }
             }
         }
-        let labour = process_cpu(pid).unwrap_or_default();
+        // What it and what it started used (a wrapper that did not `exec` starts the CU in a
+        // child: measured alone, its labour was the wrapper's, next to nothing).
+        let labour = process_tree_cpu(pid, 4).unwrap_or_default();
         // Its token vanishing is a crash too (seen before the waiter when the process is
         // killed, and the only sign when it hangs up from another machine).
         let vanished = cu.clone();

@@ -1104,7 +1104,6 @@ impl Groups {
     }
 }
 
-/// The Turtle of group targets.
 /// Whether a stored target asks for `tag` on the channel the service gives it.
 fn asks_for(target: &dyknow_store::spec::TargetSpec, tag: &TargetTag) -> bool {
     let asked = match tag {
@@ -1120,6 +1119,7 @@ fn asks_for(target: &dyknow_store::spec::TargetSpec, tag: &TargetTag) -> bool {
     target.tags == [asked] && target.channel == tag.channel()
 }
 
+/// The Turtle of group targets.
 fn target_turtle(tags: &[&TargetTag]) -> String {
     let lit = |s: &str| serde_json::to_string(s).unwrap_or_default();
     let mut doc = String::from(
