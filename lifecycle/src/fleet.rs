@@ -712,6 +712,22 @@ impl Executor for Fleet {
                 }
             }
         }
+        // A process an executor failed to start: its cached yes for that command line goes,
+        // so the next question asks it again (a program deleted since was tried by every
+        // review, each change set failing, while the transformation showed runnable).
+        for failure in &failures {
+            if let Some(Action::Spawn { transformation, .. }) =
+                change_set.actions.get(failure.action)
+                && let Some(spec) = specs.get(transformation)
+                && spec.exec_type.as_deref() == Some("process")
+                && let Some(executor) = placed.get(&failure.cu)
+                && let Some(known) = lock(&inner.executors).get_mut(executor)
+            {
+                known
+                    .checks
+                    .remove(spec.source.as_deref().unwrap_or_default());
+            }
+        }
         // What became of each CU it touched, before the placement forgets the lost ones.
         let mut cus = BTreeMap::new();
         for action in &change_set.actions {

@@ -1286,3 +1286,50 @@ fn a_cu_being_spawned_is_listed_as_starting() {
         "recorded once applied"
     );
 }
+
+/// A process an executor found runnable and then failed to start (its program was deleted
+/// since) is asked about again: the transformation shows not runnable, with the executor's
+/// reason, and reviews stop planning it (each review tried it again, every change set failing,
+/// while it showed runnable).
+#[test]
+fn a_program_deleted_after_its_check_is_found_missing_at_the_failed_spawn() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("map.sh");
+    std::fs::write(&script, format!("#!/bin/sh\nexec '{BIN}' cu dyknow/map\n")).unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let service = Service::start(&[]);
+    for spec in [
+        counter(&[("period_ms", "20")]),
+        tenfold(script.to_str().unwrap()),
+    ] {
+        service.post("/transformations", &spec.turtle());
+    }
+    assert_eq!(service.get("/transformations/tenfold")["runnable"], true);
+    std::fs::remove_file(&script).unwrap();
+    service.post("/targets", &target("tenfold-q", "/tenfold", "Tenfold"));
+    let why = eventually("tenfold not runnable", Duration::from_secs(30), || {
+        let t = service.get("/transformations/tenfold");
+        (t["runnable"] == false).then(|| t["why"].as_str().unwrap_or_default().to_owned())
+    });
+    assert!(why.contains("not an executable file"), "{why}");
+    // No review plans it again: the failed change sets stop.
+    let failed = || {
+        service
+            .change_sets()
+            .iter()
+            .filter(|c| c["status"] == "failed")
+            .count()
+    };
+    let after = failed();
+    assert!(after >= 1);
+    let reviews = service.get("/environment")["reviews"].as_u64().unwrap();
+    eventually("two more reviews", Duration::from_secs(30), || {
+        agent()
+            .post(&format!("{}/review", service.url))
+            .send_empty()
+            .ok();
+        (service.get("/environment")["reviews"].as_u64()? >= reviews + 2).then_some(())
+    });
+    assert_eq!(failed(), after, "{:?}", service.change_sets());
+}
