@@ -1136,7 +1136,7 @@ fn rejects_invalid_costs() {
 }
 
 /// Which implementation runs must not be a guess: two types, sources or executors are
-/// refused (two types were accepted and one picked).
+/// refused (two types were accepted and one picked), and so is an empty type or source.
 #[test]
 fn rejects_ambiguous_implementations() {
     for (extra, needle) in [
@@ -1149,6 +1149,12 @@ fn rejects_ambiguous_implementations() {
             "dkros:hasExecutor \"a\" , \"b\"",
             "at most 1 dkros:hasExecutor",
         ),
+        // An empty program or kind is no implementation (it was stored, not runnable for ever).
+        (
+            "dkros:hasType \"process\" ; dkros:hasSource \"  \"",
+            "are not empty",
+        ),
+        ("dkros:hasType \"\" ; dkros:hasSource \"x\"", "are not empty"),
     ] {
         assert_rejected(
             &tf_with(&format!("{OUT_PORT} ; {extra}")),

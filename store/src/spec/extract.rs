@@ -936,6 +936,15 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
             // One was picked silently: which implementation runs must not be a guess.
             self.violation("a transformation has at most 1 dkros:hasType", &root);
         }
+        // An empty program is no implementation: stored, it stayed "not runnable: the command
+        // line is empty" for ever.
+        if sources.iter().chain(&types).any(|l| l.value().trim().is_empty()) {
+            self.violation(
+                "dkros:hasSource and dkros:hasType are not empty (the program or builtin an \
+                 executor runs, and its kind)",
+                &root,
+            );
+        }
         let (executors, _) = self.index.literals(&root, &[dkros::HAS_EXECUTOR]);
         if executors.len() > 1 {
             self.violation("a transformation has at most 1 dkros:hasExecutor", &root);
