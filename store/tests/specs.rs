@@ -1154,7 +1154,10 @@ fn rejects_ambiguous_implementations() {
             "dkros:hasType \"process\" ; dkros:hasSource \"  \"",
             "are not empty",
         ),
-        ("dkros:hasType \"\" ; dkros:hasSource \"x\"", "are not empty"),
+        (
+            "dkros:hasType \"\" ; dkros:hasSource \"x\"",
+            "are not empty",
+        ),
     ] {
         assert_rejected(
             &tf_with(&format!("{OUT_PORT} ; {extra}")),

@@ -526,6 +526,23 @@ fn extract(
             ));
         }
     }
+    // An empty program or kind is no implementation: stored, it stayed "not runnable: the
+    // command line is empty" for ever. Refused when posted; one stored before reads back.
+    if reject_rest {
+        for s in &specs {
+            if let Spec::Transformation(t) = &s.spec
+                && [&t.source, &t.exec_type]
+                    .into_iter()
+                    .any(|v| v.as_deref().is_some_and(|v| v.trim().is_empty()))
+            {
+                violations.push(Violation::new(
+                    "dkros:hasSource and dkros:hasType are not empty (the program or builtin \
+                     an executor runs, and its kind)",
+                    t.label.clone(),
+                ));
+            }
+        }
+    }
     if violations.is_empty() {
         Ok(ExtractedDocument { specs, rest })
     } else {
@@ -935,15 +952,6 @@ impl<'a, 'i> SpecBuilder<'a, 'i> {
         if types.len() > 1 {
             // One was picked silently: which implementation runs must not be a guess.
             self.violation("a transformation has at most 1 dkros:hasType", &root);
-        }
-        // An empty program is no implementation: stored, it stayed "not runnable: the command
-        // line is empty" for ever.
-        if sources.iter().chain(&types).any(|l| l.value().trim().is_empty()) {
-            self.violation(
-                "dkros:hasSource and dkros:hasType are not empty (the program or builtin an \
-                 executor runs, and its kind)",
-                &root,
-            );
         }
         let (executors, _) = self.index.literals(&root, &[dkros::HAS_EXECUTOR]);
         if executors.len() > 1 {
