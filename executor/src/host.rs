@@ -916,6 +916,19 @@ impl Inner {
     }
 }
 
+/// What a command line that names no program may have meant: quotes of a shell
+/// (`dkros:hasSource` quotes with double quotes only), or a path holding spaces.
+fn quoting_hint(source: &str, command: &[String]) -> &'static str {
+    if source.contains(['\'', '\\']) {
+        " (dkros:hasSource quotes with double quotes only: single quotes and backslashes are \
+         taken as they are)"
+    } else if command.len() > 1 && command[0].contains('/') && !source.contains('"') {
+        " (a path holding spaces is written in double quotes: \"/opt/my cus/cu.py\")"
+    } else {
+        ""
+    }
+}
+
 /// Whether this executor can run an implementation, and why not.
 pub fn check(implementation: &Implementation) -> CheckReply {
     let why = match implementation.kind() {
@@ -924,7 +937,9 @@ pub fn check(implementation: &Implementation) -> CheckReply {
             .then(|| format!("no executor has the builtin {:?}", implementation.source)),
         Ok(Kind::Process) => {
             let command = implementation.command();
-            resolve(command.first().map_or("", String::as_str)).err()
+            resolve(command.first().map_or("", String::as_str))
+                .err()
+                .map(|why| why + quoting_hint(&implementation.source, &command))
         }
     };
     CheckReply {

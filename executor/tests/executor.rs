@@ -1032,3 +1032,39 @@ fn the_labour_of_a_wrapped_process_cu_counts_its_children() {
     executor.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A command line that names no program says what may have been meant: shell quotes, which
+/// `dkros:hasSource` does not have (single quotes, backslashes), or a path holding spaces
+/// written without double quotes.
+#[test]
+fn a_command_line_that_names_no_program_hints_at_quoting() {
+    let why = |source: &str| {
+        dyknow_executor::check(&implementation("process", source, &[], &[], json!({})))
+            .why
+            .unwrap_or_default()
+    };
+    let single = why("python3x '/tmp/no such dir/cu.py'");
+    assert!(
+        single.contains("not on PATH") && single.contains("double quotes only"),
+        "{single}"
+    );
+    let single = why("'/tmp/no such dir/cu.py'");
+    assert!(single.contains("double quotes only"), "{single}");
+    let spaces = why("/tmp/no such dir/cu.py --x");
+    assert!(
+        spaces.contains("not an executable file") && spaces.contains("written in double quotes"),
+        "{spaces}"
+    );
+    let plain = why("/tmp/no-such-program");
+    assert!(!plain.contains("quote"), "{plain}");
+    assert!(
+        dyknow_executor::check(&implementation(
+            "process",
+            "sh -c \"exit 0\"",
+            &[],
+            &[],
+            json!({})
+        ))
+        .runnable
+    );
+}
