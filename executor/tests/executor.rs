@@ -106,6 +106,29 @@ fn apply(executor: &Executor, actions: Vec<CuAction>) {
     assert!(reply.failures.is_empty(), "{:?}", reply.failures);
 }
 
+/// An executable script `body` in a directory of its own under the temporary directory (named
+/// after `tag` and this process): the directory and the script.
+fn script(tag: &str, body: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!("dyknow-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a directory");
+    let script = dir.join("wrapper.sh");
+    std::fs::write(&script, body).expect("the script");
+    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755))
+        .expect("chmod");
+    (dir, script)
+}
+
+/// Spawns CU `cu` running the command line `source` as a process (in port `i`, out port `o`).
+fn spawn_source(executor: &Executor, cu: &str, source: &str) {
+    apply(
+        executor,
+        vec![spawn(
+            cu,
+            implementation("process", source, &["i"], &["o"], json!({})),
+        )],
+    );
+}
+
 /// Spawns CU `cu` as a process running `dyknow-cu dyknow/relay` (in port `i`, out port `o`) and
 /// returns its pid.
 fn spawn_process_relay(executor: &Executor, cu: &str) -> u32 {
@@ -899,34 +922,16 @@ fn stopping_a_process_cu_stops_what_it_started() {
         ExecutorConfig::new("t-group", Namespace::default(), vec![endpoint]),
     )
     .expect("an executor");
-    let dir = std::env::temp_dir().join(format!("dyknow-wrapper-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("a directory");
-    let marker = dir.join("sleep.pid");
-    let script = dir.join("wrapper.sh");
-    std::fs::write(
-        &script,
-        format!(
+    let marker = std::env::temp_dir().join(format!("dyknow-wrapper-{}.pid", std::process::id()));
+    let (dir, script) = script(
+        "wrapper",
+        &format!(
             "#!/bin/sh\nsleep 1000 &\necho $! > {}\nexec {} dyknow/relay\n",
             marker.display(),
             env!("CARGO_BIN_EXE_dyknow-cu")
         ),
-    )
-    .expect("the script");
-    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755))
-        .expect("chmod");
-    apply(
-        &executor,
-        vec![spawn(
-            "wrapped",
-            implementation(
-                "process",
-                &script.display().to_string(),
-                &["i"],
-                &["o"],
-                json!({}),
-            ),
-        )],
     );
+    spawn_source(&executor, "wrapped", &script.display().to_string());
     let sleep: u32 = std::fs::read_to_string(&marker)
         .expect("the wrapper wrote its child's pid")
         .trim()
@@ -952,6 +957,7 @@ fn stopping_a_process_cu_stops_what_it_started() {
     assert!(!alive(sleep), "the wrapper's child {sleep} runs on");
     executor.shutdown();
     let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_file(&marker);
 }
 
 /// `dyknow-cu` run by hand, without the `DYKNOW_CU` an executor sets, is a usage error (exit
@@ -989,33 +995,15 @@ fn the_labour_of_a_wrapped_process_cu_counts_its_children() {
     )
     .expect("an executor");
     let (events, _sub) = events(&session);
-    let dir = std::env::temp_dir().join(format!("dyknow-labour-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("a directory");
-    let script = dir.join("wrapper.sh");
     // A child that works for a while, then becomes the CU; the wrapper waits for it.
-    std::fs::write(
-        &script,
-        format!(
+    let (dir, script) = script(
+        "labour",
+        &format!(
             "#!/bin/sh\n(i=0; while [ $i -lt 300000 ]; do i=$((i+1)); done; exec {} dyknow/relay)\n",
             env!("CARGO_BIN_EXE_dyknow-cu")
         ),
-    )
-    .expect("the script");
-    std::fs::set_permissions(&script, std::os::unix::fs::PermissionsExt::from_mode(0o755))
-        .expect("chmod");
-    apply(
-        &executor,
-        vec![spawn(
-            "wrapped",
-            implementation(
-                "process",
-                &script.display().to_string(),
-                &["i"],
-                &["o"],
-                json!({}),
-            ),
-        )],
     );
+    spawn_source(&executor, "wrapped", &script.display().to_string());
     let labour = loop {
         match events.recv_timeout(Duration::from_secs(30)) {
             Ok(Event::Running {
