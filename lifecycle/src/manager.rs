@@ -440,14 +440,17 @@ impl Manager {
     /// known to have crashed: its executor may not have reported yet, and if none does the
     /// reconciliation respawns it. It is `starting` (with no executor), not `crashed`.
     ///
-    /// So is a CU that the change set being applied spawns, which its executor may not host
-    /// yet.
+    /// A CU that the change set being applied spawns is `starting` until that change set is
+    /// recorded, whatever its executor says meanwhile (it may not host it yet, or already run
+    /// it): a CU read as `running` belongs to a recorded change set, as before CUs were listed
+    /// while being spawned (a client that saw the configuration running and then read the
+    /// change sets found none that made it).
     fn until_reconciled(&self, mut views: BTreeMap<Cid, CuView>) -> BTreeMap<Cid, CuView> {
         let starting = self.starting();
         let applying = lock(&self.applying).clone();
         for (cid, view) in &mut views {
-            if view.state == "crashed"
-                && ((starting && view.executor.is_none()) || applying.contains_key(cid))
+            if applying.contains_key(cid)
+                || (starting && view.executor.is_none() && view.state == "crashed")
             {
                 "starting".clone_into(&mut view.state);
             }
@@ -1274,9 +1277,6 @@ impl Manager {
             self.wake.notify_one();
             return Err(e);
         }
-        // Written and published: the model shows its CUs now (and no longer those that
-        // failed, nor, below, those found stale).
-        drop(applying);
         if let Some(learned) = learned {
             *self.learned.write().unwrap_or_else(PoisonError::into_inner) = learned;
         }
@@ -1286,6 +1286,9 @@ impl Manager {
             history.push(change_set.clone());
             history.prune(pruned.len());
         }
+        // Written, published and recorded: its CUs are read from the model now, as the
+        // executors last said (and those that failed, or, below, were found stale, no longer).
+        drop(applying);
         let _ = self.events.send(change_set.clone());
         {
             let mut schedule = lock(&self.schedule);
