@@ -121,7 +121,7 @@ struct Inner {
     /// ([`sweep`]). Locked after `placement` and `running`.
     applying: Mutex<BTreeSet<Cid>>,
     /// Set by [`Fleet::stop_watching`]: the sweep ends.
-    swept: Mutex<bool>,
+    swept: std::sync::atomic::AtomicBool,
 }
 
 /// The executors as the manager sees them.
@@ -190,7 +190,7 @@ impl Fleet {
             pulse: membership::Pulse::default(),
             graces: Mutex::default(),
             applying: Mutex::default(),
-            swept: Mutex::new(false),
+            swept: std::sync::atomic::AtomicBool::new(false),
         });
         membership::Pulse::start(&inner);
         sweep::start(&inner);
@@ -254,7 +254,7 @@ impl Fleet {
     /// Stops watching the executors' tokens and events (the service is stopping): its own
     /// executor stopping next is not an executor vanishing.
     pub fn stop_watching(&self) {
-        *lock(&self.inner.swept) = true;
+        (self.inner.swept).store(true, std::sync::atomic::Ordering::SeqCst);
         for subscriber in std::mem::take(&mut *lock(&self.subscribers)) {
             let _ = subscriber.undeclare().wait();
         }

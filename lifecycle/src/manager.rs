@@ -1226,7 +1226,9 @@ impl Manager {
         // replaced specs) come first in its delta: a client applying the deltas in turn (the
         // SSE stream) gets the model, CUs that crashed included.
         let unrecorded = std::mem::take(&mut *lock(&self.unrecorded));
-        change_set.delta = unrecorded.then(&change_set.delta);
+        if !unrecorded.is_empty() {
+            change_set.delta = unrecorded.then(&change_set.delta);
+        }
         let mut parts = written.parts;
         parts.push((
             EnvironmentPart::ChangeSet(id),

@@ -29,7 +29,7 @@ pub(super) fn start(inner: &Arc<Inner>) {
             loop {
                 std::thread::sleep(SWEEP);
                 let Some(inner) = weak.upgrade() else { return };
-                if *lock(&inner.swept) {
+                if inner.swept.load(std::sync::atomic::Ordering::SeqCst) {
                     return;
                 }
                 suspects = inner.sweep(&suspects);
