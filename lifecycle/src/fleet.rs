@@ -83,6 +83,8 @@ pub enum FleetEvent {
 #[derive(Debug, Default)]
 struct Known {
     present: bool,
+    /// Since when it is absent (its token went down), while it is.
+    absent_since: Option<Instant>,
     builtins: BTreeSet<String>,
     processes: bool,
     /// Answers of its `check` service, by command line, and when they came: a refusal is
@@ -122,7 +124,13 @@ struct Inner {
     applying: Mutex<BTreeSet<Cid>>,
     /// Set by [`Fleet::stop_watching`]: the sweep ends.
     swept: std::sync::atomic::AtomicBool,
+    /// How long an absent executor stays listed, in ms ([`Fleet::forget_absent_after`]).
+    forget_after_ms: std::sync::atomic::AtomicU64,
 }
+
+/// How long an absent executor stays in `GET /executors` unless
+/// [`Fleet::forget_absent_after`] says otherwise.
+pub const FORGET_ABSENT_AFTER: Duration = Duration::from_secs(600);
 
 /// The executors as the manager sees them.
 pub struct Fleet {
@@ -191,6 +199,9 @@ impl Fleet {
             graces: Mutex::default(),
             applying: Mutex::default(),
             swept: std::sync::atomic::AtomicBool::new(false),
+            forget_after_ms: std::sync::atomic::AtomicU64::new(
+                u64::try_from(FORGET_ABSENT_AFTER.as_millis()).unwrap_or(u64::MAX),
+            ),
         });
         membership::Pulse::start(&inner);
         sweep::start(&inner);
@@ -249,6 +260,15 @@ impl Fleet {
                 }
             })
             .collect()
+    }
+
+    /// How long an executor that went away stays listed (absent) by [`Fleet::executors`]
+    /// before the fleet forgets it ([`FORGET_ABSENT_AFTER`] unless set): executors named
+    /// afresh on every start (after a container's host name, say) would otherwise pile up.
+    /// One that comes back after is listed again, as any executor that appears.
+    pub fn forget_absent_after(&self, after: Duration) {
+        let ms = u64::try_from(after.as_millis()).unwrap_or(u64::MAX);
+        (self.inner.forget_after_ms).store(ms, std::sync::atomic::Ordering::SeqCst);
     }
 
     /// Stops watching the executors' tokens and events (the service is stopping): its own

@@ -814,3 +814,73 @@ fn a_crash_whose_event_was_lost_is_found_by_the_sweep() {
     assert!(reason.contains("no longer hosts it"), "{reason}");
     until_heard(&fleet, "c1", None, "crashed");
 }
+
+/// An executor absent for longer than `forget_absent_after` leaves `GET /executors`'s list
+/// (executors named afresh on every start would otherwise pile up in it); before, it is listed
+/// absent; one present is never forgotten, and one that comes back is listed again.
+#[test]
+fn executors_absent_for_long_are_forgotten_and_listed_again_when_back() {
+    let (router, client) = sessions();
+    let namespace = Namespace::new("forget").expect("a namespace");
+    let (fleet, mut events) = Fleet::start(&router, namespace.clone()).expect("a fleet");
+    let _info = client
+        .declare_queryable(namespace.executor_service("x", "info"))
+        .callback(move |query| reply_json(&query, &info_of_x(None, 0)))
+        .wait()
+        .expect("a queryable");
+    let mut stays = info_of_x(None, 0);
+    stays.name = "y".into();
+    let _info_y = client
+        .declare_queryable(namespace.executor_service("y", "info"))
+        .callback(move |query| reply_json(&query, &stays))
+        .wait()
+        .expect("a queryable");
+    let declare = |name: &str| {
+        client
+            .liveliness()
+            .declare_token(namespace.executor_token(name))
+            .wait()
+            .expect("a token")
+    };
+    let listed = |name: &str| {
+        fleet
+            .executors(&BTreeMap::new())
+            .into_iter()
+            .find(|e| e.name == name)
+            .map(|e| e.present)
+    };
+    let _y = declare("y");
+    assert!(fleet.wait_for("y", Duration::from_secs(30)));
+    let x = declare("x");
+    until_appeared(&mut events, "x", 0);
+    drop(x);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while listed("x") != Some(false) {
+        assert!(Instant::now() < deadline, "x is never listed absent");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // Within the default retention: listed absent through sweeps.
+    let since = Instant::now();
+    while since.elapsed() < Duration::from_secs(5) {
+        assert_eq!(listed("x"), Some(false), "x was forgotten too soon");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Past a retention of none: forgotten at the next sweep; y, present, stays.
+    fleet.forget_absent_after(Duration::ZERO);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while listed("x").is_some() {
+        assert!(Instant::now() < deadline, "x is never forgotten");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(listed("y"), Some(true));
+    // Back: listed present again.
+    let _x = declare("x");
+    until_appeared(&mut events, "x", 0);
+    assert_eq!(listed("x"), Some(true));
+    let since = Instant::now();
+    while since.elapsed() < Duration::from_secs(5) {
+        assert_eq!(listed("y"), Some(true), "y, present, was forgotten");
+        assert_eq!(listed("x"), Some(true), "x, present, was forgotten");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

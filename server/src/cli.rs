@@ -278,6 +278,10 @@ pub struct ServeArgs {
     /// earlier once every CU of the model is accounted for.
     #[arg(long, value_name = "SECONDS", default_value_t = 5.0)]
     pub reconcile_grace: f64,
+    /// How long an executor that went away stays in `GET /executors` (listed absent) before
+    /// the manager forgets it; it is listed again if it comes back.
+    #[arg(long, value_name = "SECONDS", default_value_t = 600.0)]
+    pub forget_executors_after: f64,
     /// Zenoh's link lease in milliseconds: a peer silent this long (a cut link, a hung
     /// process) is declared gone, and so are its executor's CUs (docs/reliability.md).
     /// Default: the `--zenoh-config` file's, else 10000.
@@ -1080,6 +1084,14 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
             "--reconcile-grace must be a non-negative number of seconds".into(),
         ));
     }
+    if !(args.forget_executors_after.is_finite()
+        && (0.0..1e9).contains(&args.forget_executors_after))
+    {
+        return Err(Failure(
+            2,
+            "--forget-executors-after must be a non-negative number of seconds".into(),
+        ));
+    }
     if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {
         return Err(Failure(
             2,
@@ -1153,6 +1165,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
         .map_err(|e| Failure(2, format!("{e} (listening on {})", listen.join(", "))))?;
         let (fleet, events) = dyknow_lifecycle::Fleet::start(&session, namespace.clone())
             .map_err(|e| Failure(2, format!("zenoh: {}", dyknow_cu::zenoh_message(&e))))?;
+        fleet.forget_absent_after(Duration::from_secs_f64(args.forget_executors_after));
         let fleet = Arc::new(fleet);
         let fleet_handle = fleet.clone();
         let local = if args.no_executor {

@@ -397,6 +397,31 @@ fn horizons_past_the_bound_or_not_positive_are_refused() {
     assert_eq!(cs["cost"]["total"].as_f64(), Some(3e12), "{out}");
 }
 
+/// `serve`'s durations in seconds refuse what is not a non-negative finite number, with a
+/// message naming the flag, before anything starts.
+#[test]
+fn serve_durations_that_are_not_seconds_are_refused() {
+    for flag in ["--reconcile-grace", "--forget-executors-after"] {
+        for value in ["-1", "inf", "NaN", "1e300"] {
+            let arg = format!("{flag}={value}");
+            let (code, _, err) = run(
+                &[
+                    "serve",
+                    "--in-memory",
+                    "--model-only",
+                    "--bind",
+                    "127.0.0.1:0",
+                    &arg,
+                ],
+                &[],
+                QUICK,
+            );
+            assert_eq!(code, 2, "serve {arg}: {err}");
+            assert!(err.contains(flag), "{arg}: {err}");
+        }
+    }
+}
+
 /// `explore --timeout-ms 0` is no limit, as `serve --explore-timeout-ms 0` is (it returned at
 /// once with a change set that was not optimal).
 #[test]

@@ -416,7 +416,8 @@ fn a_later_executor_of_a_present_name_steps_down_and_its_cus_are_replanned() {
 
 #[test]
 fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
-    let service = Service::start(&["--no-executor"]);
+    // Executors gone for 3 s are forgotten (checked at the end).
+    let service = Service::start(&["--no-executor", "--forget-executors-after", "3"]);
     assert_eq!(service.get("/executors"), json!([]));
     post_counter_echo(&service, "20");
     let echo = service.get("/transformations/echo");
@@ -467,6 +468,12 @@ fn stand_alone_executors_join_and_vanish_and_their_cus_are_replanned() {
     eventually("the executor to be gone", Duration::from_secs(30), || {
         (service.get("/cus") == json!([])).then_some(())
     });
+    // Both absent, then forgotten.
+    eventually(
+        "the executors to be forgotten",
+        Duration::from_secs(30),
+        || (service.get("/executors") == json!([])).then_some(()),
+    );
 }
 
 #[test]

@@ -230,6 +230,7 @@ impl Inner {
                 name.to_owned(),
                 Known {
                     present: true,
+                    absent_since: None,
                     builtins: info.builtins.iter().cloned().collect(),
                     processes: info.processes,
                     checks: BTreeMap::new(),
@@ -239,6 +240,45 @@ impl Inner {
             let _ = self.events.send(FleetEvent::ExecutorsChanged);
             return;
         }
+    }
+
+    /// Forgets the executors absent for longer than [`Inner::forget_after_ms`]
+    /// ([`super::Fleet::forget_absent_after`]): their entry in the listing and their token's.
+    /// Not one whose token is up or being asked, nor one in a grace (it may be back as the
+    /// same instance), nor one a CU is still placed on; the token lock held throughout, so
+    /// one coming back meanwhile is not forgotten. Run by the sweep's thread. Returns the
+    /// names forgotten.
+    pub(super) fn forget_absent(&self) -> Vec<String> {
+        let after = Duration::from_millis(
+            self.forget_after_ms
+                .load(std::sync::atomic::Ordering::SeqCst),
+        );
+        let mut tokens = lock(&self.tokens);
+        let graces = lock(&self.graces);
+        let mut executors = lock(&self.executors);
+        let placement = lock(&self.placement);
+        let forgotten: Vec<String> = executors
+            .iter()
+            .filter(|(name, known)| {
+                !known.present
+                    && known
+                        .absent_since
+                        .is_some_and(|since| since.elapsed() >= after)
+                    && tokens.get(*name).is_none_or(|t| !t.up && !t.probing)
+                    && !graces.contains_key(*name)
+                    && !placement.values().any(|e| e == *name)
+            })
+            .map(|(name, _)| name.clone())
+            .collect();
+        for name in &forgotten {
+            executors.remove(name);
+            tokens.remove(name);
+            tracing::info!(
+                "executor {name} forgotten: absent for {} s",
+                after.as_secs()
+            );
+        }
+        forgotten
     }
 
     /// Executor `name`'s token went down: it vanished ([`Inner::vanished_locked`]), unless
@@ -352,6 +392,9 @@ impl Inner {
         if !tokens.get(name).is_some_and(|t| t.up) {
             tracing::warn!("executor {name} vanished");
             if let Some(known) = lock(&self.executors).get_mut(name) {
+                if known.present {
+                    known.absent_since = Some(std::time::Instant::now());
+                }
                 known.present = false;
             }
         }

@@ -5,7 +5,8 @@
 //! its target satisfied and silent, until a restart of the manager. A CU missing from two
 //! answers in a row, placed on that executor and known to run all along, and touched by no
 //! change set being applied, crashed unseen: it is reported as crashed, as its lost event
-//! would have (the manager removes it and a review repairs it).
+//! would have (the manager removes it and a review repairs it). The same thread forgets the
+//! executors absent for long ([`Inner::forget_absent`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -32,6 +33,7 @@ pub(super) fn start(inner: &Arc<Inner>) {
                 if inner.swept.load(std::sync::atomic::Ordering::SeqCst) {
                     return;
                 }
+                inner.forget_absent();
                 suspects = inner.sweep(&suspects);
             }
         });

@@ -50,7 +50,8 @@ impl From<ExecutorSummary> for ExecutorJson {
     }
 }
 
-/// The executors the service has seen (none in model-only mode).
+/// The executors the service has seen (none in model-only mode): an absent one stays listed
+/// for `serve --forget-executors-after` seconds (default 600).
 #[utoipa::path(get, path = "/executors", tag = "executors", responses((status = 200, body = [ExecutorJson])))]
 pub async fn list_executors(
     State(state): State<AppState>,
