@@ -74,6 +74,62 @@ impl Cause {
             Self::Reconcile { .. } => "reconcile",
         }
     }
+
+    /// The causes of one review, merged: one `cu-crashed` naming every crashed CU (the first
+    /// as `cu`, the others in `also`, in the order they came), one `spec-changed` naming every
+    /// replaced CU, each other cause once; in the order of their first appearance. The first
+    /// is the change set's [`ChangeSet::cause`], the others its
+    /// [`ChangeSet::other_causes`]. Empty when `causes` is.
+    pub fn merged(causes: &[Self]) -> Vec<Self> {
+        let mut merged: Vec<Self> = Vec::new();
+        for cause in causes {
+            if merged.contains(cause) {
+                continue;
+            }
+            // The first of a kind that merges starts empty, so that it is merged into as the
+            // later ones are (a CU it names twice is named once).
+            match cause {
+                Self::CuCrashed { cu, .. } if !merged.iter().any(|m| m.kind() == cause.kind()) => {
+                    merged.push(Self::CuCrashed {
+                        cu: cu.clone(),
+                        also: Vec::new(),
+                    });
+                }
+                Self::SpecChanged { .. } if !merged.iter().any(|m| m.kind() == cause.kind()) => {
+                    merged.push(Self::SpecChanged { cus: Vec::new() });
+                }
+                _ => {}
+            }
+            let same_kind = merged.iter_mut().find(|m| {
+                m.kind() == cause.kind()
+                    && matches!(m, Self::CuCrashed { .. } | Self::SpecChanged { .. })
+            });
+            match (same_kind, cause) {
+                (
+                    Some(Self::CuCrashed { cu: first, also }),
+                    Self::CuCrashed {
+                        cu: more,
+                        also: yet_more,
+                    },
+                ) => {
+                    for cu in std::iter::once(more).chain(yet_more) {
+                        if cu != first && !also.contains(cu) {
+                            also.push(cu.clone());
+                        }
+                    }
+                }
+                (Some(Self::SpecChanged { cus }), Self::SpecChanged { cus: more }) => {
+                    for cu in more {
+                        if !cus.contains(cu) {
+                            cus.push(cu.clone());
+                        }
+                    }
+                }
+                _ => merged.push(cause.clone()),
+            }
+        }
+        merged
+    }
 }
 
 /// The RDF delta of a change set, as N-Triples.
@@ -177,8 +233,12 @@ pub struct ChangeSet {
     pub id: ChangeSetId,
     /// When it was made (RFC 3339, UTC).
     pub at: String,
-    /// Why.
+    /// Why: the first of the causes the review served ([`Cause::merged`]).
     pub cause: Cause,
+    /// The other causes the same review served, merged ([`Cause::merged`]): a target added
+    /// while crashes were being repaired, say. Absent from JSON when there are none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_causes: Vec<Cause>,
     /// The estimated cost (Def. 34).
     pub cost: CostSummary,
     /// The actions (Defs. 23–30).
@@ -209,6 +269,7 @@ impl ChangeSet {
             id,
             at: rfc3339(SystemTime::now()),
             cause,
+            other_causes: Vec::new(),
             cost: compiled.cost,
             actions: compiled.actions,
             delta,
@@ -286,6 +347,110 @@ mod tests {
             }
         }
     }
+    /// `Cause::merged` names every CU and target it was given, once, in one cause per kind
+    /// for crashes and replacements, leads with the first cause's kind, and is idempotent.
+    mod merged {
+        use super::*;
+        use proptest::prelude::*;
+
+        fn cause() -> impl Strategy<Value = Cause> {
+            let cu = (0u8..6).prop_map(|n| Cid::from(format!("cu-{n}")));
+            prop_oneof![
+                Just(Cause::Review),
+                Just(Cause::Manual),
+                (0u8..3).prop_map(|n| Cause::TargetAdded {
+                    target: format!("q{n}").into()
+                }),
+                (0u8..3).prop_map(|n| Cause::TargetReleased {
+                    target: format!("q{n}").into()
+                }),
+                (cu.clone(), proptest::collection::vec(cu.clone(), 0..3))
+                    .prop_map(|(cu, also)| Cause::CuCrashed { cu, also }),
+                proptest::collection::vec(cu, 1..3).prop_map(|cus| Cause::SpecChanged { cus }),
+            ]
+        }
+
+        fn crashed(causes: &[Cause]) -> BTreeSet<Cid> {
+            causes
+                .iter()
+                .flat_map(|c| match c {
+                    Cause::CuCrashed { cu, also } => {
+                        std::iter::once(cu).chain(also).cloned().collect()
+                    }
+                    _ => Vec::new(),
+                })
+                .collect()
+        }
+
+        fn replaced(causes: &[Cause]) -> BTreeSet<Cid> {
+            causes
+                .iter()
+                .flat_map(|c| match c {
+                    Cause::SpecChanged { cus } => cus.clone(),
+                    _ => Vec::new(),
+                })
+                .collect()
+        }
+
+        proptest! {
+            #[test]
+            fn every_cu_and_target_is_named_once(causes in proptest::collection::vec(cause(), 0..10)) {
+                let merged = Cause::merged(&causes);
+                prop_assert_eq!(merged.first().map(Cause::kind), causes.first().map(Cause::kind));
+                prop_assert_eq!(crashed(&merged), crashed(&causes));
+                prop_assert_eq!(replaced(&merged), replaced(&causes));
+                for kind in ["cu-crashed", "spec-changed"] {
+                    prop_assert!(merged.iter().filter(|c| c.kind() == kind).count() <= 1);
+                }
+                for cause in &merged {
+                    match cause {
+                        Cause::CuCrashed { cu, also } => {
+                            let mut named: Vec<&Cid> = also.iter().collect();
+                            named.push(cu);
+                            let distinct: BTreeSet<&Cid> = named.iter().copied().collect();
+                            prop_assert_eq!(distinct.len(), named.len(), "{:?}", cause);
+                        }
+                        Cause::SpecChanged { cus } => {
+                            let distinct: BTreeSet<&Cid> = cus.iter().collect();
+                            prop_assert_eq!(distinct.len(), cus.len(), "{:?}", cause);
+                        }
+                        other => {
+                            prop_assert!(causes.contains(other));
+                            prop_assert_eq!(merged.iter().filter(|c| *c == other).count(), 1);
+                        }
+                    }
+                }
+                for cause in &causes {
+                    if !matches!(cause, Cause::CuCrashed { .. } | Cause::SpecChanged { .. }) {
+                        prop_assert!(merged.contains(cause), "{:?} lost", cause);
+                    }
+                }
+                prop_assert_eq!(Cause::merged(&merged), merged);
+            }
+        }
+
+        #[test]
+        fn crashes_and_a_target_make_a_crash_cause_and_another() {
+            let crash = |cu: &str| Cause::CuCrashed {
+                cu: cu.into(),
+                also: Vec::new(),
+            };
+            let target = Cause::TargetAdded {
+                target: "q1".into(),
+            };
+            assert_eq!(
+                Cause::merged(&[crash("cu-1"), target.clone(), crash("cu-2"), crash("cu-1")]),
+                [
+                    Cause::CuCrashed {
+                        cu: "cu-1".into(),
+                        also: vec!["cu-2".into()]
+                    },
+                    target
+                ]
+            );
+        }
+    }
+
     use std::time::Duration;
 
     #[test]
@@ -297,6 +462,9 @@ mod tests {
                 cu: "cu-3".into(),
                 also: vec!["cu-4".into()],
             },
+            other_causes: vec![Cause::TargetAdded {
+                target: "qid9".into(),
+            }],
             cost: CostSummary {
                 total: 31.0,
                 labour: 1.0,
@@ -356,6 +524,10 @@ mod tests {
             serde_json::json!({"kind": "cu-crashed", "cu": "cu-3", "also": ["cu-4"]})
         );
         assert_eq!(
+            json["other_causes"],
+            serde_json::json!([{"kind": "target-added", "target": "qid9"}])
+        );
+        assert_eq!(
             json["actions"][1],
             serde_json::json!({"action": "connect-in", "cu": "cu-4", "port": "in", "channel": "ch-1"})
         );
@@ -376,10 +548,12 @@ mod tests {
         fields.remove("status");
         fields.remove("failures");
         fields.remove("cus");
+        fields.remove("other_causes");
         let old: ChangeSet = serde_json::from_value(old).expect("deserialise");
         assert_eq!(old.status, ChangeSetStatus::Applied);
         assert!(old.failures.is_empty());
         assert!(old.cus.is_empty());
+        assert!(old.other_causes.is_empty());
     }
 
     #[test]

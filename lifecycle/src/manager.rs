@@ -994,7 +994,7 @@ impl Manager {
             configuration,
             ids,
             loaded,
-            Cause::Manual,
+            (Cause::Manual, Vec::new()),
             compiled,
             after,
             Reconciled::default(),
@@ -1058,26 +1058,16 @@ impl Manager {
             .filter(|c| !unrepaired.contains(c))
             .cloned()
             .collect();
-        let cause = match causes.first().cloned().unwrap_or(Cause::Review) {
-            // One review for a burst of crashes: its cause names every CU it repairs.
-            Cause::CuCrashed { cu, mut also } => {
-                for other in &causes[1..] {
-                    if let Cause::CuCrashed { cu: other, .. } = other
-                        && *other != cu
-                        && !also.contains(other)
-                    {
-                        also.push(other.clone());
-                    }
-                }
-                Cause::CuCrashed { cu, also }
-            }
-            cause => cause,
-        };
+        // One review for a burst of crashes: its cause names every CU it repairs; and every
+        // other cause it served, merged by kind.
+        let mut causes = Cause::merged(&causes).into_iter();
+        let cause = causes.next().unwrap_or(Cause::Review);
+        let other_causes: Vec<Cause> = causes.collect();
         let committed = self.commit(
             configuration,
             ids,
             &loaded,
-            cause,
+            (cause, other_causes),
             reviewed.compiled,
             reviewed.after,
             Reconciled::default(),
@@ -1109,7 +1099,7 @@ impl Manager {
         configuration: &mut Configuration,
         ids: Ids,
         loaded: &Loaded,
-        cause: Cause,
+        (cause, other_causes): (Cause, Vec<Cause>),
         compiled: Compiled,
         mut after: Environment,
         reconciled: Reconciled,
@@ -1130,6 +1120,7 @@ impl Manager {
         };
         configuration.ids = ids;
         let mut change_set = ChangeSet::new(id.clone(), cause, compiled, planned.ntriples());
+        change_set.other_causes = other_causes;
         let spawning: Spawning = change_set
             .actions
             .iter()
@@ -1557,9 +1548,12 @@ impl Manager {
             &mut configuration,
             ids,
             &loaded,
-            Cause::Reconcile {
-                executor: executor.map(str::to_owned),
-            },
+            (
+                Cause::Reconcile {
+                    executor: executor.map(str::to_owned),
+                },
+                Vec::new(),
+            ),
             compiled,
             after,
             Reconciled {

@@ -607,12 +607,20 @@ fn the_cus_of_a_vanished_executor_crash_together_and_one_review_names_them_all()
     let env = manager.load().unwrap().env;
     assert!(lost.iter().all(|cu| !env.cus.contains_key(cu)), "{env:?}");
     assert!(manager.status().review_pending);
+    // A target reported before the review began is a cause of it too, named after the crashes.
+    add_qid1(&manager);
     let repair = manager.review().unwrap().expect("a repair");
     let Cause::CuCrashed { cu, also } = &repair.cause else {
         panic!("{:?}", repair.cause);
     };
     let named: BTreeSet<&Cid> = std::iter::once(cu).chain(also).collect();
     assert_eq!(named, lost.iter().collect(), "{:?}", repair.cause);
+    assert_eq!(
+        repair.other_causes,
+        [Cause::TargetAdded {
+            target: "qid1".into()
+        }]
+    );
     let loaded = manager.load().unwrap();
     assert!(loaded.env.invalidities(&loaded.candidates).is_empty());
     // Nothing the model lacks: nothing happens.

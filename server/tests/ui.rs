@@ -13,7 +13,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
@@ -322,8 +322,29 @@ fn the_web_view_follows_the_live_lab() {
     assert!(answer.contains("dyknow:hasName \"x\" \"y\" ."), "{answer}");
     browser.shot("ui-bad-turtle");
 
-    // A formula group over the lab's InsideCircle(ball): its verdict arrives live.
+    // A formula that does not parse: the API's 400 is shown, and stays through the list's
+    // refreshes (it was put in the list, which the refresh right after redrew: never seen).
     browser.click("#tabs [data-panel=groups]");
+    browser.type_into("#group-formulas", "always (p &&");
+    browser.click("#group-form button[type=submit]");
+    let error = browser.until(
+        "the group's error",
+        MINUTE,
+        "const b = document.querySelector('#group-result .error-box'); return b && b.innerText",
+    );
+    assert!(error.as_str().unwrap().starts_with("group: 400"), "{error}");
+    let shown = Instant::now();
+    while shown.elapsed() < Duration::from_millis(2_500) {
+        assert_eq!(
+            browser.js("const b = document.querySelector('#group-result .error-box'); return b && b.innerText"),
+            error,
+            "the error went with a refresh"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    browser.js("document.getElementById('group-formulas').value = ''; return true");
+
+    // A formula group over the lab's InsideCircle(ball): its verdict arrives live.
     browser.type_into("#group-label", "watch");
     browser.type_into(
         "#group-formulas",
@@ -344,6 +365,11 @@ fn the_web_view_follows_the_live_lab() {
             "const v = document.querySelector('[data-group=watch] [data-verdict]'); return v && v.dataset.verdict !== 'pending' && v.dataset.verdict",
         );
     assert_eq!(verdict, "true");
+    // Created: the earlier error is gone.
+    assert_eq!(
+        browser.js("return document.getElementById('group-result').children.length"),
+        0
+    );
     let group = service.get("/groups/watch");
     assert_eq!(group["formulas"][0]["verdict"], "true", "{group}");
     assert_eq!(group["sync"]["max_age_ms"], 1000, "{group}");
@@ -442,6 +468,39 @@ fn changes_ask_for_the_token_and_a_401_is_shown() {
     let answer = import(&browser, &spec_path("ch6-target.ttl"));
     assert!(answer.contains("targets target1"), "{answer}");
     assert_eq!(service.get("/targets")[0]["label"], "target1");
+}
+
+/// A change set whose review served several causes shows them all in the timeline, and every
+/// CU its crash cause names (the first, `cu`, and the others of the burst, `also`) is drawn
+/// crashed; before, only `cause.cu` was. Change sets made up in JavaScript, fed as the
+/// change-set stream feeds them.
+#[test]
+fn every_cause_of_a_change_set_is_shown_and_every_crashed_cu_marked() {
+    let service = Service::start(&["--model-only"]);
+    let browser = Browser::start();
+    open(&browser, &service);
+    let out = browser.js(
+        "const u = dyknowUi.ui;
+         for (const cu of ['cu-a', 'cu-b', 'cu-c']) u.known.set(cu, {transformation: 't', executor: 'x'});
+         dyknowUi.noteChangeSet({id: 'cs-900', at: new Date().toISOString(), actions: [],
+           cause: {kind: 'cu-crashed', cu: 'cu-a', also: ['cu-b']},
+           other_causes: [{kind: 'spec-changed', cus: ['cu-c']}, {kind: 'target-added', target: 'q1'}]}, false);
+         return {crashed: [...u.crashed.keys()].sort(), destroyed: u.destroyed.has('cu-c')};",
+    );
+    assert_eq!(
+        out,
+        serde_json::json!({"crashed": ["cu-a", "cu-b"], "destroyed": true})
+    );
+    browser.click("#tabs [data-panel=changesets]");
+    let cause = browser.until(
+        "the change set in the timeline",
+        MINUTE,
+        "const c = document.querySelector('#timeline [data-id=\"cs-900\"] .cause'); return c && c.textContent",
+    );
+    assert_eq!(
+        cause,
+        "cu-crashed cu-a and 1 more, spec-changed cu-c, target-added q1"
+    );
 }
 
 #[test]

@@ -429,9 +429,16 @@
 
   // ---- panels: Change sets ------------------------------------------------------------------
 
+  // A change set's causes: its `cause`, then the others its review served (`other_causes`).
+  function causesOf(cs) {
+    return [cs.cause, ...(cs.other_causes || [])].filter(Boolean);
+  }
+
   function describeCause(c) {
     if (!c) return "";
-    return c.kind + (c.target ? " " + c.target : "") + (c.cu ? " " + c.cu : "");
+    const also = (c.also || []).length ? ` and ${c.also.length} more` : "";
+    const cus = c.cus ? " " + c.cus.join(" ") : "";
+    return c.kind + (c.target ? " " + c.target : "") + (c.cu ? " " + c.cu : "") + also + cus;
   }
 
   function describeAction(a) {
@@ -447,7 +454,7 @@
       h("div", { class: "head" },
         h("strong", {}, cs.id),
         h("span", { class: "hint" }, new Date(cs.at).toLocaleTimeString()),
-        h("span", { class: "cause" }, describeCause(cs.cause)),
+        h("span", { class: "cause" }, causesOf(cs).map(describeCause).join(", ")),
         cs.cost ? h("span", { class: "hint" }, `cost ${Number(cs.cost.total).toFixed(2)}`) : null,
         cs.status ? h("span", { class: "verdict " + (cs.status === "applied" ? "true" : cs.status === "failed" ? "false" : "pending") }, cs.status) : null),
       actions.length ? h("ul", { class: "actions" }, actions.map((a) => h("li", {},
@@ -473,11 +480,15 @@
     cs.fresh = fresh;
     ui.changeSets.push(cs);
     for (const a of cs.actions || []) if (a.action === "destroy" && a.cu) { ui.destroyed.add(a.cu); ui.crashed.delete(a.cu); }
-    // CUs replaced because their transformation's spec changed left the model first: not crashes.
-    if (cs.cause && cs.cause.kind === "spec-changed") for (const cu of cs.cause.cus || []) { ui.destroyed.add(cu); ui.crashed.delete(cu); }
-    if (cs.cause && cs.cause.kind === "cu-crashed" && cs.cause.cu && ui.known.has(cs.cause.cu) && !ui.crashed.has(cs.cause.cu)) {
-      const k = ui.known.get(cs.cause.cu);
-      ui.crashed.set(cs.cause.cu, { transformation: k.transformation, executor: k.executor, at: Date.now() });
+    for (const c of causesOf(cs)) {
+      // CUs replaced because their transformation's spec changed left the model first: not crashes.
+      if (c.kind === "spec-changed") for (const cu of c.cus || []) { ui.destroyed.add(cu); ui.crashed.delete(cu); }
+      // Every CU a crash review repairs: the first (`cu`) and the others of the burst (`also`).
+      if (c.kind === "cu-crashed") for (const cu of [c.cu, ...(c.also || [])]) {
+        if (!cu || !ui.known.has(cu) || ui.crashed.has(cu)) continue;
+        const k = ui.known.get(cu);
+        ui.crashed.set(cu, { transformation: k.transformation, executor: k.executor, at: Date.now() });
+      }
     }
     if (fresh) graph.flash((cs.actions || []).map((a) => a.cu).filter(Boolean));
   }
@@ -593,11 +604,12 @@
     };
     if ($("group-label").value.trim()) body.label = $("group-label").value.trim();
     const r = await api("POST", "/groups", JSON.stringify(body), "application/json");
-    if (r.ok) { say(`group ${r.json.label} created`, "ok"); $("group-formulas").value = ""; $("group-label").value = ""; }
-    else {
-      const box = errorBox(r, null, "group");
-      $("group-list").prepend(box);
-    }
+    // The answer goes above the list, which every refresh redraws (an error put in the list
+    // was wiped at once: a user audit never saw one).
+    if (r.ok) {
+      say(`group ${r.json.label} created`, "ok"); $("group-formulas").value = ""; $("group-label").value = "";
+      $("group-result").replaceChildren();
+    } else $("group-result").replaceChildren(errorBox(r, null, "group"));
     refreshSoon();
   }
 
@@ -668,7 +680,7 @@
     if (!fresh && $("details").hidden) return;
     const dl = (pairs) => h("dl", {}, pairs.filter(([, v]) => v != null && v !== "").flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, v)]));
     const history = (list) => list.length ? h("div", {}, h("h3", {}, "Change sets"),
-      h("ul", { class: "actions" }, list.map((cs) => h("li", {}, `${cs.id} · ${describeCause(cs.cause)} · `,
+      h("ul", { class: "actions" }, list.map((cs) => h("li", {}, `${cs.id} · ${causesOf(cs).map(describeCause).join(", ")} · `,
         (cs.actions || []).filter((a) => a.cu === data.name || a.channel === data.name).map(describeAction).join("; "))))) : null;
     if (data.kind === "cu") {
       const cu = ui.cus.find((c) => c.name === data.name);
@@ -735,7 +747,7 @@
     const saved = localStorage.getItem("dyknow-theme");
     document.documentElement.dataset.theme = saved || (matchMedia("(prefers-color-scheme: dark)").matches ? "dark" : "light");
     graph = DyGraph.create($("cy"), { select: (d) => d ? renderDetails(d, true) : renderDetails(null) });
-    window.dyknowUi = { graph, ui, refresh: refreshSoon };
+    window.dyknowUi = { graph, ui, refresh: refreshSoon, noteChangeSet };
     for (const b of document.querySelectorAll("#tabs [role=tab]")) b.addEventListener("click", () => showPanel(b.dataset.panel));
     $("tabs").addEventListener("keydown", (e) => {
       const tabs = [...document.querySelectorAll("#tabs [role=tab]")];
