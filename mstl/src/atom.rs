@@ -68,8 +68,11 @@ pub(crate) enum AtomPlan {
 pub(crate) enum TermPlan {
     Number(f64),
     Text(String),
-    /// A state lookup; a constant without arguments that the state does not give denotes
-    /// itself (an object, compared by name).
+    /// A state lookup; a constant (a name without arguments that `is_constant` says is one)
+    /// that the state does not give denotes itself (an object, compared by name). Any other
+    /// name the state does not give, `mode` as much as `altitude(uav1)`, is unknown: a formula
+    /// group makes it a symbol with a stream of its own (`ground_symbols`), and a state
+    /// without its sample must not guess it.
     Lookup {
         key: String,
         constant: bool,
@@ -77,15 +80,17 @@ pub(crate) enum TermPlan {
 }
 
 impl AtomPlan {
-    pub(crate) fn new(atom: &Atom) -> Self {
+    /// How `atom` is evaluated; `is_constant` tells the names without arguments that are
+    /// constants (a domain's, a set's, or a bound variable) from symbols.
+    pub(crate) fn new(atom: &Atom, is_constant: &dyn Fn(&str) -> bool) -> Self {
         match atom {
             Atom::Predicate { name, args } => Self::Predicate {
                 key: app_key(name, args),
             },
             Atom::Compare { left, op, right } => Self::Compare {
-                left: TermPlan::new(left),
+                left: TermPlan::new(left, is_constant),
                 op: *op,
-                right: TermPlan::new(right),
+                right: TermPlan::new(right, is_constant),
             },
             Atom::Spatial {
                 relation,
@@ -136,13 +141,13 @@ impl AtomPlan {
 }
 
 impl TermPlan {
-    fn new(term: &Term) -> Self {
+    fn new(term: &Term, is_constant: &dyn Fn(&str) -> bool) -> Self {
         match term {
             Term::Number(n) => Self::Number(*n),
             Term::Str(s) => Self::Text(s.clone()),
             Term::Name { name, args } => Self::Lookup {
                 key: app_key(name, args),
-                constant: args.is_empty(),
+                constant: args.is_empty() && is_constant(name),
             },
         }
     }

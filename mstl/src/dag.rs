@@ -12,7 +12,7 @@ use std::hash::BuildHasher;
 use std::sync::Arc;
 
 use hashbrown::HashTable;
-use rustc_hash::{FxBuildHasher, FxHashMap};
+use rustc_hash::{FxBuildHasher, FxHashMap, FxHashSet};
 use smallvec::SmallVec;
 
 use crate::atom::AtomPlan;
@@ -84,6 +84,10 @@ pub(crate) struct Dag {
     /// (the formulas' atoms, grounded over finite domains) and never reclaimed.
     pub(crate) atoms: Vec<(Atom, AtomPlan)>,
     atom_index: FxHashMap<String, AtomId>,
+    /// The names without arguments that are constants, not symbols: the monitor's domains'
+    /// constants and those of the sets in its formulas ([`Dag::add_constants`]). A bound
+    /// variable's fresh name (`x\0<n>`) counts as one: a constant replaces it.
+    constants: FxHashSet<String>,
     /// Interned names.
     pub(crate) syms: Vec<String>,
     sym_index: FxHashMap<String, Sym>,
@@ -104,6 +108,7 @@ impl Default for Dag {
             free: Vec::new(),
             atoms: Vec::new(),
             atom_index: FxHashMap::default(),
+            constants: FxHashSet::default(),
             syms: Vec::new(),
             sym_index: FxHashMap::default(),
             live_after_collect: 0,
@@ -184,13 +189,34 @@ impl Dag {
         s
     }
 
+    /// Whether `name` (without arguments) is a constant ([`Dag::constants`]).
+    fn is_constant(constants: &FxHashSet<String>, name: &str) -> bool {
+        name.contains('\0') || constants.contains(name)
+    }
+
+    /// Makes `names` constants; the atoms already made are planned again if one is new (a
+    /// formula added later may declare a constant an earlier one uses).
+    pub(crate) fn add_constants(&mut self, names: impl IntoIterator<Item = String>) {
+        let mut new = false;
+        for name in names {
+            new |= self.constants.insert(name);
+        }
+        if new {
+            let constants = &self.constants;
+            for (atom, plan) in &mut self.atoms {
+                *plan = AtomPlan::new(atom, &|n| Self::is_constant(constants, n));
+            }
+        }
+    }
+
     pub(crate) fn atom(&mut self, atom: Atom) -> NodeId {
         let printed = atom.to_string();
         let id = if let Some(id) = self.atom_index.get(&printed) {
             *id
         } else {
             let id = AtomId(u32::try_from(self.atoms.len()).unwrap_or(u32::MAX));
-            let plan = AtomPlan::new(&atom);
+            let constants = &self.constants;
+            let plan = AtomPlan::new(&atom, &|n| Self::is_constant(constants, n));
             self.atoms.push((atom, plan));
             self.atom_index.insert(printed, id);
             id

@@ -77,7 +77,8 @@ pub fn ground_symbols(
     Ok(out)
 }
 
-fn collect_set_constants(f: &Formula, out: &mut BTreeSet<String>) {
+/// The constants of the sets `f` quantifies over (`forall x in {a, b}`), into `out`.
+pub(crate) fn collect_set_constants(f: &Formula, out: &mut BTreeSet<String>) {
     crate::progress::deep(|| match f {
         Formula::True | Formula::False | Formula::Atom(_) => {}
         Formula::Not(a)

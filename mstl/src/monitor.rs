@@ -83,15 +83,24 @@ impl Monitor {
 
     /// A monitor whose quantifiers may range over `domains`.
     pub fn with_domains(domains: Domains) -> Self {
-        Self {
+        let mut monitor = Self {
             domains,
             ..Self::default()
-        }
+        };
+        let constants: Vec<String> = monitor.domains.values().flatten().cloned().collect();
+        monitor.progress.dag.add_constants(constants);
+        monitor
     }
 
-    /// Adds a formula, evaluated from the next state on. Returns its index.
+    /// Adds a formula, evaluated from the next state on. Returns its index. The constants of
+    /// the sets it quantifies over are constants for every formula of the monitor from now on
+    /// (a name without arguments that is no constant is a symbol: unknown in a state that
+    /// does not give it, `docs/mstl.md`).
     pub fn add(&mut self, formula: &Formula) -> Result<usize, CompileError> {
         let root = compile(&mut self.progress.dag, formula, &self.domains)?;
+        let mut constants = std::collections::BTreeSet::new();
+        crate::ground::collect_set_constants(formula, &mut constants);
+        self.progress.dag.add_constants(constants);
         self.history = self.history.max(history(formula));
         self.entries.push(Entry {
             initial: root,

@@ -4,7 +4,7 @@
 //! shortest prefix that decides it by that evaluator — never earlier and never later.
 #![expect(clippy::unwrap_used, reason = "tests")]
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use dyknow_mstl::{
     Atom, Cmp, Domain, Formula, Interval, Monitor, Rcc8, Region, Term, Truth, Valuation, Value,
@@ -81,6 +81,51 @@ fn key(t: &Term) -> String {
     }
 }
 
+thread_local! {
+    /// The constants of the formulas evaluated together (those of their sets: the tests give
+    /// no named domains). A name without arguments that is none is a symbol, unknown where
+    /// the state does not give it (`docs/mstl.md`, "Atoms").
+    static CONSTANTS: std::cell::RefCell<BTreeSet<String>> = const {
+        std::cell::RefCell::new(BTreeSet::new())
+    };
+}
+
+/// The constants of the sets `f` quantifies over.
+fn set_constants(f: &Formula, out: &mut BTreeSet<String>) {
+    match f {
+        Formula::True | Formula::False | Formula::Atom(_) => {}
+        Formula::Not(a)
+        | Formula::Always(_, a)
+        | Formula::Eventually(_, a)
+        | Formula::Next(_, a) => {
+            set_constants(a, out);
+        }
+        Formula::And(a, b)
+        | Formula::Or(a, b)
+        | Formula::Implies(a, b)
+        | Formula::Iff(a, b)
+        | Formula::Until(_, a, b) => {
+            set_constants(a, out);
+            set_constants(b, out);
+        }
+        Formula::Forall(_, d, body) | Formula::Exists(_, d, body) => {
+            if let Domain::Set(cs) = d {
+                out.extend(cs.iter().cloned());
+            }
+            set_constants(body, out);
+        }
+    }
+}
+
+/// The evaluator's constants are those of `formulas`, monitored together.
+fn constants_of(formulas: &[Formula]) {
+    let mut constants = BTreeSet::new();
+    for f in formulas {
+        set_constants(f, &mut constants);
+    }
+    CONSTANTS.with(|c| *c.borrow_mut() = constants);
+}
+
 /// A term's value at a state: numbers, or a constant's own name.
 fn term_value(t: &Term, s: &State) -> Option<Result<f64, String>> {
     match t {
@@ -89,7 +134,9 @@ fn term_value(t: &Term, s: &State) -> Option<Result<f64, String>> {
         Term::Name { name, args } => match s.values.get(&key(t)) {
             Some(V::N(n)) => Some(Ok(*n)),
             Some(V::B(_)) => None,
-            None if args.is_empty() => Some(Err(name.clone())),
+            None if args.is_empty() && CONSTANTS.with(|c| c.borrow().contains(name)) => {
+                Some(Err(name.clone()))
+            }
             None => None,
         },
     }
@@ -527,6 +574,7 @@ proptest! {
         trace in trace(),
     ) {
         let got = monitored(&formulas, &trace);
+        constants_of(&formulas);
         for (f, g) in formulas.iter().zip(&got) {
             prop_assert_eq!(*g, expected(f, &trace), "{} on {:?}", f, trace);
         }
@@ -817,6 +865,7 @@ proptest! {
         trace in trace(),
     ) {
         let got = monitored(&formulas, &trace);
+        constants_of(&formulas);
         for (f, g) in formulas.iter().zip(&got) {
             prop_assert_eq!(*g, expected(f, &trace), "{} on {:?}", f, trace);
         }

@@ -278,6 +278,66 @@ fn absent_values_are_unknown() {
     );
 }
 
+/// A name without arguments that is no constant (of a domain, or of a set a formula
+/// quantifies over) is a symbol: a formula group gives it a stream, and a state without its
+/// value leaves a comparison with it unknown, not decided as if the name were its value (a
+/// user audit: `always (mode = "auto")` was false, and `eventually (mode != "auto")` true, at
+/// the first state, with no sample of `mode`). Constants still denote themselves.
+#[test]
+fn a_symbol_without_a_value_is_unknown_and_a_constant_denotes_itself() {
+    let formulas = [
+        r#"mode = "auto""#,
+        r#"mode != "auto""#,
+        "s = s",
+        "s = t",
+        "exists c in {a, b}: c = b",
+        "forall c in {a, b}: c = a",
+        "uav1 = uav2",
+        "a = b",
+    ];
+    let domains = [("UAV".to_owned(), vec!["uav1".to_owned(), "uav2".to_owned()])].into();
+    let mut m = Monitor::with_domains(domains);
+    for f in formulas {
+        m.add(&parse(f).unwrap()).unwrap();
+    }
+    let mut stream = StateStream::default();
+    let decided = truths(stream.step(&mut m, State::new(0)).unwrap());
+    assert_eq!(
+        decided,
+        [
+            (4, Truth::True, 0),
+            (5, Truth::False, 0),
+            (6, Truth::False, 0),
+            // `a` and `b` are constants of the sets of formulas 4 and 5.
+            (7, Truth::False, 0),
+        ]
+    );
+    let given = State::new(100)
+        .with_value("mode", "auto")
+        .with_value("s", 1.0)
+        .with_value("t", 1.0);
+    let mut m2 = monitor(&formulas[..4]);
+    let decided = truths(stream.step(&mut m2, given).unwrap());
+    assert_eq!(
+        decided,
+        [
+            (0, Truth::True, 100),
+            (1, Truth::False, 100),
+            (2, Truth::True, 100),
+            (3, Truth::True, 100),
+        ]
+    );
+    assert_eq!(
+        truths(&m.finish()),
+        [
+            (0, Truth::Unknown, 0),
+            (1, Truth::Unknown, 0),
+            (2, Truth::Unknown, 0),
+            (3, Truth::Unknown, 0),
+        ]
+    );
+}
+
 /// Constraints are converted and intersected per pair as they are added; what allows nothing
 /// is refused at once, with the regions.
 #[test]
