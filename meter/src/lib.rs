@@ -162,6 +162,29 @@ pub fn over_budget() -> bool {
         .unwrap_or(false)
 }
 
+/// Whether the calling thread may hold `bytes` more without passing its innermost [`Budget`]
+/// (true without a budget, or without [`Counting`]). When it may not, the budget trips as an
+/// allocation passing it would (its hook called, once): for work that can tell what it is
+/// about to allocate (a string function that would build a string of gigabytes from a few
+/// megabytes) and stop before rather than after.
+#[must_use]
+pub fn reserve(bytes: usize) -> bool {
+    STATE
+        .try_with(|state| {
+            let ceiling = state.ceiling.get();
+            if ceiling == isize::MAX || state.held.get().saturating_add(signed(bytes)) <= ceiling {
+                return true;
+            }
+            if !state.tripped.replace(true)
+                && let Some(hook) = state.hook.get()
+            {
+                hook();
+            }
+            false
+        })
+        .unwrap_or(true)
+}
+
 /// A ceiling on the bytes the calling thread may hold more than when the budget started, until
 /// it is dropped. Budgets nest: the innermost one is checked, and dropping it restores the one
 /// around it, which trips then (its hook called) if the thread passed its ceiling meanwhile

@@ -187,3 +187,23 @@ proptest! {
         prop_assert!(budget.peak() >= budget.held());
     }
 }
+
+#[test]
+fn a_reservation_past_the_ceiling_trips_the_budget_without_allocating() {
+    // No budget: anything may be reserved.
+    assert!(dyknow_meter::reserve(usize::MAX));
+    let budget = Budget::start_with(1 << 16, hook);
+    let before = HOOKED.with(std::cell::Cell::get);
+    assert!(dyknow_meter::reserve(1 << 10));
+    assert!(!budget.tripped());
+    assert!(!dyknow_meter::reserve(1 << 17));
+    assert!(budget.tripped(), "a refused reservation trips the budget");
+    assert_eq!(
+        HOOKED.with(std::cell::Cell::get),
+        before + 1,
+        "and calls its hook"
+    );
+    assert!(!dyknow_meter::reserve(1 << 17));
+    assert_eq!(HOOKED.with(std::cell::Cell::get), before + 1, "once");
+    assert!(budget.held() < 1 << 12, "nothing was allocated");
+}

@@ -851,6 +851,53 @@ fn a_query_over_its_memory_limit_is_cancelled_before_the_service_grows() {
         "SELECT (COUNT(*) AS ?n) WHERE { ?s ?p ?o }",
     );
     assert_eq!(status, 200, "{body}");
+
+    // One CONCAT of 512 copies of a 4 MiB string builds 2 GiB in one call, before any
+    // check of the budget: a user audit saw the service reach 4.2 GB under this 16 MiB limit.
+    // The string functions ask for their room first.
+    let mut amplify =
+        String::from("SELECT (STRLEN(?x) AS ?n) WHERE { BIND(CONCAT(\"a\", \"a\") AS ?x0)");
+    for level in 1..=7 {
+        let previous = format!("?x{}", level - 1);
+        amplify += &format!(
+            " BIND(CONCAT({}) AS ?x{level})",
+            vec![previous; 8].join(", ")
+        );
+    }
+    amplify += &format!(" BIND(CONCAT({}) AS ?x) }}", vec!["?x7"; 512].join(", "));
+    let resident = status_kb(pid, "VmRSS");
+    if let Err(e) = std::fs::write(format!("/proc/{pid}/clear_refs"), "5") {
+        eprintln!("the peak is not reset ({e}): the earlier one counts too");
+    }
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        &amplify,
+    );
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("16 MiB"), "{body}");
+    let grown = status_kb(pid, "VmHWM").saturating_sub(resident);
+    eprintln!("the CONCAT grew the service by {grown} kB: {body}");
+    assert!(
+        grown < 200 * 1024,
+        "the service grew by {grown} kB for a CONCAT bounded to 16 MiB"
+    );
+    // REPLACE quadruples at each of 20 levels: 4^20 bytes asked for.
+    let mut replaced = String::from("\"a\"");
+    for _ in 0..20 {
+        replaced = format!("REPLACE({replaced}, \"a\", \"$0$0$0$0\")");
+    }
+    let (status, body) = post(
+        &agent,
+        &format!("{base}/sparql"),
+        "application/sparql-query",
+        &format!("SELECT (STRLEN({replaced}) AS ?n) WHERE {{}}"),
+    );
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("16 MiB"), "{body}");
+    let grown = status_kb(pid, "VmHWM").saturating_sub(resident);
+    assert!(grown < 200 * 1024, "the service grew by {grown} kB");
     server.kill9();
 }
 

@@ -11,6 +11,7 @@ use crate::error::{SparqlQueryError, SyntaxErrorDetail};
 use crate::knowledge_base::KnowledgeBase;
 
 mod guard;
+mod strings;
 
 thread_local! {
     /// The token of the query with a memory budget running on this thread, for

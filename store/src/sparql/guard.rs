@@ -49,7 +49,7 @@ use spargebra::algebra::{
 };
 use spargebra::term::Variable;
 
-use super::{sub_expressions, sub_expressions_mut};
+use super::{strings, sub_expressions, sub_expressions_mut};
 use crate::error::SparqlQueryError;
 
 /// The custom function the guard calls once per solution.
@@ -84,6 +84,12 @@ pub(crate) fn prepare(query: spargebra::Query, token: &CancellationToken) -> Pre
     evaluator(token).for_query(guard_query(query))
 }
 
+/// `query` as [`prepare`] rewrites it (for tests).
+#[cfg(test)]
+pub(crate) fn rewritten(query: spargebra::Query) -> spargebra::Query {
+    guard_query(query)
+}
+
 /// `query` with its patterns guarded (see the module's documentation).
 fn guard_query(mut query: spargebra::Query) -> spargebra::Query {
     let pattern = match &mut query {
@@ -116,17 +122,36 @@ fn evaluator(token: &CancellationToken) -> SparqlEvaluator {
             }
         }));
     });
-    let token = token.clone();
-    SparqlEvaluator::new()
+    let alive = token.clone();
+    let mut evaluator = SparqlEvaluator::new()
         .with_cancellation_token(token.clone())
         .with_custom_function(NamedNode::new_unchecked(ALIVE), move |_| {
-            if token.is_cancelled() {
+            if alive.is_cancelled() {
                 std::panic::panic_any(Cancelled);
             }
             // A simple literal: true as an effective boolean value, and the cheapest term
             // for the evaluator to take in (no datatype to read).
             Some(Term::Literal(Literal::new_simple_literal("1")))
-        })
+        });
+    type StringFunction = fn(&[Term], strings::Refused<'_>) -> Option<Term>;
+    let functions: [(&str, StringFunction); 3] = [
+        (strings::CONCAT, strings::concat),
+        (strings::REPLACE, strings::replace),
+        (strings::ENCODE_FOR_URI, strings::encode_for_uri),
+    ];
+    for (iri, function) in functions {
+        let token = token.clone();
+        evaluator = evaluator.with_custom_function(NamedNode::new_unchecked(iri), move |args| {
+            // A refused reservation tripped the budget, whose hook cancelled the token: the
+            // query stops here, and is reported as over its memory limit.
+            let stop = || std::panic::panic_any(Cancelled);
+            if token.is_cancelled() {
+                stop();
+            }
+            function(args, &stop)
+        });
+    }
+    evaluator
 }
 
 static HOOK: Once = Once::new();
@@ -147,11 +172,35 @@ pub(crate) fn evaluate<T>(
 /// Guards the pattern of every `EXISTS` in `expression` as a query's pattern is guarded: its
 /// solutions, made once per solution of the pattern around it, are checked too (a join inside
 /// `FILTER EXISTS` whose filter rejects every row ran unchecked to its end).
+///
+/// Calls of `CONCAT`, `REPLACE` and `ENCODE_FOR_URI` become calls of the custom functions of
+/// the same semantics that check the memory budget before they build ([`super::strings`]).
 fn exists(mut expression: Expression) -> Expression {
     fn visit(expression: &mut Expression) {
         if let Expression::Exists(pattern) = expression {
             **pattern = guard(walk(take(pattern)));
         } else {
+            if let Expression::FunctionCall(function, _) = expression {
+                let custom = match function {
+                    Function::Concat => Some(strings::CONCAT),
+                    Function::Replace => Some(strings::REPLACE),
+                    Function::EncodeForUri => Some(strings::ENCODE_FOR_URI),
+                    _ => None,
+                };
+                if let Some(iri) = custom {
+                    *function = Function::Custom(NamedNode::new_unchecked(iri));
+                }
+            }
+            // A custom function's arguments are copied into terms before it runs: a `CONCAT`
+            // of many arguments is a balanced tree of `CONCAT`s of two (the same value: it is
+            // associative, and keeps a tag only all its arguments share), each of which looks
+            // at the budget before the next copies its arguments.
+            if let Expression::FunctionCall(Function::Custom(iri), args) = expression
+                && iri.as_str() == strings::CONCAT
+                && args.len() > 2
+            {
+                *args = pairs(std::mem::take(args), iri);
+            }
             for operand in sub_expressions_mut(expression) {
                 visit(operand);
             }
@@ -159,6 +208,27 @@ fn exists(mut expression: Expression) -> Expression {
     }
     visit(&mut expression);
     expression
+}
+
+/// `args` as two arguments of `concat`: each half of them, itself a call of `concat` when it
+/// has more than one.
+fn pairs(mut args: Vec<Expression>, concat: &NamedNode) -> Vec<Expression> {
+    let right = args.split_off(args.len() / 2);
+    [args, right]
+        .into_iter()
+        .map(|mut half| {
+            if half.len() == 1 {
+                half.remove(0)
+            } else {
+                let half = if half.len() > 2 {
+                    pairs(half, concat)
+                } else {
+                    half
+                };
+                Expression::FunctionCall(Function::Custom(concat.clone()), half)
+            }
+        })
+        .collect()
 }
 
 /// Guards the pattern under every sub-`SELECT`, `GROUP BY` and `EXISTS` of `pattern`.
