@@ -240,6 +240,9 @@ pub struct StreamStats {
     pub missing_states: u64,
 }
 
+/// At most this many states of the time a resumed group was down are made up ([`Synchroniser::start`]).
+pub const MAX_CATCH_UP: u64 = 100_000;
+
 /// At most this many samples wait per stream; older ones are dropped as late.
 pub const MAX_PENDING: usize = 65_536;
 
@@ -288,8 +291,12 @@ impl<V: Clone> Synchroniser<V> {
         self.policy
     }
 
-    /// Starts emitting states: the first is the first multiple of the period after both `now`
-    /// and the last state emitted (a resumed group goes on after its trace).
+    /// Starts emitting states: the first is the first multiple of the period after `now`. A
+    /// resumed group (after [`Synchroniser::resume_after`]) goes on with the multiple after its
+    /// last state, as after a stall: the states of the time it was down are due at once, each
+    /// without samples (unknown), so that a window that fell in that time is not decided
+    /// without a state in it (an `always` over it was true, an `eventually` false: a user
+    /// audit). At most [`MAX_CATCH_UP`] of them: a longer time down is skipped beyond.
     pub fn start(&mut self, now: u64) {
         if matches!(self.policy, Policy::Hold { .. }) && self.last_t.is_none() {
             // A fresh `hold` start waits for the first sample (module documentation).
@@ -297,7 +304,9 @@ impl<V: Clone> Synchroniser<V> {
             return;
         }
         if let Some(p) = self.policy.period() {
-            let from = self.last_t.map_or(now, |l| l.max(now));
+            let from = self.last_t.map_or(now, |l| {
+                l.max(now.saturating_sub(MAX_CATCH_UP.saturating_mul(p)))
+            });
             self.next_t = Some((from / p + 1) * p);
         } else {
             self.next_t = Some(0);

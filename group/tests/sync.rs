@@ -317,6 +317,44 @@ fn a_resumed_synchroniser_goes_on_after_the_recorded_states() {
     assert_eq!(s.offer(0, 5_100, 2, 5_100), vec![st(5_100, &[Some(2)])]);
 }
 
+/// A group resumed after time down goes on with the grid after its last state: the states of
+/// that time are due at once, without samples (unknown), so a window that fell in it has
+/// states in it; at most `MAX_CATCH_UP` of them (beyond, the time is skipped).
+#[test]
+fn a_resumed_synchroniser_makes_up_the_states_of_its_time_down() {
+    use dyknow_group::sync::MAX_CATCH_UP;
+    for policy in [
+        wait(100, 0),
+        Policy::Hold {
+            period_ms: 100,
+            max_age_ms: 1_000,
+            max_delay_ms: Some(0),
+        },
+    ] {
+        let mut s = Synchroniser::<i32>::new(policy, 1);
+        s.resume_after(Some(5_000));
+        s.start(8_050);
+        let states = s.poll(8_050);
+        let times: Vec<u64> = states.iter().map(|s| s.t).collect();
+        assert_eq!(
+            times,
+            (51..=80).map(|k| k * 100).collect::<Vec<_>>(),
+            "{policy:?}"
+        );
+        assert!(states.iter().all(|s| s.values == [None]), "{states:?}");
+        assert_eq!(s.stats(0).missing_states, 30, "{policy:?}");
+        // A sample now is on time for the next state.
+        assert_eq!(s.offer(0, 8_100, 7, 8_100), vec![st(8_100, &[Some(7)])]);
+    }
+    let mut s = Synchroniser::<i32>::new(wait(100, 0), 1);
+    s.resume_after(Some(0));
+    let now = (MAX_CATCH_UP + 1_000) * 100;
+    s.start(now);
+    let states = s.poll(now);
+    assert_eq!(states.len() as u64, MAX_CATCH_UP);
+    assert_eq!(states[0].t, 1_000 * 100 + 100);
+}
+
 #[test]
 fn policies_are_validated() {
     assert!(wait(0, 1).validate().is_err());
