@@ -533,6 +533,63 @@ mod tests {
             kb.check_identities(&other_kind),
             Err(IngestError::Invalid(_))
         ));
+
+        // A spec given another label's minted IRI, or any other of the service's own, or a
+        // built-in term, is refused; its own minted IRI is taken (an export loads back).
+        let named = |iri: &str, label: &str| {
+            extracted(
+                format!(
+                    "@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+                     @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+                     {iri} a dyknow:Transformation ; rdfs:label \"{label}\" ;
+                       dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] ."
+                )
+                .as_bytes(),
+            )
+        };
+        let refused = |specs: &[crate::spec::ExtractedSpec], why: &str| {
+            let Err(IngestError::Invalid(SpecValidationError(v))) = kb.check_identities(specs)
+            else {
+                panic!("{why}: taken")
+            };
+            v[0].constraint.clone()
+        };
+        for iri in [
+            "<urn:dyknow:transformation:zz>",
+            "<urn:dyknow:cu:cu-1>",
+            "<urn:dyknow:changeset:cs-1>",
+        ] {
+            let why = refused(&named(iri, "yy"), iri);
+            assert!(why.contains("urn:dyknow:transformation:yy"), "{why}");
+        }
+        for iri in ["dyknow:Transformation", "rdfs:label"] {
+            let why = refused(&named(iri, "yy"), iri);
+            assert!(why.contains("built-in vocabulary"), "{why}");
+        }
+        kb.check_identities(&named("<urn:dyknow:transformation:yy>", "yy"))
+            .expect("its own minted IRI");
+        kb.post_specs(
+            b"@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+              @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+              <urn:dyknow:transformation:zz> a dyknow:Transformation ; rdfs:label \"zz\" ;
+                dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] .",
+            InputFormat::Turtle,
+            SpecKind::Transformation,
+        )
+        .expect("zz at its own IRI");
+        let mut again = named("<urn:dyknow:transformation:zz>", "zz");
+        again[0].given_iri = None;
+        kb.check_identities(&again)
+            .expect("the same spec, as a blank node");
+        let both = extracted(
+            b"@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
+              @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .
+              <urn:dyknow:transformation:q> a dyknow:Transformation ; rdfs:label \"q\" ;
+                dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] .
+              [] a dyknow:Transformation ; rdfs:label \"r\" ;
+                dyknow:hasOutPort [ dyknow:hasName \"o\" ; dyknow:hasTag [ dyknow:hasValue \"X\" ] ] .",
+        );
+        kb.check_identities(&both).expect("two resources");
     }
 
     #[test]

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use super::KnowledgeBase;
 use crate::error::{IngestError, SpecValidationError, Violation};
-use crate::graphs::{extension_graph, graph_hash, spec_graph, spec_of_graph};
+use crate::graphs::{extension_graph, graph_hash, spec_graph, spec_of_graph, spec_resource};
 use crate::rdf_input::{InputFormat, fresh_blank_nodes, parse_triples};
 use crate::spec::{ExtractedSpec, Spec, SpecKind, extract_specs, spec_from_graph};
 
@@ -142,13 +142,74 @@ impl KnowledgeBase {
         Ok(report)
     }
 
-    /// A spec given by IRI must not be the resource of another spec already.
+    /// A spec's resource (the IRI the document gave, or the one minted for its label) is its
+    /// own: not the resource of another spec, stored or in the same document (a spec given
+    /// `<urn:dyknow:transformation:zz>` labelled "yy", then a blank node labelled "zz", made
+    /// two specs of one resource, whose export did not load back: a user audit). An IRI the
+    /// document gives is not one of the service's own (`urn:dyknow:…`: CUs, channels, change
+    /// sets, another label's minted IRI) other than the one minted for the spec's own label
+    /// (an export loads back), nor a term of the built-in vocabularies (`dyknow:`, `dkros:`,
+    /// RDF, RDFS, OWL, XSD).
     pub(super) fn check_identities(&self, specs: &[ExtractedSpec]) -> Result<(), IngestError> {
+        const BUILT_IN: [&str; 6] = [
+            dyknow_ontology::vocab::dyknow::NAMESPACE,
+            dyknow_ontology::vocab::dkros::NAMESPACE,
+            "http://www.w3.org/1999/02/22-rdf-syntax-ns#",
+            "http://www.w3.org/2000/01/rdf-schema#",
+            "http://www.w3.org/2002/07/owl#",
+            "http://www.w3.org/2001/XMLSchema#",
+        ];
         let mut violations = Vec::new();
+        let mut in_document: BTreeMap<String, (SpecKind, &str)> = BTreeMap::new();
         for spec in specs {
-            let Some(iri) = &spec.given_iri else { continue };
+            let (kind, label) = (spec.spec.kind(), spec.spec.label());
+            let minted = spec_resource(kind, label);
+            let resource = spec
+                .given_iri
+                .as_ref()
+                .map_or_else(|| minted.clone(), |iri| iri.as_str().to_owned());
+            if spec.given_iri.is_some() {
+                if resource.starts_with("urn:dyknow:") && resource != minted {
+                    violations.push(Violation::new(
+                        format!(
+                            "<{resource}> is an IRI of the service's own (urn:dyknow:…): a {} \
+                             labelled {label:?} given an IRI of that namespace must be <{minted}> \
+                             (or give it a blank node, or an IRI of your own)",
+                            kind.name()
+                        ),
+                        label,
+                    ));
+                    continue;
+                }
+                if let Some(ns) = BUILT_IN.iter().find(|ns| resource.starts_with(**ns)) {
+                    violations.push(Violation::new(
+                        format!(
+                            "<{resource}> is a term of a built-in vocabulary ({ns}), not a \
+                             {}'s resource",
+                            kind.name()
+                        ),
+                        label,
+                    ));
+                    continue;
+                }
+            }
+            match in_document.insert(resource.clone(), (kind, label)) {
+                Some((other_kind, other)) if (other_kind, other) != (kind, label) => {
+                    violations.push(Violation::new(
+                        format!(
+                            "one resource describes one spec: <{resource}> is the {} labelled \
+                             {other:?} in this document too",
+                            other_kind.name()
+                        ),
+                        label,
+                    ));
+                    continue;
+                }
+                _ => {}
+            }
+            let node = NamedNode::new_unchecked(resource.as_str());
             for quad in self.store.quads_for_pattern(
-                Some(NamedOrBlankNodeRef::from(iri.as_ref())),
+                Some(NamedOrBlankNodeRef::from(node.as_ref())),
                 Some(rdfs::LABEL),
                 None,
                 None,
@@ -157,16 +218,16 @@ impl KnowledgeBase {
                 let oxigraph::model::GraphName::NamedNode(g) = &quad.graph_name else {
                     continue;
                 };
-                if let Some((kind, label)) = spec_of_graph(g.as_str())
-                    && (kind != spec.spec.kind() || label != spec.spec.label())
+                if let Some((other_kind, other)) = spec_of_graph(g.as_str())
+                    && (other_kind != kind || other != label)
                 {
                     violations.push(Violation::new(
                         format!(
-                            "one resource describes one spec: <{}> is already the {} labelled {label:?}",
-                            iri.as_str(),
-                            kind.name()
+                            "one resource describes one spec: <{resource}> is already the {} \
+                             labelled {other:?}",
+                            other_kind.name()
                         ),
-                        spec.spec.label(),
+                        label,
                     ));
                 }
             }
