@@ -502,6 +502,17 @@ async fn ontology_post_list_delete_and_errors() {
     ))
     .await
     .expect_error(404);
+    // Not an IRI, not UTF-8 once decoded (it was decoded to U+FFFD), or two graphs: 400, as
+    // `/sparql` answers (they were 404 for a graph nobody named).
+    for query in [
+        "graph=not%20an%20iri",
+        "graph=%FF",
+        "graph=http%3A%2F%2Fe%2Fa&graph=http%3A%2F%2Fe%2Fb",
+    ] {
+        api.delete(&format!("/ontology?{query}"))
+            .await
+            .expect_error(400);
+    }
     assert_eq!(api.snapshot().await, before);
     assert_eq!(
         api.get("/ontology").await.json().as_array().unwrap().len(),

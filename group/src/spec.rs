@@ -275,6 +275,13 @@ pub fn validate(spec: &GroupSpec) -> Result<(), SpecError> {
     }
     for r in spec.landmarks.iter().chain(&spec.static_regions) {
         check_name("a region", r)?;
+        // A region no formula can name (a space, a comma, a bracket) is refused as a domain
+        // constant is: it was taken, and nothing could ever refer to it (a user audit).
+        dyknow_mstl::check_constant(r).map_err(|e| {
+            SpecError::Invalid(format!(
+                "landmarks and static regions are names formulas write: {e}"
+            ))
+        })?;
     }
     Ok(())
 }

@@ -817,6 +817,14 @@ impl Manager {
                         "a CU name is 1 to {MAX_CU_NAME} characters without control characters"
                     )));
                 }
+                // A path segment clients resolve away (`/cus/..` is sent as `/`): such a CU
+                // could not be read or destroyed by name (a user audit), as a group of that
+                // label could not, which is refused too.
+                if name == "." || name == ".." {
+                    return Err(LifecycleError::InvalidName(format!(
+                        "a CU name cannot be {name:?} (URLs resolve it away)"
+                    )));
+                }
                 ids.reserve_cu(&name);
                 name
             }

@@ -445,6 +445,22 @@ fn uav_battery_and_spatial_groups() {
         service.post("/transformations", &read("groups", f));
     }
     let wait = json!({"policy": "wait", "period_ms": 100, "max_delay_ms": 500});
+    // A label that makes a default result channel Zenoh refuses: the message is about the
+    // label (it named a result_channel the user never gave).
+    let (status, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "lx3#", "formulas": ["p"]})),
+    );
+    assert_eq!(status, 422, "{answer}");
+    assert!(
+        answer["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("the label \"lx3#\""),
+        "{answer}"
+    );
     // (5.12) with the UAV domain: two targets.
     let uav = ["forall x in UAV: always (altitude(x) > 50)"];
     let (status, g) = send(
@@ -683,6 +699,46 @@ fn bad_groups_are_refused_and_nothing_is_created() {
             );
         }
     }
+    // Regions no formula can name, as domain constants (they were taken).
+    for body in [
+        json!({"formulas": ["p"], "landmarks": ["a b"]}),
+        json!({"formulas": ["p"], "static": ["a,b"]}),
+    ] {
+        let (got, answer) = send(&service, "POST", "/groups", Some(body.clone()));
+        assert_eq!(got, 422, "{body}: {answer}");
+        assert!(
+            answer["error"]
+                .as_str()
+                .unwrap()
+                .contains("names formulas write"),
+            "{answer}"
+        );
+    }
+    // Another group's result channel (two verdict streams mixed on one channel were taken).
+    let (got, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(json!({"label": "first", "formulas": ["p"]})),
+    );
+    assert_eq!(got, 201, "{answer}");
+    let (got, answer) = send(
+        &service,
+        "POST",
+        "/groups",
+        Some(
+            json!({"label": "second", "formulas": ["p"], "result_channel": "dyknow/verdicts/first"}),
+        ),
+    );
+    assert_eq!(got, 422, "{answer}");
+    assert!(
+        answer["error"]
+            .as_str()
+            .unwrap()
+            .contains("is the result channel of group \"first\""),
+        "{answer}"
+    );
+    assert_eq!(send(&service, "DELETE", "/groups/first", None).0, 204);
     // A grounding that is neither a tag nor a description says what a grounding is (it said
     // "data did not match any variant of untagged enum Grounding").
     for (grounding, why) in [

@@ -149,7 +149,10 @@ fn shape_error(query: &str, limit: usize) -> Option<String> {
 fn shape(query: &str, limit: usize) -> (Option<(usize, usize)>, usize) {
     let (mut depth, mut previous, mut found) = (0usize, ' ', None);
     let (mut operators, mut word) = (0usize, String::new());
+    // `||` and `&&` are one operator each (they counted twice, and a refusal said so).
+    let mut paired = false;
     scan(query, |c, at| {
+        let before = previous;
         match (previous, c) {
             ('<', '<') => {
                 depth += 1;
@@ -184,7 +187,12 @@ fn shape(query: &str, limit: usize) -> (Option<(usize, usize)>, usize) {
         }
         word.clear();
         if "|&/+-*^!".contains(c) {
-            operators += 1;
+            if matches!(c, '|' | '&') && before == c && !paired {
+                paired = true;
+            } else {
+                operators += 1;
+                paired = false;
+            }
         }
     });
     (found, operators)
@@ -476,7 +484,9 @@ impl ParsedQuery {
     /// groups, and the serialised answer) to `bytes`: past it, [`KnowledgeBase::run_query`]
     /// stops the evaluation and answers [`SparqlQueryError::MemoryLimit`]. Memory is counted by
     /// `dyknow_meter::Counting`, which the program must install as its global allocator (as
-    /// `dyknow serve` does); without it the bound is never reached. The allocation that passes
+    /// `dyknow serve` does); without it the bound is reached only by a `CONCAT`, `REPLACE` or
+    /// `ENCODE_FOR_URI` that would build more than all of it (`strings`, which ask for their
+    /// room first and so stop before they build past it). The allocation that passes
     /// it cancels the query's token, and the query stops where it checks the token: at every
     /// quad read, once per solution of a join or path (`guard`), once per row written. So it
     /// can be passed by one growth of a buffer (a doubling) and by what is made between two
@@ -783,6 +793,9 @@ mod tests {
             }
             let _ = shape_error(&text, 2);
         }
+        // `||` and `&&` are one operator; `|` (a path) is one too.
+        let chained = |op: &str| shape(&format!("ASK {{ FILTER(?a{op}?b{op}?c) }}"), 128).1;
+        assert_eq!((chained("||"), chained("&&"), chained("|")), (2, 2, 2));
     }
 
     fn deep_queries() {

@@ -462,10 +462,34 @@ impl Groups {
             .unwrap_or_else(|| format!("/dyknow/verdicts/{label}"));
         if let Some(plane) = &self.plane {
             plane.namespace.channel(&result_channel).map_err(|e| {
-                SpecError::Invalid(format!("result_channel {result_channel:?}: {e}"))
+                SpecError::Invalid(if spec.result_channel.is_some() {
+                    format!("result_channel {result_channel:?}: {e}")
+                } else {
+                    // The user gave a label, not a channel: say it is the label.
+                    format!(
+                        "the label {label:?} makes the result channel {result_channel:?}, which \
+                         Zenoh cannot take ({e}): choose another label, or give a result_channel"
+                    )
+                })
             })?;
         }
         self.check_result_channel(&result_channel)?;
+        // Two groups writing verdicts to one channel mix their streams (a user audit): a
+        // running or created group's channel is its own. (Under the map's lock, which
+        // `result_channel_user` would take again.)
+        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
+        if let Some(other) = map.values().find(|g| {
+            let core = g.core();
+            core.def.phase != Phase::Stopped
+                && bare(&core.def.result_channel) == bare(&result_channel)
+        }) {
+            return Err(SpecError::Invalid(format!(
+                "result_channel {result_channel:?} is the result channel of group {:?}: \
+                 verdicts would be written into that stream; choose another channel",
+                other.label
+            ))
+            .into());
+        }
         let header = TraceHeader {
             domains: spec.domains.clone(),
             landmarks: spec.landmarks.clone(),
