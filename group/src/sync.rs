@@ -243,6 +243,11 @@ pub struct StreamStats {
 /// At most this many states of the time a resumed group was down are made up ([`Synchroniser::start`]).
 pub const MAX_CATCH_UP: u64 = 100_000;
 
+/// At most this many states one [`Synchroniser::poll`] returns: after a long stall or a
+/// resume, the rest are due at the next poll at once (the group's thread lets go of its lock
+/// between them, so its status and changes are not held up for the whole catch-up).
+pub const MAX_STATES_PER_POLL: usize = 1_000;
+
 /// At most this many samples wait per stream; older ones are dropped as late.
 pub const MAX_PENDING: usize = 65_536;
 
@@ -464,7 +469,10 @@ impl<V: Clone> Synchroniser<V> {
             return out;
         };
         let d = self.policy.max_delay();
-        while now >= t && (now >= t.saturating_add(d) || self.complete(t, p)) {
+        while now >= t
+            && (now >= t.saturating_add(d) || self.complete(t, p))
+            && out.len() < MAX_STATES_PER_POLL
+        {
             out.push(self.emit_periodic(t, p));
             t += p;
             self.next_t = Some(t);

@@ -322,7 +322,7 @@ fn a_resumed_synchroniser_goes_on_after_the_recorded_states() {
 /// states in it; at most `MAX_CATCH_UP` of them (beyond, the time is skipped).
 #[test]
 fn a_resumed_synchroniser_makes_up_the_states_of_its_time_down() {
-    use dyknow_group::sync::MAX_CATCH_UP;
+    use dyknow_group::sync::{MAX_CATCH_UP, MAX_STATES_PER_POLL};
     for policy in [
         wait(100, 0),
         Policy::Hold {
@@ -350,9 +350,19 @@ fn a_resumed_synchroniser_makes_up_the_states_of_its_time_down() {
     s.resume_after(Some(0));
     let now = (MAX_CATCH_UP + 1_000) * 100;
     s.start(now);
-    let states = s.poll(now);
+    // A poll returns at most MAX_STATES_PER_POLL of them; the next ones follow.
+    let mut states = Vec::new();
+    loop {
+        let batch = s.poll(now);
+        assert!(batch.len() <= MAX_STATES_PER_POLL);
+        if batch.is_empty() {
+            break;
+        }
+        states.extend(batch);
+    }
     assert_eq!(states.len() as u64, MAX_CATCH_UP);
     assert_eq!(states[0].t, 1_000 * 100 + 100);
+    assert!(states.windows(2).all(|w| w[1].t == w[0].t + 100));
 }
 
 #[test]

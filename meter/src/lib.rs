@@ -163,7 +163,8 @@ pub fn over_budget() -> bool {
 }
 
 /// Whether the calling thread may hold `bytes` more without passing its innermost [`Budget`]
-/// (true without a budget, or without [`Counting`]). When it may not, the budget trips as an
+/// (true without a budget; without [`Counting`] nothing is counted as held, so only a
+/// reservation larger than the budget's whole limit is refused). When it may not, the budget trips as an
 /// allocation passing it would (its hook called, once): for work that can tell what it is
 /// about to allocate (a string function that would build a string of gigabytes from a few
 /// megabytes) and stop before rather than after.

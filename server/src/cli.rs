@@ -1089,7 +1089,7 @@ fn serve(args: ServeArgs) -> Result<(), Failure> {
     {
         return Err(Failure(
             2,
-            "--forget-executors-after must be a non-negative number of seconds".into(),
+            "--forget-executors-after must be a non-negative number of seconds below 1e9".into(),
         ));
     }
     if !(args.query_timeout.is_finite() && args.query_timeout > 0.0) {

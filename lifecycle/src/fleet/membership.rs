@@ -274,10 +274,15 @@ impl Inner {
             executors.remove(name);
             tokens.remove(name);
             tracing::info!(
-                "executor {name} forgotten: absent for {} s",
-                after.as_secs()
+                "executor {name} forgotten: absent for {} ms or more",
+                after.as_millis()
             );
         }
+        // A name whose token came and went before its `info` was ever taken has a token and
+        // nothing listed: its token goes too (nothing dates an answer of it any more).
+        tokens.retain(|name, token| {
+            token.up || token.probing || graces.contains_key(name) || executors.contains_key(name)
+        });
         forgotten
     }
 

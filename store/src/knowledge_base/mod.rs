@@ -581,6 +581,13 @@ mod tests {
         again[0].given_iri = None;
         kb.check_identities(&again)
             .expect("the same spec, as a blank node");
+        // A document that moves "a" off ex:thing and gives ex:thing to "c": consistent once
+        // written, so taken; "c" alone at ex:thing is not.
+        let mut moved = named("<http://example.org/ex#elsewhere>", "a");
+        moved.extend(named("<http://example.org/ex#thing>", "c"));
+        kb.check_identities(&moved)
+            .expect("a rename in one document");
+        refused(&moved[1..], "ex:thing is a's");
         let both = extracted(
             b"@prefix dyknow: <http://www.dyknow.eu/ontology/dyknow#> .
               @prefix rdfs: <http://www.w3.org/2000/01/rdf-schema#> .

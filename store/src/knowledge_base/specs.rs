@@ -161,6 +161,12 @@ impl KnowledgeBase {
         ];
         let mut violations = Vec::new();
         let mut in_document: BTreeMap<String, (SpecKind, &str)> = BTreeMap::new();
+        // The specs the document replaces: a stored spec of theirs gives its resource up (a
+        // rename or a swap of IRIs in one document is consistent once written).
+        let replaced: std::collections::BTreeSet<(&str, &str)> = specs
+            .iter()
+            .map(|s| (s.spec.kind().name(), s.spec.label()))
+            .collect();
         for spec in specs {
             let (kind, label) = (spec.spec.kind(), spec.spec.label());
             let minted = spec_resource(kind, label);
@@ -220,6 +226,7 @@ impl KnowledgeBase {
                 };
                 if let Some((other_kind, other)) = spec_of_graph(g.as_str())
                     && (other_kind != kind || other != label)
+                    && !replaced.contains(&(other_kind.name(), other.as_str()))
                 {
                     violations.push(Violation::new(
                         format!(
