@@ -235,10 +235,6 @@ pub struct ChangeSet {
     pub at: String,
     /// Why: the first of the causes the review served ([`Cause::merged`]).
     pub cause: Cause,
-    /// The other causes the same review served, merged ([`Cause::merged`]): a target added
-    /// while crashes were being repaired, say. Absent from JSON when there are none.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub other_causes: Vec<Cause>,
     /// The estimated cost (Def. 34).
     pub cost: CostSummary,
     /// The actions (Defs. 23–30).
@@ -260,6 +256,12 @@ pub struct ChangeSet {
     /// model-only mode, where nothing runs).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub cus: BTreeMap<Cid, CuOutcome>,
+    /// The other causes the same review served, merged ([`Cause::merged`]): a target added
+    /// while crashes were being repaired, say. Absent from JSON when there are none; last in
+    /// it, so that a change set's `cause` is followed by its `cost` as before (the README's
+    /// tour reads the two together with `grep`, and failed when a review served two targets).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_causes: Vec<Cause>,
 }
 
 impl ChangeSet {
@@ -269,7 +271,6 @@ impl ChangeSet {
             id,
             at: rfc3339(SystemTime::now()),
             cause,
-            other_causes: Vec::new(),
             cost: compiled.cost,
             actions: compiled.actions,
             delta,
@@ -278,6 +279,7 @@ impl ChangeSet {
             status: ChangeSetStatus::Planned,
             failures: Vec::new(),
             cus: BTreeMap::new(),
+            other_causes: Vec::new(),
         }
     }
 }
