@@ -59,6 +59,12 @@ impl Fake {
                              Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
                             body.len()
                         );
+                        // Closed with bytes of the client's still unread, the connection is
+                        // reset, and the client may see the reset before the answer (a CI
+                        // run: "Connection reset by peer"): the answer is ended, and what
+                        // the client sends is read until it closes.
+                        let _ = stream.shutdown(std::net::Shutdown::Write);
+                        let _ = std::io::copy(&mut stream, &mut std::io::sink());
                     }
                     Answer::Never => held.push(stream),
                 }
