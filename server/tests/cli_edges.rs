@@ -350,27 +350,24 @@ fn explore(extra: &[&str]) -> (i32, String, String) {
     run(&args, &[], QUICK)
 }
 
-/// A horizon whose costs would overflow (H × upkeep past `f64::MAX`: `"total": null` at 6e307,
-/// "no valid configuration" at 1e308) or that is not positive (`explore` took 0, `serve` did
-/// not) is bad usage, exit 2, in `explore` and `serve` alike; up to 1e12 it is taken.
-/// `dyknow serve --in-memory --model-only` on a free port with `arg`, as far as it gets
+/// `dyknow serve --in-memory --model-only` on a free port with `extra`, as far as it gets
 /// within `QUICK`: its exit code and stderr.
-fn serve_with(arg: &str) -> (i32, String) {
-    let (code, _, err) = run(
-        &[
-            "serve",
-            "--in-memory",
-            "--model-only",
-            "--bind",
-            "127.0.0.1:0",
-            arg,
-        ],
-        &[],
-        QUICK,
-    );
+fn serve_with(extra: &[&str]) -> (i32, String) {
+    let mut args = vec![
+        "serve",
+        "--in-memory",
+        "--model-only",
+        "--bind",
+        "127.0.0.1:0",
+    ];
+    args.extend_from_slice(extra);
+    let (code, _, err) = run(&args, &[], QUICK);
     (code, err)
 }
 
+/// A horizon whose costs would overflow (H × upkeep past `f64::MAX`: `"total": null` at 6e307,
+/// "no valid configuration" at 1e308) or that is not positive (`explore` took 0, `serve` did
+/// not) is bad usage, exit 2, in `explore` and `serve` alike; up to 1e12 it is taken.
 #[test]
 fn horizons_past_the_bound_or_not_positive_are_refused() {
     for h in ["6e307", "1e308", "1e13", "0", "-1", "inf", "NaN"] {
@@ -382,26 +379,12 @@ fn horizons_past_the_bound_or_not_positive_are_refused() {
             "explore --horizon {h}: {err}"
         );
         assert!(err.contains("--horizon"), "{h}: {err}");
-        let (code, err) = serve_with(&flag);
+        let (code, err) = serve_with(&[&flag]);
         assert_eq!(code, 2, "serve --horizon {h}: {err}");
         assert!(err.contains("--horizon"), "{h}: {err}");
     }
     // The stable interval H × time unit is bounded too (a larger one made `serve` panic).
-    let (code, _, err) = run(
-        &[
-            "serve",
-            "--in-memory",
-            "--model-only",
-            "--bind",
-            "127.0.0.1:0",
-            "--horizon",
-            "1e11",
-            "--time-unit",
-            "100",
-        ],
-        &[],
-        QUICK,
-    );
+    let (code, err) = serve_with(&["--horizon", "1e11", "--time-unit", "100"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("stable interval"), "{err}");
     let (code, out, err) = explore(&["--horizon", "1e12"]);
@@ -417,7 +400,7 @@ fn serve_durations_that_are_not_seconds_are_refused() {
     for flag in ["--reconcile-grace", "--forget-executors-after"] {
         for value in ["-1", "inf", "NaN", "1e300"] {
             let arg = format!("{flag}={value}");
-            let (code, err) = serve_with(&arg);
+            let (code, err) = serve_with(&[&arg]);
             assert_eq!(code, 2, "serve {arg}: {err}");
             assert!(err.contains(flag), "{arg}: {err}");
         }

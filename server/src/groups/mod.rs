@@ -477,7 +477,6 @@ impl Groups {
         // Two groups writing verdicts to one channel mix their streams (a user audit): a
         // running or created group's channel is its own. (Under the map's lock, which
         // `result_channel_user` would take again.)
-        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
         if let Some(other) = map.values().find(|g| {
             let core = g.core();
             core.def.phase != Phase::Stopped
@@ -935,7 +934,6 @@ impl Groups {
     /// The group whose verdicts go to `channel` now (one not stopped), if any: a target on
     /// that channel would have its stream mixed with verdict lines.
     pub fn result_channel_user(&self, channel: &str) -> Option<String> {
-        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
         let name = bare(channel);
         self.list().into_iter().find_map(|g| {
             let core = g.core();
@@ -950,7 +948,6 @@ impl Groups {
     /// nor one of the channels the engine names (`ch-N`: a later review may wire CUs through
     /// it), nor a symbol channel (`/dyknow/symbols/...`, groups' own targets).
     fn check_result_channel(&self, channel: &str) -> Result<(), GroupError> {
-        let bare = |c: &str| c.strip_prefix('/').unwrap_or(c).to_owned();
         let name = bare(channel);
         let refuse = |why: String| -> Result<(), GroupError> {
             Err(SpecError::Invalid(format!(
@@ -962,7 +959,7 @@ impl Groups {
         if name.starts_with("dyknow/symbols/") {
             return refuse("is a symbol channel".into());
         }
-        if Channel::from(name.as_str()).minted_number().is_some() {
+        if Channel::from(name).minted_number().is_some() {
             return refuse("is a name the engine gives channels between CUs".into());
         }
         let environment = self
@@ -1162,6 +1159,11 @@ fn target_turtle(tags: &[&TargetTag]) -> String {
         ));
     }
     doc
+}
+
+/// A channel's name without its leading `/` (`/a` and `a` are one channel).
+fn bare(channel: &str) -> &str {
+    channel.strip_prefix('/').unwrap_or(channel)
 }
 
 /// A running group's thread: samples and deadlines in, states and verdicts out.

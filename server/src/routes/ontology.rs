@@ -11,6 +11,7 @@ use utoipa::ToSchema;
 
 use crate::app::{AppState, in_turn};
 use crate::error::{ApiError, ErrorBody};
+use crate::routes::sparql::decode_strictly;
 use crate::routes::specs::input_format;
 
 pub(crate) fn router() -> Router<AppState> {
@@ -115,16 +116,10 @@ fn graph_param(raw: &str) -> Result<Option<String>, ApiError> {
     let mut graph = None;
     for pair in raw.split('&').filter(|p| !p.is_empty()) {
         let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
-        let decode = |part: &str| {
-            percent_encoding::percent_decode_str(&part.replace('+', " "))
-                .decode_utf8()
-                .map(std::borrow::Cow::into_owned)
-                .map_err(|_| ApiError::bad_request("a parameter is not UTF-8 once percent-decoded"))
-        };
-        if decode(key)? != "graph" {
+        if decode_strictly(key)? != "graph" {
             continue;
         }
-        if graph.replace(decode(value)?).is_some() {
+        if graph.replace(decode_strictly(value)?).is_some() {
             return Err(ApiError::bad_request(
                 "more than one \"graph\" parameter: a request removes one extension",
             ));

@@ -47,24 +47,26 @@ pub struct SparqlParams {
     pub named_graph_uri: Vec<String>,
 }
 
+/// A part of a query string or form body decoded strictly: `+` is a space, and a part that is
+/// not UTF-8 once percent-decoded is 400 (form decoding would make `%FF` U+FFFD and act on
+/// another value than the one sent).
+pub(crate) fn decode_strictly(part: &str) -> Result<String, ApiError> {
+    percent_encoding::percent_decode_str(&part.replace('+', " "))
+        .decode_utf8()
+        .map(std::borrow::Cow::into_owned)
+        .map_err(|_| ApiError::bad_request("a parameter is not UTF-8 once percent-decoded"))
+}
+
 impl SparqlParams {
     /// Reads the protocol's parameters from a query string or a form body, taking every
     /// `default-graph-uri` and `named-graph-uri` (they repeat) and ignoring unknown ones.
     fn from_pairs(text: &[u8]) -> Result<Self, ApiError> {
-        // Decoded strictly: `%FF` is no character (form decoding would make it U+FFFD and run
-        // another query than the one sent).
-        let decode = |part: &str| {
-            percent_encoding::percent_decode_str(&part.replace('+', " "))
-                .decode_utf8()
-                .map(std::borrow::Cow::into_owned)
-                .map_err(|_| ApiError::bad_request("a parameter is not UTF-8 once percent-decoded"))
-        };
         let text = std::str::from_utf8(text)
             .map_err(|_| ApiError::bad_request("the parameters are not UTF-8"))?;
         let mut params = Self::default();
         for pair in text.split('&').filter(|p| !p.is_empty()) {
             let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
-            let (key, value) = (decode(key)?, decode(value)?);
+            let (key, value) = (decode_strictly(key)?, decode_strictly(value)?);
             // The protocol allows one query (or update) per request: a second would silently
             // win over the first.
             let once = |slot: &mut Option<String>, value: String| {

@@ -175,7 +175,7 @@ pub(crate) fn evaluate<T>(
 ///
 /// Calls of `CONCAT`, `REPLACE` and `ENCODE_FOR_URI` become calls of the custom functions of
 /// the same semantics that check the memory budget before they build ([`super::strings`]).
-fn exists(mut expression: Expression) -> Expression {
+fn guard_expression(mut expression: Expression) -> Expression {
     fn visit(expression: &mut Expression) {
         if let Expression::Exists(pattern) = expression {
             **pattern = guard(walk(take(pattern)));
@@ -260,7 +260,7 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         } => G::LeftJoin {
             left: w(left),
             right: w(right),
-            expression: expression.map(exists),
+            expression: expression.map(guard_expression),
         },
         // A filter over a join may reject nearly every solution, and the optimiser merges it
         // with the guard into one conjunction whose order it chooses: such a filter checks
@@ -268,7 +268,7 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         // would be; a constant is left for the optimiser to fold).
         G::Filter { expr, inner } => {
             let inner = walk(*inner);
-            let expr = exists(expr);
+            let expr = guard_expression(expr);
             let expr = if multiplies(&inner) && !constant(&expr) {
                 checked(expr.clone(), expr)
             } else {
@@ -290,15 +290,15 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
         } => G::Extend {
             inner: w(inner),
             variable,
-            expression: exists(expression),
+            expression: guard_expression(expression),
         },
         G::OrderBy { inner, expression } => G::OrderBy {
             inner: w(inner),
             expression: expression
                 .into_iter()
                 .map(|order| match order {
-                    OrderExpression::Asc(e) => OrderExpression::Asc(exists(e)),
-                    OrderExpression::Desc(e) => OrderExpression::Desc(exists(e)),
+                    OrderExpression::Asc(e) => OrderExpression::Asc(guard_expression(e)),
+                    OrderExpression::Desc(e) => OrderExpression::Desc(guard_expression(e)),
                 })
                 .collect(),
         },
@@ -336,7 +336,7 @@ fn walk(pattern: GraphPattern) -> GraphPattern {
                             distinct,
                         } => AggregateExpression::FunctionCall {
                             name,
-                            expr: exists(expr),
+                            expr: guard_expression(expr),
                             distinct,
                         },
                         count @ AggregateExpression::CountSolutions { .. } => count,
